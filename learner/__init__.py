@@ -1,0 +1,1 @@
+"""learner: meta-learned personalised neural surrogates (metaPNS). Built in a later issue."""

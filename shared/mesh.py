@@ -1,0 +1,115 @@
+"""The mesh type: a dataclass of arrays shared by simgen and learner."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from shared.errors import MeshError
+
+__all__ = ["Mesh", "LongAxis", "CellType", "NODE_SETS"]
+
+CellType = Literal["triangle", "tetra"]
+
+#: Node sets a mesh may carry. ``surface`` is always present.
+NODE_SETS = ("surface", "epicardium", "endocardium", "base")
+
+
+@dataclass(frozen=True)
+class LongAxis:
+    """Ventricular frame: apex point, base-centre point and the 0-degree direction.
+
+    ``reference`` is a unit vector orthogonal to the long axis that defines the
+    circumferential angle 0 of AHA segments (towards the septum/RV where known).
+    """
+
+    apex: NDArray[np.float64]
+    base: NDArray[np.float64]
+    reference: NDArray[np.float64]
+
+    @property
+    def direction(self) -> NDArray[np.float64]:
+        """Unit vector from apex to base."""
+        d = np.asarray(self.base, float) - np.asarray(self.apex, float)
+        return d / np.linalg.norm(d)
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.asarray(self.base) - np.asarray(self.apex)))
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A triangle surface or tetrahedral volume mesh in millimetres.
+
+    Parameters
+    ----------
+    points : (N, 3) float64 node coordinates.
+    cells : (M, 3) or (M, 4) int32 node indices (triangles or tetrahedra).
+    node_sets : named int32 index arrays (see :data:`NODE_SETS`); ``surface``
+        is required: all nodes for a closed triangle mesh, boundary nodes for a
+        tetrahedral mesh.
+    axis : optional ventricular frame used by regional (AHA) scar specs.
+    name : identifier, used as the mesh id in stores.
+    """
+
+    points: NDArray[np.float64]
+    cells: NDArray[np.int32]
+    node_sets: dict[str, NDArray[np.int32]] = field(default_factory=dict)
+    axis: LongAxis | None = None
+    name: str = "mesh"
+
+    def __post_init__(self) -> None:
+        pts = np.asarray(self.points, dtype=np.float64)
+        cells = np.asarray(self.cells)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise MeshError(f"mesh {self.name!r}: points must have shape (N, 3), got {pts.shape}")
+        if cells.ndim != 2 or cells.shape[1] not in (3, 4):
+            raise MeshError(
+                f"mesh {self.name!r}: cells must have shape (M, 3) or (M, 4), got {cells.shape}"
+            )
+        if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
+            raise MeshError(f"mesh {self.name!r}: cell node index out of range [0, {len(pts)})")
+        sets = {k: np.asarray(v, dtype=np.int32) for k, v in self.node_sets.items()}
+        for key, idx in sets.items():
+            if idx.size and (idx.min() < 0 or idx.max() >= len(pts)):
+                raise MeshError(f"mesh {self.name!r}: node set {key!r} has indices out of range")
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "cells", cells.astype(np.int32, copy=False))
+        object.__setattr__(self, "node_sets", sets)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.points)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cells)
+
+    @property
+    def cell_type(self) -> CellType:
+        return "triangle" if self.cells.shape[1] == 3 else "tetra"
+
+    def nodes(self, name: str) -> NDArray[np.int32]:
+        """Indices of a named node set; a clear error if the mesh lacks it."""
+        try:
+            return self.node_sets[name]
+        except KeyError:
+            raise MeshError(
+                f"mesh {self.name!r} has no node set {name!r} (has: {sorted(self.node_sets)})"
+            ) from None
+
+    def edges(self) -> NDArray[np.int32]:
+        """Unique undirected edges (E, 2), sorted, lower index first."""
+        k = self.cells.shape[1]
+        pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
+        e = np.concatenate([self.cells[:, [i, j]] for i, j in pairs])
+        e.sort(axis=1)
+        return np.unique(e, axis=0).astype(np.int32)
+
+    def mean_edge_length(self) -> float:
+        e = self.edges()
+        return float(np.linalg.norm(self.points[e[:, 0]] - self.points[e[:, 1]], axis=1).mean())

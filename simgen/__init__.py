@@ -1,0 +1,1 @@
+"""simgen: Aliev-Panfilov simulation-data service."""
