@@ -1,0 +1,205 @@
+"""Activation-time and tissue maps on the mesh surface, written as PNG files.
+
+Figures are built on :class:`matplotlib.figure.Figure` with the Agg canvas,
+never through ``pyplot``: nothing needs a display, the caller's matplotlib
+backend is left alone, and no global figure registry keeps figures alive.
+Each panel draws the boundary triangles as a :class:`Poly3DCollection` with
+per-face colours (mean of the face's node values), head-light Lambert
+shading and equal axis scaling.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from os import PathLike
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize, to_rgba
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from mpl_toolkits.mplot3d import Axes3D
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+from numpy.typing import ArrayLike, NDArray
+
+from shared.errors import InputError
+from shared.mesh import Mesh
+from simgen.meshes.topology import boundary_faces
+
+__all__ = ["VIEWS", "surface_triangles", "plot_activation_maps", "plot_tissue"]
+
+#: Default camera views as (elevation, azimuth) in degrees: front and back.
+VIEWS: tuple[tuple[float, float], ...] = ((12.0, 0.0), (12.0, 180.0))
+
+_NAN_COLOUR = (0.72, 0.72, 0.72, 1.0)
+_TISSUE_COLOURS = {0: ("healthy", "#efd3c4"), 1: ("border zone", "#f28e2b"), 2: ("scar core", "#7a0b0b")}
+_PANEL_INCHES = (3.0, 3.4)
+_KEY_INCHES = 1.6
+_DPI = 120
+
+
+def surface_triangles(mesh: Mesh) -> NDArray[np.int32]:
+    """Triangles to draw: boundary faces of a tet mesh, or the cells of a triangle mesh."""
+    return boundary_faces(mesh.cells) if mesh.cell_type == "tetra" else mesh.cells
+
+
+def _eye(elev: float, azim: float) -> NDArray[np.float64]:
+    """Unit vector from the scene towards the camera of ``view_init(elev, azim)``."""
+    e, a = np.radians(elev), np.radians(azim)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def _shade(rgba: NDArray, tri_points: NDArray, eye: NDArray) -> NDArray:
+    """Head-light Lambert shading; ``abs`` so that face orientation does not matter."""
+    normal = np.cross(tri_points[:, 1] - tri_points[:, 0], tri_points[:, 2] - tri_points[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    light = 0.55 + 0.45 * np.abs(normal @ eye)
+    out = rgba.copy()
+    out[:, :3] *= light[:, None]
+    return out
+
+
+def _draw_surface(ax: Axes3D, mesh: Mesh, faces: NDArray, rgba: NDArray, view: tuple[float, float]) -> None:
+    """One panel: shaded triangles, camera ``view``, equal scaling, no axes."""
+    tri_points = mesh.points[faces]
+    shaded = _shade(rgba, tri_points, _eye(*view))
+    # Edges in the face colour hide the anti-aliasing seams between triangles.
+    poly = Poly3DCollection(tri_points, facecolors=shaded, edgecolors=shaded, linewidths=0.3)
+    ax.add_collection3d(poly)
+    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
+    ax.set_box_aspect(np.maximum(hi - lo, 1e-9 * np.ptp(mesh.points)), zoom=1.25)
+    ax.view_init(elev=view[0], azim=view[1])
+    ax.set_axis_off()
+
+
+def _mark_node(ax: Axes3D, mesh: Mesh, node: int, view: tuple[float, float]) -> None:
+    """Star at ``node`` unless it lies clearly on the far side of the vertical axis.
+
+    Only the horizontal part of the view direction counts, so nodes near the
+    long axis (the apex) are marked in every view.
+    """
+    p = mesh.points[node] - mesh.points.mean(axis=0)
+    a = np.radians(view[1])
+    if p[0] * np.cos(a) + p[1] * np.sin(a) < -0.1 * np.ptp(mesh.points[:, :2], axis=0).max() / 2:
+        return
+    ax.scatter(*mesh.points[node], marker="*", s=220, c="white", edgecolors="black", linewidths=1.0,
+               zorder=10, depthshade=False)
+
+
+def _grid(n_rows: int, n_cols: int) -> tuple[Figure, list[list[Axes3D]]]:
+    """Figure with an ``n_rows x n_cols`` grid of 3-D axes and a right margin for keys."""
+    width, height = _PANEL_INCHES[0] * n_cols + _KEY_INCHES, _PANEL_INCHES[1] * n_rows + 0.4
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    axes = [
+        [fig.add_subplot(n_rows, n_cols, r * n_cols + c + 1, projection="3d", computed_zorder=False)
+         for c in range(n_cols)]
+        for r in range(n_rows)
+    ]
+    fig.subplots_adjust(left=0.0, right=1 - _KEY_INCHES / width, bottom=0.02, top=1 - 0.45 / height,
+                        wspace=0.0, hspace=0.12)
+    return fig, axes
+
+
+def _key_x(fig: Figure, inches: float) -> float:
+    """Figure x-coordinate ``inches`` into the right-hand key margin."""
+    width = fig.get_figwidth()
+    return 1 - (_KEY_INCHES - inches) / width
+
+
+def _save(fig: Figure, path: str | PathLike[str]) -> None:
+    fig.savefig(path, dpi=_DPI, format="png", facecolor="white")
+
+
+def _check_nodal(mesh: Mesh, values: NDArray, what: str, ndim: int) -> None:
+    if values.ndim != ndim or values.shape[-1] != mesh.n_nodes:
+        expected = "(S, N)" if ndim == 2 else "(N,)"
+        raise InputError(
+            f"{what} must have shape {expected} with N = {mesh.n_nodes} nodes of mesh {mesh.name!r}, "
+            f"got {values.shape}"
+        )
+
+
+def _colour_range(values: NDArray) -> Normalize:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return Normalize(0.0, 1.0)
+    lo, hi = float(finite.min()), float(finite.max())
+    return Normalize(lo, hi if hi > lo else lo + 1.0)
+
+
+def plot_activation_maps(
+    mesh: Mesh,
+    activation: ArrayLike,
+    titles: Sequence[str],
+    path: str | PathLike[str],
+    units: str = "ms",
+    stim_nodes: Sequence[int] | None = None,
+    views: Sequence[tuple[float, float]] = VIEWS,
+    cmap: str = "turbo_r",
+) -> None:
+    """Activation-time maps, one row per simulation and one column per view, as a PNG.
+
+    Parameters
+    ----------
+    mesh : triangle or tetrahedral mesh (tets are drawn through their boundary faces).
+    activation : (S, N) activation times; NaN marks nodes that never activated (grey).
+    titles : one title per simulation.
+    path : output PNG file.
+    units : time units for the colour-bar label.
+    stim_nodes : optional stimulation node per simulation, drawn as a star where visible.
+    views : (elevation, azimuth) camera angles in degrees, one panel each.
+    cmap : colour map; the default runs red (early) to blue (late).
+    """
+    act = np.asarray(activation, dtype=np.float64)
+    _check_nodal(mesh, act, "activation", ndim=2)
+    if len(titles) != len(act):
+        raise InputError(f"got {len(titles)} titles for {len(act)} activation maps")
+    if stim_nodes is not None and (
+        len(stim_nodes) != len(act) or not all(0 <= int(s) < mesh.n_nodes for s in stim_nodes)
+    ):
+        raise InputError(f"stim_nodes must give one node id in [0, {mesh.n_nodes}) per activation map")
+    faces = surface_triangles(mesh)
+    colour_map = ScalarMappable(norm=_colour_range(act), cmap=cmap)
+    fig, axes = _grid(len(act), len(views))
+    for row, (values, title) in enumerate(zip(act, titles)):
+        face_values = values[faces].mean(axis=1)
+        rgba = colour_map.to_rgba(face_values)
+        rgba[np.isnan(face_values)] = _NAN_COLOUR
+        for ax, view in zip(axes[row], views):
+            _draw_surface(ax, mesh, faces, rgba, view)
+            ax.set_title(f"{title}  (azimuth {view[1]:g}\N{DEGREE SIGN})", fontsize=9, pad=-4)
+            if stim_nodes is not None:
+                _mark_node(ax, mesh, int(stim_nodes[row]), view)
+    cax = fig.add_axes((_key_x(fig, 0.15), 0.25, 0.2 / fig.get_figwidth(), 0.5))
+    fig.colorbar(colour_map, cax=cax, label=f"activation time ({units})")
+    if np.isnan(act).any():
+        fig.legend(handles=[Patch(color=_NAN_COLOUR, label="not activated")], loc="upper left",
+                   bbox_to_anchor=(_key_x(fig, 0.0), 0.24), fontsize=8, frameon=False)
+    _save(fig, path)
+
+
+def plot_tissue(mesh: Mesh, label: ArrayLike, path: str | PathLike[str], title: str = "tissue") -> None:
+    """Scar core / border zone / healthy tissue on the surface, two views, as a PNG.
+
+    ``label`` is the (N,) node label of :class:`shared.tissue.TissueFields`
+    (0 healthy, 1 border zone, 2 scar core); a face takes the highest label
+    of its nodes so that thin scars stay visible.
+    """
+    lab = np.asarray(label)
+    _check_nodal(mesh, lab, "label", ndim=1)
+    if not np.isin(lab, list(_TISSUE_COLOURS)).all():
+        raise InputError(f"tissue labels must be in {sorted(_TISSUE_COLOURS)}, got {np.unique(lab)}")
+    faces = surface_triangles(mesh)
+    palette = np.array([to_rgba(_TISSUE_COLOURS[k][1]) for k in sorted(_TISSUE_COLOURS)])
+    rgba = palette[lab[faces].max(axis=1).astype(np.intp)]
+    fig, axes = _grid(1, len(VIEWS))
+    for ax, view in zip(axes[0], VIEWS):
+        _draw_surface(ax, mesh, faces, rgba, view)
+        ax.set_title(f"azimuth {view[1]:g}\N{DEGREE SIGN}", fontsize=9, pad=-4)
+    fig.suptitle(title, fontsize=11)
+    fig.legend(handles=[Patch(color=c, label=n) for n, c in _TISSUE_COLOURS.values()],
+               loc="center right", fontsize=8, frameon=False)
+    _save(fig, path)

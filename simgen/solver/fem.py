@@ -1,0 +1,75 @@
+"""P1 finite elements on triangles (embedded in 3-D) and tetrahedra.
+
+The monodomain diffusion term ``div(D grad u)`` is discretised with linear
+elements and a lumped (row-sum) mass matrix, giving ``du/dt = -M^{-1} K u``.
+Element diffusivity is the mean of its nodes' diffusivities.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from shared.errors import MeshError
+from shared.mesh import Mesh
+
+__all__ = ["element_gradients", "stiffness_matrix", "lumped_mass", "diffusion_operator"]
+
+
+def element_gradients(points: NDArray[np.float64], cells: NDArray[np.integer]) -> tuple[NDArray, NDArray]:
+    """Gradients of the P1 basis functions and the cell measures.
+
+    Returns ``grads`` of shape (M, k, 3) (k = 3 or 4 nodes per cell) and the
+    cell areas/volumes (M,). For triangles in 3-D the gradients lie in the
+    triangle's plane.
+    """
+    p = points[cells]
+    if cells.shape[1] == 3:
+        e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        normal = np.cross(e1, e2)
+        twice_area = np.linalg.norm(normal, axis=1)
+        if np.any(twice_area <= 0):
+            raise MeshError(f"{int(np.sum(twice_area <= 0))} degenerate triangle(s) (zero area)")
+        n_hat = normal / twice_area[:, None]
+        # grad(phi_i) = n x e_i / (2A), with e_i the edge opposite node i, oriented ccw.
+        opposite = np.stack([p[:, 2] - p[:, 1], p[:, 0] - p[:, 2], p[:, 1] - p[:, 0]], axis=1)
+        grads = np.cross(n_hat[:, None, :], opposite) / twice_area[:, None, None]
+        return grads, 0.5 * twice_area
+    jac = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)  # (M,3,3)
+    det = np.linalg.det(jac)
+    if np.any(np.abs(det) <= 0):
+        raise MeshError(f"{int(np.sum(np.abs(det) <= 0))} degenerate tetrahedra (zero volume)")
+    inv = np.linalg.inv(jac)  # rows are gradients of the barycentric coordinates 1..3
+    g123 = inv
+    g0 = -g123.sum(axis=1, keepdims=True)
+    return np.concatenate([g0, g123], axis=1), np.abs(det) / 6.0
+
+
+def stiffness_matrix(mesh: Mesh, node_diffusivity: NDArray[np.float64]) -> sp.csr_matrix:
+    """Symmetric stiffness matrix ``K_ij = sum_e D_e |e| grad(phi_i) . grad(phi_j)``."""
+    grads, measure = element_gradients(mesh.points, mesh.cells)
+    d_cell = np.asarray(node_diffusivity, float)[mesh.cells].mean(axis=1)
+    local = np.einsum("mid,mjd->mij", grads, grads) * (d_cell * measure)[:, None, None]
+    k = mesh.cells.shape[1]
+    rows = np.repeat(mesh.cells, k, axis=1).ravel()
+    cols = np.tile(mesh.cells, (1, k)).ravel()
+    n = mesh.n_nodes
+    return sp.csr_matrix((local.ravel(), (rows, cols)), shape=(n, n))
+
+
+def lumped_mass(mesh: Mesh) -> NDArray[np.float64]:
+    """Row-sum lumped mass: each cell gives measure / k to each of its k nodes."""
+    _, measure = element_gradients(mesh.points, mesh.cells)
+    k = mesh.cells.shape[1]
+    return np.bincount(mesh.cells.ravel(), weights=np.repeat(measure / k, k), minlength=mesh.n_nodes)
+
+
+def diffusion_operator(mesh: Mesh, node_diffusivity: NDArray[np.float64]) -> sp.csr_matrix:
+    """``A = -M^{-1} K`` so that the diffusion step reads ``du/dt = A u``."""
+    K = stiffness_matrix(mesh, node_diffusivity)
+    m = lumped_mass(mesh)
+    A = -(sp.diags(1.0 / m) @ K).tocsr()
+    A.sum_duplicates()
+    A.sort_indices()
+    return A

@@ -1,0 +1,63 @@
+"""Explicit time-step limits.
+
+Forward Euler on ``du/dt = A u + f(u, v)`` is stable while ``dt`` times the
+largest magnitude of the linearised operator stays below 2. The diffusion
+part contributes ``lambda_max(M^{-1} K)``; the cubic reaction adds at most
+``k`` (its slope on [0, 1] is bounded by ``k (1 - a) < k``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from shared.errors import TimeStepError
+
+__all__ = ["largest_eigenvalue", "stability_limit", "choose_time_step"]
+
+#: Largest time step used for accuracy of the reaction (time units).
+DT_ACCURACY = 0.05
+#: Fraction of the stability limit used by the automatic time step.
+SAFETY = 0.8
+
+
+def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
+    """``lambda_max(-A)`` for ``A = -M^{-1} K`` via the symmetric form ``M^{1/2} A M^{-1/2}``."""
+    s = np.sqrt(mass)
+    sym = -(sp.diags(s) @ A @ sp.diags(1.0 / s))
+    sym = 0.5 * (sym + sym.T)
+    if sym.shape[0] < 50:
+        return float(np.linalg.eigvalsh(sym.toarray())[-1])
+    try:
+        return float(spla.eigsh(sym, k=1, which="LA", tol=1e-4, return_eigenvectors=False)[0])
+    except spla.ArpackNoConvergence:  # Gershgorin: a safe upper bound
+        return float(np.abs(sym).sum(axis=1).max())
+
+
+def stability_limit(lam_max: float, k: float) -> float:
+    """Largest stable forward-Euler step for diffusion eigenvalue ``lam_max`` and reaction rate ``k``."""
+    return 2.0 / (lam_max + k)
+
+
+def choose_time_step(lam_max: float, k: float, dt: float | None, output_interval: float) -> tuple[float, int]:
+    """The time step and the number of steps per output frame.
+
+    With ``dt=None`` the step is ``min(SAFETY * limit, DT_ACCURACY)``, shrunk so
+    that a whole number of steps fits one output interval. A user ``dt`` above
+    the limit raises :class:`TimeStepError` quoting the limit.
+    """
+    limit = stability_limit(lam_max, k)
+    if dt is not None:
+        if not np.isfinite(dt) or dt <= 0:
+            raise TimeStepError(f"time step dt={dt} must be finite and > 0")
+        if dt >= limit:
+            raise TimeStepError(
+                f"time step dt={dt:g} is unstable: the explicit limit for this mesh and diffusivity is "
+                f"{limit:.4g} (2 / (lambda_max {lam_max:.4g} + k {k:g})); use dt < {limit:.4g} or leave it automatic"
+            )
+        target = dt
+    else:
+        target = min(SAFETY * limit, DT_ACCURACY)
+    steps = max(1, int(np.ceil(output_interval / target - 1e-9)))
+    return output_interval / steps, steps

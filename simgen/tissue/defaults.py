@@ -1,0 +1,85 @@
+"""The default tissue settings (healthy + 15 scars) and loading specs from TOML tables.
+
+Like the paper's benchmark, each mesh is simulated under 16 settings: healthy
+tissue and 15 scars, each a set of contiguous AHA segments (see
+:mod:`simgen.tissue.aha`) at a different location: anterior, septal, inferior
+and lateral walls at basal, mid and apical level, two scars spanning two
+levels, and the apical cap. Every scar has a 5 mm border zone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from shared.config import from_mapping
+from shared.tissue import Material, ScarSpec, TissueSpec
+
+__all__ = [
+    "SCAR_CORE",
+    "BORDER_ZONE",
+    "BORDER_WIDTH",
+    "DEFAULT_SCARS",
+    "default_settings",
+    "tissue_spec_from_mapping",
+]
+
+#: Scar core: does not propagate, strongly reduced coupling.
+SCAR_CORE = Material(a=0.5, D=0.1)
+#: Border zone: slowed conduction.
+BORDER_ZONE = Material(a=0.3, D=0.5)
+#: Border zone width (mm, geodesic).
+BORDER_WIDTH = 5.0
+
+#: Name -> AHA segments of the 15 default scars.
+DEFAULT_SCARS: dict[str, tuple[int, ...]] = {
+    "scar-anterior-basal": (1,),
+    "scar-anterior-mid": (7,),
+    "scar-anterior-apical": (13,),
+    "scar-septal-basal": (2, 3),
+    "scar-septal-mid": (8, 9),
+    "scar-septal-apical": (14,),
+    "scar-inferior-basal": (4,),
+    "scar-inferior-mid": (10,),
+    "scar-inferior-apical": (15,),
+    "scar-lateral-basal": (5, 6),
+    "scar-lateral-mid": (11, 12),
+    "scar-lateral-apical": (16,),
+    "scar-anterior-basal-mid": (1, 7),
+    "scar-inferior-mid-apical": (10, 15),
+    "scar-apex": (17,),
+}
+
+
+def default_settings() -> list[TissueSpec]:
+    """The 16 default settings: ``"healthy"`` first, then the scars of :data:`DEFAULT_SCARS`."""
+    scars = [
+        TissueSpec(
+            name=name,
+            scars=(
+                ScarSpec(
+                    region="segments",
+                    segments=segments,
+                    core=SCAR_CORE,
+                    border=BORDER_ZONE,
+                    border_width=BORDER_WIDTH,
+                ),
+            ),
+        )
+        for name, segments in DEFAULT_SCARS.items()
+    ]
+    return [TissueSpec(name="healthy"), *scars]
+
+
+def tissue_spec_from_mapping(data: dict[str, Any]) -> TissueSpec:
+    """A :class:`TissueSpec` from a TOML/JSON table, strictly.
+
+    Example (TOML)::
+
+        name = "x"
+        scars = [{region = "sphere", node = 12, radius = 15.0, border_width = 5.0,
+                  core = {a = 0.5, D = 0.1}}]
+
+    Unknown keys and wrong types raise :class:`shared.errors.ConfigError`;
+    out-of-range values raise :class:`shared.errors.TissueError`.
+    """
+    return from_mapping(TissueSpec, data)
