@@ -129,11 +129,29 @@ class Simulator:
     def run(self, sites: NDArray[np.integer], threads: int = 1, block_size: int = BLOCK_SIZE) -> SimulationResult:
         """Simulate every site in ``sites`` (node ids) in one batch on ``threads`` threads.
 
+        Each site excites the nodes within ``stimulus_radius`` (geodesic) of it.
+        """
+        mask = patch_mask(self.mesh, sites, self.stimulus_radius)
+        return self.run_patches(mask, threads, block_size, sites=np.asarray(sites, np.int64))
+
+    def run_patches(
+        self,
+        mask: NDArray[np.bool_],
+        threads: int = 1,
+        block_size: int = BLOCK_SIZE,
+        sites: NDArray[np.int64] | None = None,
+    ) -> SimulationResult:
+        """Simulate one stimulus per column of the (N, S) boolean ``mask`` of excited nodes.
+
         Sites are integrated in independent blocks of at most ``block_size``
-        columns, small enough for a block's state to stay in cache.
+        columns, spread over ``threads`` threads; the result does not depend
+        on either.
         """
         cfg = self.config
-        mask = patch_mask(self.mesh, sites, self.stimulus_radius)[self.perm]  # (N, S), permuted
+        mask = np.asarray(mask, bool)
+        if mask.ndim != 2 or mask.shape[0] != self.mesh.n_nodes or mask.shape[1] == 0:
+            raise InputError(f"stimulus mask must have shape ({self.mesh.n_nodes}, S>0), got {mask.shape}")
+        mask = mask[self.perm]
         n, s = mask.shape
         n_blocks = max(min(int(threads), s), -(-s // block_size))
         width = -(-s // n_blocks)
@@ -159,7 +177,8 @@ class Simulator:
         if not np.all(np.isfinite(u[:, -1])):
             raise InputError("simulation diverged (non-finite u); reduce dt or check the tissue fields")
         times = cfg.output_interval * np.arange(1, cfg.frames + 1)
-        return SimulationResult(np.asarray(sites, np.int64), times, np.ascontiguousarray(u), activation, self.dt)
+        sites = np.full(s, -1, np.int64) if sites is None else sites
+        return SimulationResult(sites, times, np.ascontiguousarray(u), activation, self.dt)
 
 
 def simulate(
