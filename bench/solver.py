@@ -129,17 +129,21 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
 
     meshes = [m for m in MESHES if m[0] <= 2000] if args.quick else MESHES
+    load_before = os.getloadavg()[0]
     t_start = time.perf_counter()
     rows = [bench_mesh(n, kind, args.naive_sites, args.batch, args.threads, args.block_size) for n, kind in meshes]
     total = time.perf_counter() - t_start
     header = (f"Solver bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__} "
-              f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; total {total:.0f} s\n")  # fmt: skip
+              f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; total {total:.0f} s; "
+              f"1-min load average before the run {load_before:.1f}\n")  # fmt: skip
+    if load_before > 0.5:  # our own threads are not running yet, so this is someone else's work
+        header += "WARNING: other processes were using the CPUs; timings (2 threads above all) are pessimistic.\n"
     table = header + "\n" + markdown(rows) + "\n"
     print(table)
     if args.out:
         args.out.write_text(table)
         meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "numba": numba.__version__,
-                "block_size": args.block_size, "total_s": total, "meshes": rows}  # fmt: skip
+                "block_size": args.block_size, "total_s": total, "load_average_before": load_before, "meshes": rows}  # fmt: skip
         args.out.with_suffix(".json").write_text(json.dumps(meta, indent=2))
 
 

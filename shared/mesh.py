@@ -10,12 +10,17 @@ from numpy.typing import NDArray
 
 from shared.errors import MeshError
 
-__all__ = ["Mesh", "LongAxis", "CellType", "NODE_SETS"]
+__all__ = ["Mesh", "LongAxis", "CellType", "NODE_SETS", "OPTIONAL_NODE_SETS"]
 
 CellType = Literal["triangle", "tetra"]
 
 #: Node sets a mesh may carry. ``surface`` is always present.
 NODE_SETS = ("surface", "epicardium", "endocardium", "base")
+
+#: Further node sets of biventricular meshes: ``endocardium`` is their union
+#: (the RV septal surface counts as RV endocardium). Mesh files store them
+#: under a prefixed name, as any set outside :data:`NODE_SETS`.
+OPTIONAL_NODE_SETS = ("lv_endocardium", "rv_endocardium")
 
 
 @dataclass(frozen=True)
@@ -49,9 +54,9 @@ class Mesh:
     ----------
     points : (N, 3) float64 node coordinates.
     cells : (M, 3) or (M, 4) int32 node indices (triangles or tetrahedra).
-    node_sets : named int32 index arrays (see :data:`NODE_SETS`); ``surface``
-        is required: all nodes for a closed triangle mesh, boundary nodes for a
-        tetrahedral mesh.
+    node_sets : named int32 index arrays (see :data:`NODE_SETS`; BiV meshes
+        add :data:`OPTIONAL_NODE_SETS`); ``surface`` is required: all nodes for
+        a closed triangle mesh, boundary nodes for a tetrahedral mesh.
     axis : optional ventricular frame used by regional (AHA) scar specs.
     name : identifier, used as the mesh id in stores.
     """

@@ -1,0 +1,27 @@
+"""Heart meshes: procedural LV / BiV geometries, verification strips and slabs, file I/O, validation."""
+
+from __future__ import annotations
+
+from simgen.meshes.biventricular import BiVGeometry, biv_ellipsoid
+from simgen.meshes.catalog import GENERATORS, get_mesh
+from simgen.meshes.ellipsoid import LVGeometry, lv_ellipsoid
+from simgen.meshes.io import load_mesh, save_mesh
+from simgen.meshes.slab import slab, strip
+from simgen.meshes.topology import boundary_faces, extract_surface
+from simgen.meshes.validate import validate_mesh
+
+__all__ = [
+    "BiVGeometry",
+    "biv_ellipsoid",
+    "GENERATORS",
+    "get_mesh",
+    "LVGeometry",
+    "lv_ellipsoid",
+    "load_mesh",
+    "save_mesh",
+    "slab",
+    "strip",
+    "boundary_faces",
+    "extract_surface",
+    "validate_mesh",
+]

@@ -36,10 +36,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import MeshError
-from shared.mesh import LongAxis, Mesh
-from simgen.meshes.ellipsoid import LVGeometry, _parametric_triangulation, stack_prisms
-from simgen.meshes.topology import extract_surface, signed_volumes, tet_faces
-from simgen.meshes.validate import group_rows, non_manifold_nodes, validate_mesh
+from shared.mesh import Mesh
+from simgen.meshes.ellipsoid import LVGeometry, check_mesh_request, parametric_triangulation, stack_prisms
+from simgen.meshes.topology import boundary_faces, extract_surface, signed_volumes
+from simgen.meshes.validate import non_manifold_nodes, validate_mesh
 
 __all__ = ["BiVGeometry", "biv_ellipsoid"]
 
@@ -173,7 +173,7 @@ def _columns(
 ) -> _Columns:
     """Nodes: ``L + 1`` LV layers, then RV cavity-side nodes, then RV layers 1..L_rv."""
     lv = geom.lv
-    st, tris, ring = _parametric_triangulation(lv, spacing)
+    st, tris, ring = parametric_triangulation(lv, spacing)
     n = len(st)
     demoted = np.zeros(n, dtype=bool) if demoted is None else demoted
     endo, d, length, start, wall, cavity = _rv_columns(geom, st, tris, spacing, demoted)
@@ -234,16 +234,9 @@ def _build(geom: BiVGeometry, spacing: float, layers: int, rv_layers: int) -> tu
     raise MeshError("BiV mesh: could not remove non-manifold configurations; check the geometry")
 
 
-def _boundary_faces(tets: NDArray) -> NDArray[np.int64]:
-    """As :func:`~simgen.meshes.topology.boundary_faces`, via fast integer-key grouping."""
-    faces = tet_faces(tets)
-    inverse, counts = group_rows(np.sort(faces, axis=1))
-    return faces[counts[inverse] == 1]
-
-
 def _node_sets(geom: BiVGeometry, cols: _Columns, tets: NDArray) -> dict[str, NDArray]:
     """Boundary faces labelled base / LV endo / epicardium (outermost column nodes) / RV endo."""
-    faces = _boundary_faces(tets)
+    faces = boundary_faces(tets)
     n_pts = len(cols.points)
 
     def all_in(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -291,10 +284,7 @@ def biv_ellipsoid(
     The axis runs from the LV epicardial apex to the base centre; its reference
     direction (+x) points to the RV.
     """
-    if kind not in ("tetra", "triangle"):
-        raise MeshError(f"unknown mesh kind {kind!r} (use 'tetra' or 'triangle')")
-    if not 300 <= n_nodes <= 200_000:
-        raise MeshError(f"n_nodes={n_nodes} outside the supported range 300..200000")
+    check_mesh_request(kind, n_nodes, smallest=300)
     geom = geometry or BiVGeometry()
 
     def count(spacing: float, layers: int, rv_layers: int) -> int:
@@ -315,11 +305,5 @@ def biv_ellipsoid(
 
     cols, tets = _build(geom, spacing, layers, rv_layers)
     node_sets = _node_sets(geom, cols, tets)
-    lv = geom.lv
-    axis = LongAxis(
-        apex=np.array([0.0, 0.0, -lv.epi_long]),
-        base=np.array([0.0, 0.0, geom.base_z]),
-        reference=np.array([1.0, 0.0, 0.0]),
-    )
-    mesh = Mesh(points=cols.points, cells=tets, node_sets=node_sets, axis=axis, name=name)
+    mesh = Mesh(points=cols.points, cells=tets, node_sets=node_sets, axis=geom.lv.long_axis(), name=name)
     return validate_mesh(mesh if kind == "tetra" else extract_surface(mesh))

@@ -24,7 +24,7 @@ from shared.errors import MeshError
 from shared.mesh import LongAxis, Mesh
 from simgen.meshes.topology import extract_surface, signed_volumes
 
-__all__ = ["LVGeometry", "lv_ellipsoid", "stack_prisms"]
+__all__ = ["LVGeometry", "lv_ellipsoid", "parametric_triangulation", "stack_prisms", "check_mesh_request"]
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
@@ -82,9 +82,30 @@ class LVGeometry:
         """Mean wall thickness (mm) between equator and apex."""
         return 0.5 * ((self.epi_short - self.endo_short) + (self.epi_long - self.endo_long))
 
+    def long_axis(self) -> LongAxis:
+        """Frame from the epicardial apex to the base centre, angle 0 along +x."""
+        return LongAxis(
+            apex=np.array([0.0, 0.0, -self.epi_long]),
+            base=np.array([0.0, 0.0, self.base_z]),
+            reference=np.array([1.0, 0.0, 0.0]),
+        )
 
-def _parametric_triangulation(geom: LVGeometry, spacing: float) -> tuple[NDArray, NDArray, NDArray]:
-    """Near-equal-area (s, theta) samples, their triangles, and the base-ring flags."""
+
+def parametric_triangulation(geom: LVGeometry, spacing: float) -> tuple[NDArray, NDArray, NDArray]:
+    """Near-equal-area ``(s, theta)`` samples of the mid-wall surface and their triangles.
+
+    Parameters
+    ----------
+    geom : the LV whose mid-wall area density spaces the samples.
+    spacing : target in-plane edge length (mm); each triangle covers about
+        ``sqrt(3) / 2 spacing^2`` of mid-wall area.
+
+    Returns
+    -------
+    st : (n, 2) float64 ``(s, theta)`` per vertex, ``s`` in [0, 1] from apex to base.
+    tris : (T, 3) int64 triangles, oriented outward on the embedding sphere.
+    ring : (n,) bool, True for the vertices on the base ring ``s = 1``.
+    """
     grid = np.linspace(0.0, 1.0, 2001)
     density = geom.mid_area_density(grid)
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(grid))])
@@ -142,6 +163,14 @@ def stack_prisms(tris: NDArray[np.integer], n_per_layer: int, n_layers: int) -> 
     return np.concatenate(tets)
 
 
+def check_mesh_request(kind: str, n_nodes: int, smallest: int, largest: int = 200_000) -> None:
+    """Raise :class:`MeshError` unless ``kind`` is a mesh kind and ``smallest <= n_nodes <= largest``."""
+    if kind not in ("tetra", "triangle"):
+        raise MeshError(f"unknown mesh kind {kind!r} (use 'tetra' or 'triangle')")
+    if not smallest <= n_nodes <= largest:
+        raise MeshError(f"n_nodes={n_nodes} outside the supported range {smallest}..{largest}")
+
+
 def _node_count(geom: LVGeometry, spacing: float, layers: float, kind: str) -> float:
     """Approximate node count for an in-plane spacing and a number of element layers."""
     grid = np.linspace(0.0, 1.0, 2001)
@@ -181,17 +210,14 @@ def lv_ellipsoid(
 
     Node sets: ``surface``, ``epicardium``, ``endocardium``, ``base``.
     """
-    if kind not in ("tetra", "triangle"):
-        raise MeshError(f"unknown mesh kind {kind!r} (use 'tetra' or 'triangle')")
-    if not 200 <= n_nodes <= 200_000:
-        raise MeshError(f"n_nodes={n_nodes} outside the supported range 200..200000")
+    check_mesh_request(kind, n_nodes, smallest=200)
     geom = geometry or LVGeometry()
     # Pick the transmural layer count from an isotropic estimate, then refit the
     # in-plane spacing for that integer count so the node count stays on target.
     layers = max(1, int(round(geom.thickness() / _spacing_for(geom, n_nodes, kind, None))))
     spacing = _spacing_for(geom, n_nodes, kind, layers)
 
-    st, tris, ring = _parametric_triangulation(geom, spacing)
+    st, tris, ring = parametric_triangulation(geom, spacing)
     n = len(st)
     points = np.concatenate(
         [geom.surface_point(st[:, 0], st[:, 1], layer / layers) for layer in range(layers + 1)]
@@ -207,10 +233,5 @@ def lv_ellipsoid(
         "base": np.concatenate([ids[ring] + layer * n for layer in range(layers + 1)]),
     }
     node_sets["surface"] = np.unique(np.concatenate(list(node_sets.values())))
-    axis = LongAxis(
-        apex=np.array([0.0, 0.0, -geom.epi_long]),
-        base=np.array([0.0, 0.0, geom.base_z]),
-        reference=np.array([1.0, 0.0, 0.0]),
-    )
-    mesh = Mesh(points=points, cells=tets, node_sets=node_sets, axis=axis, name=name)
+    mesh = Mesh(points=points, cells=tets, node_sets=node_sets, axis=geom.long_axis(), name=name)
     return mesh if kind == "tetra" else extract_surface(mesh)

@@ -1,6 +1,6 @@
 """Mesh validation: refuse meshes the FEM solver cannot use, naming the defect.
 
-Every check is vectorised (sorting / :func:`numpy.unique` on integer keys,
+Every check is vectorised (:func:`~simgen.meshes.topology.group_rows` on packed integer keys,
 a KD-tree for coincident nodes, :mod:`scipy.sparse.csgraph` for
 connectivity), so a 250k-tetrahedron mesh validates in a fraction of a second.
 
@@ -31,9 +31,9 @@ from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
 from shared.mesh import Mesh
-from simgen.meshes.topology import signed_volumes, tet_faces
+from simgen.meshes.topology import group_rows, signed_volumes, tet_faces
 
-__all__ = ["validate_mesh", "mesh_problems", "non_manifold_nodes", "group_rows"]
+__all__ = ["validate_mesh", "mesh_problems", "non_manifold_nodes"]
 
 #: Coincident-node tolerance, relative to the bounding-box diagonal.
 DUPLICATE_NODE_RTOL = 1e-9
@@ -101,30 +101,6 @@ def mesh_problems(mesh: Mesh) -> list[str]:
 
 def _describe(what: str, why: str, idx: NDArray[np.integer]) -> str:
     return f"{len(idx)} {what}(s) {why}, first indices {idx[:_SHOW].tolist()}"
-
-
-def group_rows(rows: NDArray[np.integer]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Group equal rows of a non-negative integer array, like ``np.unique(axis=0)``.
-
-    Returns ``(inverse, counts)``: the group of each row and the size of each group.
-
-    Rows are packed into one int64 key when they fit, which is far faster
-    than a row-wise unique.
-    """
-    rows = np.asarray(rows, dtype=np.int64)
-    base = int(rows.max()) + 1 if rows.size else 1
-    if base ** rows.shape[1] < 2**62:
-        key = np.zeros(len(rows), dtype=np.int64)
-        for col in rows.T:
-            key = key * base + col
-        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-        return inverse.ravel(), counts
-    order = np.lexsort(rows.T[::-1])
-    ordered = rows[order]
-    group = np.concatenate([[0], np.cumsum(np.any(ordered[1:] != ordered[:-1], axis=1))])
-    inverse = np.empty(len(rows), dtype=np.int64)
-    inverse[order] = group
-    return inverse, np.bincount(group)
 
 
 def _size_ratio(points: NDArray[np.float64], cells: NDArray[np.int64], size: NDArray[np.float64]) -> NDArray:

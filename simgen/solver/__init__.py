@@ -1,0 +1,26 @@
+"""Aliev-Panfilov solver: P1 FEM operator, stable time step, batched fused kernel."""
+
+from __future__ import annotations
+
+from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, APParams, front_speed, reaction, to_millivolts
+from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig, healthy_fields, simulate
+from simgen.solver.stimulus import check_sites, patch_mask
+from simgen.solver.timestep import choose_time_step, largest_eigenvalue, stability_limit
+
+__all__ = [
+    "MS_PER_TIME_UNIT",
+    "APParams",
+    "front_speed",
+    "reaction",
+    "to_millivolts",
+    "SimulationResult",
+    "Simulator",
+    "SolverConfig",
+    "healthy_fields",
+    "simulate",
+    "check_sites",
+    "patch_mask",
+    "choose_time_step",
+    "largest_eigenvalue",
+    "stability_limit",
+]

@@ -36,11 +36,21 @@ def _run_block(
             d = diag[i]
             for c in range(b):
                 lap[c] = d * u_i[c]
-            for p in range(indptr[i], indptr[i + 1]):
-                w = data[p]
-                u_j = u[indices[p]]
+            # Neighbours four at a time: one read-modify-write of lap per four CSR entries.
+            p = indptr[i]
+            end = indptr[i + 1]
+            while p + 4 <= end:
+                w0, w1, w2, w3 = data[p], data[p + 1], data[p + 2], data[p + 3]
+                u0, u1, u2, u3 = u[indices[p]], u[indices[p + 1]], u[indices[p + 2]], u[indices[p + 3]]
                 for c in range(b):
-                    lap[c] += w * u_j[c]
+                    lap[c] += (w0 * u0[c] + w1 * u1[c]) + (w2 * u2[c] + w3 * u3[c])
+                p += 4
+            while p < end:
+                w0 = data[p]
+                u0 = u[indices[p]]
+                for c in range(b):
+                    lap[c] += w0 * u0[c]
+                p += 1
             ai = a[i]
             n_cross = 0
             for c in range(b):

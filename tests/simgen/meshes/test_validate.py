@@ -11,7 +11,7 @@ from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.topology import extract_surface, signed_volumes
-from simgen.meshes.validate import group_rows, mesh_problems, non_manifold_nodes, validate_mesh
+from simgen.meshes.validate import mesh_problems, non_manifold_nodes, validate_mesh
 
 TET_POINTS = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
 #: Outward-oriented surface of TET_POINTS.
@@ -186,17 +186,6 @@ def test_non_manifold_nodes():
     _, cells = two_tets()
     assert len(non_manifold_nodes(cells)) == 0
     assert non_manifold_nodes(np.array([[0, 1, 2, 3], [1, 4, 5, 6]])).tolist() == [1]
-
-
-@pytest.mark.parametrize("width", [3, 4])
-def test_group_rows_matches_numpy_unique(width):
-    rng = np.random.default_rng(0)
-    rows = rng.integers(0, 5, size=(200, width))
-    rows[:, 0] += 2**20 * (width == 4)  # large values force the lexsort path for width 4
-    inverse, counts = group_rows(rows)
-    _, ref_inverse, ref_counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
-    assert (counts[inverse] == ref_counts[ref_inverse.ravel()]).all()
-    assert (inverse == ref_inverse.ravel()).all()
 
 
 def test_large_mesh_validates_quickly():

@@ -1,0 +1,3 @@
+from simgen.cli import app
+
+app(prog_name="simgen")

@@ -1,0 +1,62 @@
+"""The simgen command line: help, mesh generation, simulation, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+from typer.testing import CliRunner
+
+from simgen.cli import app
+from simgen.meshes.io import load_mesh
+
+runner = CliRunner()
+
+
+def test_help_lists_commands():
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for verb in ("mesh", "simulate", "tissues", "demo"):
+        assert verb in result.output
+
+
+def test_mesh_command_writes_a_loadable_mesh(tmp_path):
+    out = tmp_path / "lv.vtu"
+    result = runner.invoke(app, ["mesh", str(out), "--nodes", "500"])
+    assert result.exit_code == 0, result.output
+    mesh = load_mesh(out)
+    assert 450 < mesh.n_nodes < 550 and mesh.cell_type == "tetra"
+
+
+def test_simulate_command_writes_outputs(tmp_path):
+    result = runner.invoke(app, ["simulate", str(tmp_path), "--nodes", "500", "--sites", "0,7",
+                                 "--tissue", "scar-apex"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = np.load(tmp_path / "simulation.npz")
+    assert data["u"].shape[:2] == (2, 55)
+    assert (tmp_path / "activation.png").stat().st_size > 10_000
+
+
+def test_tissue_from_toml(tmp_path):
+    spec = tmp_path / "scar.toml"
+    spec.write_text('name = "blob"\n[[scars]]\nregion = "sphere"\nnode = 10\nradius = 12.0\n')
+    result = runner.invoke(app, ["simulate", str(tmp_path / "o"), "--nodes", "500", "--tissue", str(spec)])
+    assert result.exit_code == 0, result.output
+
+
+def test_errors_are_reported_without_traceback(tmp_path):
+    cases = [
+        (["simulate", str(tmp_path), "--nodes", "500", "--sites", "99999"], "unknown stimulation node"),
+        (["simulate", str(tmp_path), "--nodes", "500", "--dt", "1.0"], "unstable"),
+        (["simulate", str(tmp_path), "--tissue", "no-such-scar"], "unknown tissue setting"),
+        (["mesh", str(tmp_path / "x.vtu"), "--mesh", "heart.xyz"], "unknown mesh"),
+    ]
+    for args, message in cases:
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, result.output
+        assert message in " ".join(result.output.split())
+        assert "Traceback" not in result.output
+
+
+def test_tissues_lists_sixteen_settings():
+    result = runner.invoke(app, ["tissues"])
+    assert result.exit_code == 0
+    assert "healthy" in result.output and "scar-apex" in result.output
