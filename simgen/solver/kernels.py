@@ -32,6 +32,7 @@ def _run_block(
         t0 = np.float32(step) * dt
         stimulating = step < stim_steps
         for i in range(n):
+            # Row views; indexing [i, c] directly defeats LLVM's vectoriser here.
             u_i, v_i, un_i, act_i, stim_i = u[i], v[i], un[i], act[i], stim[i]
             d = diag[i]
             for c in range(b):
@@ -52,7 +53,7 @@ def _run_block(
                     lap[c] += w0 * u0[c]
                 p += 1
             ai = a[i]
-            n_cross = 0
+            crossed = False
             for c in range(b):
                 ui = u_i[c]
                 vi = v_i[c]
@@ -61,11 +62,14 @@ def _run_block(
                 eps = eps0 + mu1 * vi / (ui + mu2)
                 dv = eps * (-vi - k * ui * (ui - ai - one))
                 unew = ui + dt * du
-                unew = one if (stimulating & stim_i[c]) else unew
                 un_i[c] = unew
                 v_i[c] = vi + dt * dv
-                n_cross += (ui < thr) & (unew >= thr)
-            if n_cross:  # rare: record interpolated first-crossing times outside the vector loop
+                crossed |= (ui < thr) & (unew >= thr)
+            if stimulating:  # stimulated nodes are held at u = 1 (their activation time is 0)
+                for c in range(b):
+                    if stim_i[c]:
+                        un_i[c] = one
+            if crossed:  # rare: record interpolated first-crossing times outside the vector loop
                 for c in range(b):
                     ui = u_i[c]
                     unew = un_i[c]

@@ -27,7 +27,8 @@ from simgen.solver.timestep import choose_time_step, largest_eigenvalue
 
 __all__ = ["SolverConfig", "SimulationResult", "Simulator", "simulate", "healthy_fields"]
 
-#: Default number of sites integrated together per block (measured in bench/solver.py).
+#: Sites integrated together per block: wide enough to amortise the per-node loop
+#: overhead, narrow enough to keep a block's state near cache (see bench/solver.py --block-size).
 BLOCK_SIZE = 128
 
 
