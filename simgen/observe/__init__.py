@@ -10,12 +10,12 @@ from typing import Any
 
 from shared.errors import InputError
 from simgen.observe.base import ObservationOperator
-from simgen.observe.epicardial import Epicardial
+from simgen.observe.node_sets import AllSurface, Epicardial, NodeSetObservation
 from simgen.observe.sock import Sock, electrode_spacing, farthest_point_sampling
-from simgen.observe.surface import AllSurface
 
 __all__ = [
     "ObservationOperator",
+    "NodeSetObservation",
     "AllSurface",
     "Epicardial",
     "Sock",
