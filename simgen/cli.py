@@ -128,5 +128,65 @@ def demo(
     console.print(f"{sum(len(r.sites) for r in rows)} simulations, figures in {out}/")
 
 
+@app.command()
+def build(
+    spec: Annotated[Path, typer.Argument(help="Build spec (TOML), e.g. specs/demo.toml.")],
+    store: Annotated[Path, typer.Option(help="Output Zarr store (folder).")],
+    scheduler: Annotated[Optional[str], typer.Option(help="Address of an existing Dask scheduler.")] = None,
+    workers: Annotated[int, typer.Option(help="Local worker processes when no --scheduler is given.")] = 2,
+    force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
+    retries: Annotated[int, typer.Option(help="Retries per failing task.")] = 2,
+) -> None:
+    """Build (or resume) the dataset of SPEC into STORE on a Dask cluster."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from simgen.build import load_spec
+    from simgen.build.runner import build as run_build
+
+    bar = Progress(TextColumn("[bold]building"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                   TextColumn("{task.description}"), console=console)  # fmt: skip
+    state: dict = {}
+
+    def on_start(n: int, dashboard: str | None) -> None:
+        console.print(f"Dask dashboard: {dashboard}")
+        state["task"] = bar.add_task("", total=n)
+        bar.start()
+
+    def on_done(key: str) -> None:
+        bar.update(state["task"], advance=1, description=key)
+
+    try:
+        report = run_build(load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done)
+    except InputError as exc:
+        bar.stop()
+        _fail(exc)
+    bar.stop()
+    if report.tasks_run == 0:
+        console.print(f"{store}: already complete ({report.tasks_total} chunks)")
+    else:
+        console.print(
+            f"{store}: {report.tasks_run}/{report.tasks_total} chunks, {report.simulations} simulations in "
+            f"{report.seconds:.1f} s ({report.simulations / report.seconds:.1f} sims/s)"
+        )
+
+
+@app.command()
+def status(store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")]) -> None:
+    """Per-subject progress of a (possibly unfinished) build."""
+    from simgen.build.inspect import store_status
+
+    try:
+        rows = store_status(store)
+    except InputError as exc:
+        _fail(exc)
+    table = Table("subject", "mesh", "chunks done", "sites", title=str(store))
+    for r in rows:
+        table.add_row(r.subject_id, r.mesh_id, f"{r.chunks_done}/{r.chunks}", str(r.sites))
+    console.print(table)
+    done = sum(r.chunks_done for r in rows)
+    total = sum(r.chunks for r in rows)
+    console.print(f"{done}/{total} chunks done ({100 * done / max(total, 1):.0f}%)")
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

@@ -1,0 +1,33 @@
+"""Dataset builds: the build spec (TOML) and the deterministic build plan derived from it."""
+
+from __future__ import annotations
+
+from simgen.build.manifest import Plan, Subject, Task, make_plan, select_sites, sock_electrodes, validate_plan
+from simgen.build.spec import (
+    BuildSpec,
+    MeshEntry,
+    OutputSpec,
+    SiteSelection,
+    load_spec,
+    spec_from_mapping,
+    spec_hash,
+    spec_to_dict,
+)
+
+__all__ = [
+    "BuildSpec",
+    "MeshEntry",
+    "OutputSpec",
+    "SiteSelection",
+    "load_spec",
+    "spec_from_mapping",
+    "spec_hash",
+    "spec_to_dict",
+    "Plan",
+    "Subject",
+    "Task",
+    "make_plan",
+    "select_sites",
+    "sock_electrodes",
+    "validate_plan",
+]

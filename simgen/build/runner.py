@@ -1,0 +1,134 @@
+"""Driver of a dataset build on a Dask cluster: plan, lay out, submit missing chunks, consolidate.
+
+With no scheduler address a :class:`distributed.LocalCluster` of single-threaded
+worker processes is started (BLAS and numba pinned to one thread each); with an
+address the build runs on that existing cluster (``dask scheduler`` +
+``dask worker``). Rerunning the same build resumes it: only chunks whose
+``done`` flag is unset are submitted, so the result is identical to an
+uninterrupted build.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+from distributed import Client, LocalCluster, as_completed
+
+from shared.errors import InputError
+from simgen.build.lock import StoreLock
+from simgen.build.manifest import Plan, Task, make_plan, validate_plan
+from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
+from simgen.build.store import consolidate, create_layout, done_flags
+from simgen.build.worker import run_task
+
+__all__ = ["BuildFailed", "BuildReport", "build", "missing_tasks", "dask_client"]
+
+#: Environment for worker processes: one thread each for BLAS and numba.
+SINGLE_THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}
+
+
+class BuildFailed(InputError):
+    """Some tasks kept failing; finished chunks are kept."""
+
+
+@dataclass
+class BuildReport:
+    """What one ``build`` call did."""
+
+    store: str
+    tasks_total: int
+    tasks_run: int
+    simulations: int
+    seconds: float
+    dashboard: str | None = None
+    failed: list[str] = field(default_factory=list)
+
+
+def missing_tasks(store: str | Path, plan: Plan) -> list[Task]:
+    """Tasks whose chunk is not flagged done in ``store``."""
+    flags = {s.id: done_flags(store, s.id) for s in plan.subjects}
+    return [t for t in plan.tasks if not flags[t.subject_id][t.chunk]]
+
+
+@contextmanager
+def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
+    """A client of the cluster at ``scheduler``, or of a new local cluster of ``workers`` processes."""
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
+    os.environ.update(SINGLE_THREAD_ENV)  # inherited by the worker processes
+    try:
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                          dashboard_address=":0") as cluster, Client(cluster) as client:  # fmt: skip
+            yield client
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def build(
+    spec: BuildSpec,
+    store: str | Path,
+    scheduler: str | None = None,
+    workers: int = 2,
+    force: bool = False,
+    retries: int = 2,
+    on_start: Callable[[int, str | None], None] | None = None,
+    on_done: Callable[[str], None] | None = None,
+) -> BuildReport:
+    """Build (or resume) the dataset of ``spec`` into ``store``.
+
+    ``on_start(n_tasks, dashboard_link)`` and ``on_done(task_key)`` let a
+    caller show progress. Raises :class:`BuildFailed` naming the tasks that
+    failed ``retries + 1`` times; the store keeps every finished chunk.
+    """
+    start = time.perf_counter()
+    plan = make_plan(spec)
+    validate_plan(plan)  # every error that can be found before writing
+    h = spec_hash(spec)
+    store = str(store)
+    with StoreLock(store):
+        create_layout(store, plan, spec_to_dict(spec), h, force=force)
+        todo = missing_tasks(store, plan)
+        report = BuildReport(store, len(plan.tasks), len(todo), sum(t.stop - t.start for t in todo), 0.0)
+        if todo:
+            with dask_client(scheduler, workers) as client:
+                report.dashboard = client.dashboard_link
+                if on_start:
+                    on_start(len(todo), report.dashboard)
+                futures = {
+                    client.submit(
+                        run_task, store, t.subject_id, plan.subject(t.subject_id).mesh_id, t.chunk, t.start, t.stop,
+                        spec.solver, key=f"simgen-{h[:8]}-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
+                    ): t  # fmt: skip
+                    for t in todo
+                }
+                for future in as_completed(futures):
+                    task = futures[future]
+                    if future.status == "error":
+                        report.failed.append(f"{task.key}: {future.exception()!r}")
+                    elif on_done:
+                        on_done(task.key)
+        if report.failed:
+            raise BuildFailed(
+                f"{len(report.failed)} task(s) failed after {retries} retries; finished chunks are kept, "
+                "rerun the build to retry them:\n  " + "\n  ".join(report.failed)
+            )
+        consolidate(store)
+    report.seconds = time.perf_counter() - start
+    return report

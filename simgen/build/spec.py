@@ -1,0 +1,275 @@
+"""The build spec: what a dataset contains, read strictly from a TOML file.
+
+A :class:`BuildSpec` names the meshes, the tissue settings simulated on every
+mesh, how stimulation sites are chosen, the solver settings and the output
+layout. It is pure data: :func:`spec_to_dict` and :func:`spec_from_mapping`
+round-trip it through JSON/TOML, and :func:`spec_hash` fingerprints it so that
+a store can refuse a different spec. Everything that can be checked without a
+mesh is checked here; the rest (mesh files, scars on a mesh, the time step)
+is checked by :func:`simgen.build.manifest.validate_plan`.
+
+Example (TOML)::
+
+    name = "demo"
+    seed = 0
+    tissue = ["healthy", "scar-apex"]
+
+    [[meshes]]
+    id = "lv"
+    source = "lv"      # or "biv", or a mesh file (relative to the spec file)
+    nodes = 1000
+
+    [sites]
+    count = 20
+
+    [solver]
+    frames = 55
+
+    [output]
+    chunk_sites = 10
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from shared.config import from_mapping, load_toml, to_mapping
+from shared.errors import ConfigError, InputError, StimulusError
+from shared.mesh import NODE_SETS, OPTIONAL_NODE_SETS
+from shared.tissue import TissueSpec
+from simgen.meshes.catalog import GENERATORS
+from simgen.solver.simulate import SolverConfig
+from simgen.tissue.defaults import default_settings
+
+__all__ = [
+    "MeshEntry",
+    "SiteSelection",
+    "OutputSpec",
+    "BuildSpec",
+    "SITE_NODE_SETS",
+    "COMPRESSION_LEVELS",
+    "load_spec",
+    "spec_from_mapping",
+    "spec_to_dict",
+    "spec_hash",
+]
+
+#: Identifiers that become store group names (mesh ids, setting names, subject ids).
+_ID = re.compile(r"[A-Za-z0-9_-]+")
+
+#: Node sets stimulation sites may be chosen from (``"all"`` = every node).
+SITE_NODE_SETS = ("all", *NODE_SETS, *OPTIONAL_NODE_SETS)
+
+#: Admissible compression level per compressor (inclusive); ``"none"`` ignores it.
+COMPRESSION_LEVELS = {"zstd": (1, 22), "blosc": (0, 9), "none": (0, 22)}
+
+
+def _check_id(value: Any, what: str) -> None:
+    if not isinstance(value, str) or not _ID.fullmatch(value):
+        raise ConfigError(f"{what} {value!r} is not a valid identifier: use letters, digits, '_' and '-' only")
+
+
+def _check_int(value: Any, lo: int, what: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+        raise ConfigError(f"{what} must be an integer >= {lo}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class MeshEntry:
+    """One geometry of the dataset.
+
+    ``source`` is a procedural geometry (``"lv"``, ``"biv"``) generated with
+    about ``nodes`` nodes of cell ``kind``, or the path of a mesh file (then
+    ``nodes`` and ``kind`` are ignored; relative paths are resolved against
+    the spec file's folder by :func:`load_spec`). ``id`` names the mesh in the
+    store and prefixes its subjects' ids.
+    """
+
+    id: str
+    source: str = "lv"
+    nodes: int = 2000
+    kind: Literal["tetra", "triangle"] = "tetra"
+
+    def __post_init__(self) -> None:
+        _check_id(self.id, "[[meshes]] id")
+        if not isinstance(self.source, str) or not self.source:
+            raise ConfigError(f"mesh {self.id!r}: source must be 'lv', 'biv' or a mesh file path, got {self.source!r}")
+        _check_int(self.nodes, 1, f"mesh {self.id!r}: nodes")
+        if self.kind not in ("tetra", "triangle"):
+            raise ConfigError(f"mesh {self.id!r}: kind {self.kind!r} is not one of ['tetra', 'triangle']")
+
+
+@dataclass(frozen=True)
+class SiteSelection:
+    """Stimulation sites of each mesh, shared by all subjects of that mesh.
+
+    ``method = "farthest"`` spreads ``count`` sites over the node set
+    ``node_set`` by farthest-point sampling (deterministic, in selection order,
+    so any prefix is itself well spread); ``"random"`` draws them uniformly
+    without replacement from a generator seeded by the spec seed and the mesh
+    id (sorted). Explicit ``nodes`` override ``count`` and ``method`` and are
+    used in the given order on every mesh.
+    """
+
+    count: int = 200
+    node_set: str = "surface"
+    method: Literal["farthest", "random"] = "farthest"
+    nodes: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        _check_int(self.count, 1, "[sites] count")
+        if self.node_set not in SITE_NODE_SETS:
+            raise ConfigError(f"[sites] node_set {self.node_set!r} is not one of {list(SITE_NODE_SETS)}")
+        if self.method not in ("farthest", "random"):
+            raise ConfigError(f"[sites] method {self.method!r} is not one of ['farthest', 'random']")
+        object.__setattr__(self, "nodes", tuple(self.nodes))
+        for node in self.nodes:
+            if isinstance(node, bool) or not isinstance(node, int) or node < 0:
+                raise StimulusError(f"[sites] nodes: stimulation node {node!r} must be an integer >= 0")
+        if len(set(self.nodes)) != len(self.nodes):
+            dup = sorted({n for n in self.nodes if self.nodes.count(n) > 1})
+            raise StimulusError(f"[sites] nodes: duplicate stimulation nodes {dup}")
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """Store layout: sites per chunk (= per build task), compression, sock size.
+
+    ``sock_electrodes = 0`` stores no sock electrodes.
+    """
+
+    chunk_sites: int = 25
+    compressor: Literal["zstd", "blosc", "none"] = "zstd"
+    level: int = 3
+    sock_electrodes: int = 247
+
+    def __post_init__(self) -> None:
+        _check_int(self.chunk_sites, 1, "[output] chunk_sites")
+        if self.compressor not in COMPRESSION_LEVELS:
+            raise ConfigError(f"[output] compressor {self.compressor!r} is not one of {list(COMPRESSION_LEVELS)}")
+        lo, hi = COMPRESSION_LEVELS[self.compressor]
+        if isinstance(self.level, bool) or not isinstance(self.level, int) or not lo <= self.level <= hi:
+            raise ConfigError(
+                f"[output] level {self.level!r} out of range for compressor {self.compressor!r}: use {lo}..{hi}"
+            )
+        _check_int(self.sock_electrodes, 0, "[output] sock_electrodes")
+
+
+@dataclass(frozen=True)
+class BuildSpec:
+    """A whole dataset: meshes x tissue settings, sites, solver and output settings.
+
+    ``tissue`` names settings of :func:`simgen.tissue.default_settings`
+    (``"default"`` selects all 16); ``custom_tissue`` adds inline settings.
+    Every mesh is simulated under every setting; subject ids are
+    ``f"{mesh_id}-{setting_name}"``.
+    """
+
+    name: str = "dataset"
+    seed: int = 0
+    meshes: tuple[MeshEntry, ...] = (MeshEntry("lv"),)
+    tissue: tuple[str, ...] = ("default",)
+    custom_tissue: tuple[TissueSpec, ...] = ()
+    sites: SiteSelection = field(default_factory=SiteSelection)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    output: OutputSpec = field(default_factory=OutputSpec)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ConfigError(f"name must be a non-empty string, got {self.name!r}")
+        _check_int(self.seed, 0, "seed")
+        object.__setattr__(self, "meshes", tuple(self.meshes))
+        object.__setattr__(self, "tissue", tuple(self.tissue))
+        object.__setattr__(self, "custom_tissue", tuple(self.custom_tissue))
+        if not self.meshes:
+            raise ConfigError("the spec has no meshes: add at least one [[meshes]] table")
+        ids = [m.id for m in self.meshes]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ConfigError(f"duplicate mesh ids {dup}: every [[meshes]] id must be unique")
+        names = [s.name for s in self.settings()]
+        if not names:
+            raise ConfigError("the spec has no tissue settings: set tissue = [...] or add [[custom_tissue]] tables")
+        for s in self.custom_tissue:
+            _check_id(s.name, "[[custom_tissue]] name")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ConfigError(f"duplicate tissue setting names {dup}: each setting may appear once")
+        subjects = [f"{m}-{s}" for m in ids for s in names]
+        dup = sorted({s for s in subjects if subjects.count(s) > 1})
+        if dup:
+            raise ConfigError(f"subject ids {dup} are ambiguous: rename a mesh id or a tissue setting")
+
+    def settings(self) -> list[TissueSpec]:
+        """The tissue settings in order: named defaults as listed, then the custom ones."""
+        defaults = {s.name: s for s in default_settings()}
+        chosen: list[TissueSpec] = []
+        for name in self.tissue:
+            if name == "default":
+                chosen.extend(defaults.values())
+            elif name in defaults:
+                chosen.append(defaults[name])
+            else:
+                raise ConfigError(
+                    f"unknown tissue setting {name!r}; allowed: 'default' (all 16) or one of {list(defaults)}; "
+                    "define other settings in [[custom_tissue]] tables"
+                )
+        return [*chosen, *self.custom_tissue]
+
+
+def _resolve_sources(data: dict[str, Any], base_dir: Path) -> dict[str, Any]:
+    """``data`` with relative mesh-file sources made absolute against ``base_dir``."""
+    meshes = data.get("meshes")
+    if not isinstance(meshes, list):
+        return data
+    resolved = []
+    for entry in meshes:
+        source = entry.get("source") if isinstance(entry, dict) else None
+        if isinstance(source, str) and source not in GENERATORS and not Path(source).is_absolute():
+            entry = {**entry, "source": str((base_dir / source).resolve())}
+        resolved.append(entry)
+    return {**data, "meshes": resolved}
+
+
+def spec_from_mapping(data: dict[str, Any], base_dir: Path | None = None) -> BuildSpec:
+    """A :class:`BuildSpec` from a TOML/JSON mapping, strictly.
+
+    Unknown keys and wrong types raise :class:`ConfigError` naming the key path
+    (e.g. ``solver.frame``); invalid values raise the matching
+    :class:`~shared.errors.InputError` subclass. With ``base_dir``, relative
+    mesh-file sources are resolved against it.
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"build spec: expected a table, got {type(data).__name__}")
+    if base_dir is not None:
+        data = _resolve_sources(data, Path(base_dir))
+    return from_mapping(BuildSpec, data)
+
+
+def load_spec(path: str | Path) -> BuildSpec:
+    """Read a build spec TOML file; mesh-file sources are relative to its folder."""
+    path = Path(path)
+    data = load_toml(path)
+    try:
+        return spec_from_mapping(data, base_dir=path.resolve().parent)
+    except InputError as exc:
+        raise type(exc)(f"{path}: {exc}") from None
+
+
+def spec_to_dict(spec: BuildSpec) -> dict[str, Any]:
+    """JSON-able dict of ``spec`` with every field explicit; ``spec_from_mapping`` inverts it."""
+    return to_mapping(spec)
+
+
+def spec_hash(spec: BuildSpec) -> str:
+    """SHA-256 (hex) of the canonical JSON of :func:`spec_to_dict` (sorted keys, no whitespace).
+
+    It fingerprints the spec only, not the content of mesh files it names.
+    """
+    text = json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()

@@ -1,0 +1,194 @@
+"""Zarr I/O of a dataset build: layout creation (driver), chunk writes (workers), progress.
+
+The driver creates every group, array and attribute of the store before any
+task runs (:func:`create_layout`); a task writes only its own ``u`` and
+``activation`` chunk of one subject and then its ``done`` flag, which lives in
+a chunk of its own (:func:`write_chunk`). Nothing two tasks write overlaps, so
+workers never coordinate, and a resumed build rewrites missing chunks only.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+from zarr.codecs import BloscCodec, ZstdCodec
+
+from shared.errors import InputError, SchemaError
+from shared.mesh import LongAxis, Mesh
+from shared.schema import (
+    MESH_ARRAYS,
+    MESH_INDEX_SETS,
+    SCHEMA_VERSION,
+    SUBJECT_ARRAYS,
+    check_schema_version,
+    mesh_path,
+    subject_path,
+)
+from shared.tissue import TissueFields
+from simgen.tissue import tissue_fields
+
+__all__ = [
+    "create_layout",
+    "write_chunk",
+    "done_flags",
+    "read_mesh",
+    "read_tissue",
+    "read_sites",
+    "consolidate",
+    "check_store",
+    "StoreMismatch",
+]
+
+
+class StoreMismatch(InputError):
+    """An existing store was built from a different spec."""
+
+
+def _compressors(kind: str, level: int) -> tuple[Any, ...] | None:
+    if kind == "none":
+        return None
+    if kind == "blosc":
+        return (BloscCodec(cname="zstd", clevel=level, shuffle="bitshuffle"),)
+    return (ZstdCodec(level=level),)
+
+
+def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...], chunks=None, **kw) -> zarr.Array:
+    spec = spec_table[name]
+    return group.create_array(
+        name, shape=shape, chunks=chunks or shape, dtype=spec.dtype, dimension_names=spec.dims, **kw
+    )
+
+
+def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force: bool = False) -> bool:
+    """Create the store for ``plan`` unless it exists with the same spec hash.
+
+    Returns ``True`` when a new layout was written, ``False`` when an existing
+    store of the same spec is reused (resume). A store from another spec is
+    refused with :class:`StoreMismatch` unless ``force`` (then it is replaced).
+    """
+    path = Path(path)
+    if (path / "zarr.json").exists():
+        attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+        check_schema_version(attrs, str(path))
+        if attrs.get("spec_hash") == spec_hash:
+            return False
+        if not force:
+            raise StoreMismatch(
+                f"store {path} was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
+                f"this spec {spec_hash[:12]}...); use a new store path or --force to replace it"
+            )
+        shutil.rmtree(path)
+    elif path.exists() and any(p.name != ".lock" for p in path.iterdir()):
+        raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
+    out = plan.spec.output
+    compressors = _compressors(out.compressor, out.level)
+    root = zarr.open_group(str(path), mode="a", zarr_format=3)
+    root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False})
+    for mesh_id, mesh in plan.meshes.items():
+        _write_mesh(root.require_group(mesh_path(mesh_id)), mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
+    n_frames = plan.spec.solver.frames
+    for subject in plan.subjects:
+        mesh = plan.meshes[subject.mesh_id]
+        n_sites, n_nodes = len(plan.sites[subject.mesh_id]), mesh.n_nodes
+        g = root.require_group(subject_path(subject.id))
+        g.attrs.update({"mesh_id": subject.mesh_id, "tissue": spec_dict_of(subject.tissue),
+                        "chunk_sites": out.chunk_sites})  # fmt: skip
+        fields = tissue_fields(mesh, subject.tissue)
+        for name, values in (("a", fields.a), ("D", fields.D), ("label", fields.label)):
+            _array(g, name, SUBJECT_ARRAYS, (n_nodes,))[...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
+        chunk = min(out.chunk_sites, n_sites)
+        _array(g, "u", SUBJECT_ARRAYS, (n_sites, n_frames, n_nodes), (chunk, n_frames, n_nodes),
+               compressors=compressors, fill_value=np.nan)  # fmt: skip
+        _array(g, "activation", SUBJECT_ARRAYS, (n_sites, n_nodes), (chunk, n_nodes), compressors=compressors,
+               fill_value=np.nan)  # fmt: skip
+        _array(g, "done", SUBJECT_ARRAYS, (plan.n_chunks(subject.id),), (1,), fill_value=0)
+        times = plan.spec.solver.output_interval * np.arange(1, n_frames + 1)
+        _array(g, "times", SUBJECT_ARRAYS, (n_frames,))[...] = times
+    return True
+
+
+def spec_dict_of(obj: Any) -> Any:
+    """JSON-able form of a dataclass (tissue specs in subject attributes)."""
+    from shared.config import to_mapping
+
+    return json.loads(json.dumps(to_mapping(obj)))
+
+
+def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> None:
+    axis = None
+    if mesh.axis is not None:
+        axis = {k: np.asarray(getattr(mesh.axis, k), float).tolist() for k in ("apex", "base", "reference")}
+    g.attrs.update({"name": mesh.name, "cell_type": mesh.cell_type, "axis": axis})
+    _array(g, "points", MESH_ARRAYS, mesh.points.shape)[...] = mesh.points
+    _array(g, "cells", MESH_ARRAYS, mesh.cells.shape)[...] = mesh.cells
+    _array(g, "stim_nodes", MESH_ARRAYS, (len(sites),))[...] = np.asarray(sites, np.int32)
+    sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
+    sets["electrodes"] = np.asarray(electrodes, np.int32)
+    for name, idx in sets.items():
+        arr = _array(g, name, MESH_ARRAYS, (len(idx),), (max(len(idx), 1),))
+        if len(idx):
+            arr[...] = np.asarray(idx, np.int32)
+
+
+def write_chunk(
+    path: str | Path, subject_id: str, chunk: int, start: int, stop: int, u: NDArray, activation: NDArray
+) -> None:
+    """Worker: write one chunk of sites, then (only then) its completion flag."""
+    g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r+")
+    g["u"][start:stop] = u
+    g["activation"][start:stop] = activation
+    g["done"][chunk] = 1
+
+
+def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:
+    """Completion flag of every chunk of a subject."""
+    return zarr.open_group(str(path), path=subject_path(subject_id), mode="r")["done"][...].astype(bool)
+
+
+def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
+    """The mesh as stored (points, cells, node sets, axis)."""
+    g = zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")
+    axis = g.attrs.get("axis")
+    sets = {name: g[name][...] for name in MESH_INDEX_SETS if name != "electrodes" and g[name].shape[0]}
+    return Mesh(
+        points=g["points"][...], cells=g["cells"][...], node_sets=sets, name=g.attrs["name"],
+        axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
+    )  # fmt: skip
+
+
+def read_tissue(path: str | Path, subject_id: str) -> TissueFields:
+    """The subject's per-node tissue fields."""
+    g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r")
+    return TissueFields(g["a"][...].astype(float), g["D"][...].astype(float), g["label"][...])
+
+
+def read_sites(path: str | Path, mesh_id: str) -> NDArray[np.int64]:
+    """Stimulation node ids of every subject on ``mesh_id``."""
+    return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")["stim_nodes"][...].astype(np.int64)
+
+
+def consolidate(path: str | Path) -> None:
+    """Mark the store complete and consolidate its metadata for fast opening."""
+    import warnings
+
+    root = zarr.open_group(str(path), mode="r+")
+    root.attrs["complete"] = True
+    with warnings.catch_warnings():  # consolidated metadata is not (yet) part of the v3 spec
+        warnings.simplefilter("ignore")
+        zarr.consolidate_metadata(str(path))
+
+
+def check_store(path: str | Path) -> dict:
+    """Root attributes of an existing store after a schema-version check."""
+    path = Path(path)
+    if not (path / "zarr.json").exists():
+        raise SchemaError(f"{path} is not a Zarr store (no zarr.json)")
+    attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+    check_schema_version(attrs, str(path))
+    return attrs

@@ -1,0 +1,42 @@
+"""What a Dask worker runs: simulate one chunk of sites of one subject and store it.
+
+Everything a task needs is read from the store the driver laid out (mesh,
+sites, tissue fields), so workers on other hosts need only the store path.
+The assembled :class:`Simulator` of recent subjects is cached per process.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from simgen.build.store import read_mesh, read_sites, read_tissue, write_chunk
+from simgen.solver.simulate import Simulator, SolverConfig
+
+__all__ = ["run_task"]
+
+_CACHE: OrderedDict[tuple, tuple[Simulator, np.ndarray]] = OrderedDict()
+_CACHE_SIZE = 4
+
+
+def _simulator(store: str, subject_id: str, mesh_id: str, solver: SolverConfig) -> tuple[Simulator, np.ndarray]:
+    key = (store, subject_id, solver)
+    if key not in _CACHE:
+        sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, subject_id), solver)
+        _CACHE[key] = (sim, read_sites(store, mesh_id))
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    _CACHE.move_to_end(key)
+    return _CACHE[key]
+
+
+def run_task(
+    store: str | Path, subject_id: str, mesh_id: str, chunk: int, start: int, stop: int, solver: SolverConfig
+) -> str:
+    """Simulate sites ``[start, stop)`` of ``subject_id`` single-threaded and write chunk ``chunk``."""
+    sim, sites = _simulator(str(store), subject_id, mesh_id, solver)
+    result = sim.run(sites[start:stop], threads=1)
+    write_chunk(store, subject_id, chunk, start, stop, result.u, result.activation)
+    return f"{subject_id}/{chunk}"
