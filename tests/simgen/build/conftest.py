@@ -1,0 +1,52 @@
+"""Shared helpers of the build tests: a tiny spec and byte-level store comparison."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from simgen.build import BuildSpec, spec_from_mapping
+
+
+def tiny_spec(**patch) -> BuildSpec:
+    """One 500-node LV, two tissue settings, 6 sites in chunks of 3, short output: 4 tasks."""
+    data = {
+        "meshes": [{"id": "lv", "source": "lv", "nodes": 500}],
+        "tissue": ["healthy", "scar-apex"],
+        "sites": {"count": 6},
+        "solver": {"frames": 8},
+        "output": {"chunk_sites": 3, "sock_electrodes": 40},
+    }
+    return spec_from_mapping({**data, **patch})
+
+
+def store_bytes(store: Path) -> dict[str, bytes]:
+    """Every file of a store (relative path -> bytes), the lock file excepted."""
+    return {
+        str(p.relative_to(store)): p.read_bytes()
+        for p in sorted(store.rglob("*"))
+        if p.is_file() and p.name != ".lock"
+    }
+
+
+@pytest.fixture(scope="session")
+def reference_store(tmp_path_factory) -> Path:
+    """An uninterrupted build of :func:`tiny_spec`, shared by the comparisons."""
+    from simgen.build.runner import build
+
+    store = tmp_path_factory.mktemp("ref") / "ref.zarr"
+    build(tiny_spec(), store, workers=2)
+    return store
+
+
+@pytest.fixture(name="tiny_spec")
+def tiny_spec_fixture():
+    """The :func:`tiny_spec` factory."""
+    return tiny_spec
+
+
+@pytest.fixture(name="store_bytes")
+def store_bytes_fixture():
+    """The :func:`store_bytes` snapshot function."""
+    return store_bytes
