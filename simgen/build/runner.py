@@ -21,12 +21,13 @@ from distributed import Client, LocalCluster, as_completed
 
 from shared.errors import InputError
 from simgen.build.lock import StoreLock
-from simgen.build.manifest import Plan, Task, make_plan, validate_plan
+from simgen.build.manifest import make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
-from simgen.build.store import consolidate, create_layout, done_flags
+from simgen.build.store import consolidate, create_layout, done_flags, pending_tasks, subject_ids
 from simgen.build.worker import run_task
+from simgen.solver.simulate import SolverConfig
 
-__all__ = ["BuildFailed", "BuildReport", "build", "missing_tasks", "dask_client"]
+__all__ = ["BuildFailed", "BuildReport", "build", "run_pending", "dask_client", "SINGLE_THREAD_ENV"]
 
 #: Environment for worker processes: one thread each for BLAS and numba.
 SINGLE_THREAD_ENV = {
@@ -52,12 +53,6 @@ class BuildReport:
     seconds: float
     dashboard: str | None = None
     failed: list[str] = field(default_factory=list)
-
-
-def missing_tasks(store: str | Path, plan: Plan) -> list[Task]:
-    """Tasks whose chunk is not flagged done in ``store``."""
-    flags = {s.id: done_flags(store, s.id) for s in plan.subjects}
-    return [t for t in plan.tasks if not flags[t.subject_id][t.chunk]]
 
 
 @contextmanager
@@ -100,35 +95,54 @@ def build(
     start = time.perf_counter()
     plan = make_plan(spec)
     validate_plan(plan)  # every error that can be found before writing
-    h = spec_hash(spec)
     store = str(store)
     with StoreLock(store):
-        create_layout(store, plan, spec_to_dict(spec), h, force=force)
-        todo = missing_tasks(store, plan)
-        report = BuildReport(store, len(plan.tasks), len(todo), sum(t.stop - t.start for t in todo), 0.0)
-        if todo:
-            with dask_client(scheduler, workers) as client:
-                report.dashboard = client.dashboard_link
-                if on_start:
-                    on_start(len(todo), report.dashboard)
-                futures = {
-                    client.submit(
-                        run_task, store, t.subject_id, plan.subject(t.subject_id).mesh_id, t.chunk, t.start, t.stop,
-                        spec.solver, key=f"simgen-{h[:8]}-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
-                    ): t  # fmt: skip
-                    for t in todo
-                }
-                for future in as_completed(futures):
-                    task = futures[future]
-                    if future.status == "error":
-                        report.failed.append(f"{task.key}: {future.exception()!r}")
-                    elif on_done:
-                        on_done(task.key)
-        if report.failed:
-            raise BuildFailed(
-                f"{len(report.failed)} task(s) failed after {retries} retries; finished chunks are kept, "
-                "rerun the build to retry them:\n  " + "\n  ".join(report.failed)
-            )
-        consolidate(store)
+        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force)
+        report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def run_pending(
+    store: str,
+    solver: SolverConfig,
+    scheduler: str | None = None,
+    workers: int = 2,
+    retries: int = 2,
+    on_start: Callable[[int, str | None], None] | None = None,
+    on_done: Callable[[str], None] | None = None,
+    subjects: list[str] | None = None,
+) -> BuildReport:
+    """Simulate every chunk of ``store`` (or of ``subjects``) not flagged done, then consolidate.
+
+    The caller holds the store lock. Tasks come from the store layout itself,
+    so builds, added subjects and regenerated chunks all run through here.
+    """
+    start = time.perf_counter()
+    todo = pending_tasks(store, subjects)
+    total = sum(len(done_flags(store, s)) for s in (subjects or subject_ids(store)))
+    report = BuildReport(store, total, len(todo), sum(t.stop - t.start for t in todo), 0.0)
+    if todo:
+        with dask_client(scheduler, workers) as client:
+            report.dashboard = client.dashboard_link
+            if on_start:
+                on_start(len(todo), report.dashboard)
+            futures = {
+                client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver,
+                              key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False): t
+                for t in todo
+            }  # fmt: skip
+            for future in as_completed(futures):
+                task = futures[future]
+                if future.status == "error":
+                    report.failed.append(f"{task.key}: {future.exception()!r}")
+                elif on_done:
+                    on_done(task.key)
+    if report.failed:
+        raise BuildFailed(
+            f"{len(report.failed)} task(s) failed after {retries} retries; finished chunks are kept, "
+            "rerun the build to retry them:\n  " + "\n  ".join(report.failed)
+        )
+    consolidate(store)
     report.seconds = time.perf_counter() - start
     return report

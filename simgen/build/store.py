@@ -31,12 +31,15 @@ from shared.schema import (
     subject_path,
 )
 from shared.tissue import TissueFields
+from simgen.build.manifest import Task
 from simgen.tissue import tissue_fields
 
 __all__ = [
     "create_layout",
     "write_chunk",
     "done_flags",
+    "subject_ids",
+    "pending_tasks",
     "read_mesh",
     "read_tissue",
     "read_sites",
@@ -77,6 +80,8 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
         attrs = dict(zarr.open_group(str(path), mode="r").attrs)
         check_schema_version(attrs, str(path))
         if attrs.get("spec_hash") == spec_hash:
+            for partial in path.rglob("*.partial"):  # half-written by a killed build; we hold the lock
+                partial.unlink()
             return False
         if not force:
             raise StoreMismatch(
@@ -144,6 +149,24 @@ def write_chunk(
     g["u"][start:stop] = u
     g["activation"][start:stop] = activation
     g["done"][chunk] = 1
+
+
+def subject_ids(path: str | Path) -> list[str]:
+    """Ids of every subject in the store, sorted."""
+    root = zarr.open_group(str(path), mode="r")
+    return sorted(name for name, _ in root["subjects"].groups())
+
+
+def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
+    """Chunks not flagged done, in subject then chunk order (all subjects, or ``subjects``)."""
+    root = zarr.open_group(str(path), mode="r")
+    tasks = []
+    for subject_id in subjects if subjects is not None else subject_ids(path):
+        g = root[subject_path(subject_id)]
+        n_sites, size = g["u"].shape[0], int(g.attrs["chunk_sites"])
+        for chunk in np.flatnonzero(g["done"][...] == 0):
+            tasks.append(Task(subject_id, int(chunk), int(chunk) * size, min((int(chunk) + 1) * size, n_sites)))
+    return tasks
 
 
 def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:

@@ -11,7 +11,9 @@ from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
+import zarr
 
+from shared.schema import subject_path
 from simgen.build.store import read_mesh, read_sites, read_tissue, write_chunk
 from simgen.solver.simulate import Simulator, SolverConfig
 
@@ -21,9 +23,10 @@ _CACHE: OrderedDict[tuple, tuple[Simulator, np.ndarray]] = OrderedDict()
 _CACHE_SIZE = 4
 
 
-def _simulator(store: str, subject_id: str, mesh_id: str, solver: SolverConfig) -> tuple[Simulator, np.ndarray]:
+def _simulator(store: str, subject_id: str, solver: SolverConfig) -> tuple[Simulator, np.ndarray]:
     key = (store, subject_id, solver)
     if key not in _CACHE:
+        mesh_id = zarr.open_group(store, path=subject_path(subject_id), mode="r").attrs["mesh_id"]
         sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, subject_id), solver)
         _CACHE[key] = (sim, read_sites(store, mesh_id))
         while len(_CACHE) > _CACHE_SIZE:
@@ -32,11 +35,9 @@ def _simulator(store: str, subject_id: str, mesh_id: str, solver: SolverConfig) 
     return _CACHE[key]
 
 
-def run_task(
-    store: str | Path, subject_id: str, mesh_id: str, chunk: int, start: int, stop: int, solver: SolverConfig
-) -> str:
+def run_task(store: str | Path, subject_id: str, chunk: int, start: int, stop: int, solver: SolverConfig) -> str:
     """Simulate sites ``[start, stop)`` of ``subject_id`` single-threaded and write chunk ``chunk``."""
-    sim, sites = _simulator(str(store), subject_id, mesh_id, solver)
+    sim, sites = _simulator(str(store), subject_id, solver)
     result = sim.run(sites[start:stop], threads=1)
     write_chunk(store, subject_id, chunk, start, stop, result.u, result.activation)
     return f"{subject_id}/{chunk}"
