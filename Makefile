@@ -18,6 +18,8 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/simgen demo --out report/demo
+	$(BIN)/simgen build specs/demo.toml --store report/demo/demo.zarr
+	$(BIN)/simgen status report/demo/demo.zarr
 
 test: $(STAMP)
 	$(BIN)/pytest -q

@@ -11,6 +11,11 @@ from simgen.meshes.io import load_mesh
 runner = CliRunner()
 
 
+def text(result) -> str:
+    """Command output with rich's line wrapping undone."""
+    return " ".join(result.output.split())
+
+
 def test_help_lists_commands():
     result = runner.invoke(app, ["--help"])
     assert result.exit_code == 0
@@ -52,7 +57,7 @@ def test_errors_are_reported_without_traceback(tmp_path):
     for args, message in cases:
         result = runner.invoke(app, args)
         assert result.exit_code == 2, result.output
-        assert message in " ".join(result.output.split())
+        assert message in text(result)
         assert "Traceback" not in result.output
 
 
@@ -60,3 +65,24 @@ def test_tissues_lists_sixteen_settings():
     result = runner.invoke(app, ["tissues"])
     assert result.exit_code == 0
     assert "healthy" in result.output and "scar-apex" in result.output
+
+
+def test_build_and_status_commands(tmp_path):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(
+        'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nnodes = 500\n[sites]\ncount = 4\n'
+        "[solver]\nframes = 6\n[output]\nchunk_sites = 2\nsock_electrodes = 30\n"
+    )
+    store = tmp_path / "s.zarr"
+    result = runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    assert "Dask dashboard: http" in text(result) and "2/2 chunks" in text(result)
+    again = runner.invoke(app, ["build", str(spec), "--store", str(store)])
+    assert "already complete" in text(again)
+    status = runner.invoke(app, ["status", str(store)])
+    assert status.exit_code == 0 and "2/2 chunks done (100%)" in text(status)
+    spec.write_text(spec.read_text().replace("frames = 6", "frames = 7"))
+    refused = runner.invoke(app, ["build", str(spec), "--store", str(store)])
+    assert refused.exit_code == 2 and "different spec" in text(refused)
+    bad = runner.invoke(app, ["status", str(tmp_path)])
+    assert bad.exit_code == 2 and "not a Zarr store" in text(bad)
