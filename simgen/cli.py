@@ -188,5 +188,45 @@ def status(store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")]) 
     console.print(f"{done}/{total} chunks done ({100 * done / max(total, 1):.0f}%)")
 
 
+@app.command()
+def verify(
+    store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")],
+    sample: Annotated[int, typer.Option(help="Chunks recomputed and compared bit for bit.")] = 2,
+    seed: Annotated[int, typer.Option(help="Seed of the chunk sample.")] = 0,
+) -> None:
+    """Check every chunk (done, readable, right shape, finite) and recompute a random sample."""
+    from simgen.build.verify import verify_store
+
+    try:
+        report = verify_store(store, sample=sample, seed=seed)
+    except InputError as exc:
+        _fail(exc)
+    for problem in report.problems:
+        console.print(f"[red]problem:[/red] {problem}")
+    console.print(
+        f"{store}: {report.chunks_checked} chunks read, {report.chunks_recomputed} recomputed, "
+        f"{len(report.problems)} problem(s)"
+    )
+    if not report.ok:
+        raise typer.Exit(code=1)
+
+
+@app.command("export-vtk")
+def export_vtk(
+    store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")],
+    subject: Annotated[str, typer.Argument(help="Subject id (see `simgen status`).")],
+    site: Annotated[int, typer.Argument(help="Site index within the subject (0-based).")],
+    out: Annotated[Path, typer.Option(help="Output folder for the .vtu frames and .pvd collection.")] = Path("vtk"),
+) -> None:
+    """Write one simulation as a ParaView time series (.pvd + one .vtu per frame)."""
+    from simgen.build.export import export_vtk as run_export
+
+    try:
+        pvd = run_export(store, subject, site, out)
+    except InputError as exc:
+        _fail(exc)
+    console.print(f"wrote {pvd} (open it in ParaView)")
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

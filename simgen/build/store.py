@@ -31,11 +31,16 @@ from shared.schema import (
     subject_path,
 )
 from shared.tissue import TissueFields
-from simgen.build.manifest import Task
+from simgen.build.manifest import Subject, Task
+from simgen.build.spec import OutputSpec
+from simgen.solver.simulate import SolverConfig
 from simgen.tissue import tissue_fields
 
 __all__ = [
     "create_layout",
+    "write_mesh_group",
+    "write_subject_group",
+    "remove_partials",
     "write_chunk",
     "done_flags",
     "subject_ids",
@@ -80,8 +85,7 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
         attrs = dict(zarr.open_group(str(path), mode="r").attrs)
         check_schema_version(attrs, str(path))
         if attrs.get("spec_hash") == spec_hash:
-            for partial in path.rglob("*.partial"):  # half-written by a killed build; we hold the lock
-                partial.unlink()
+            remove_partials(path)
             return False
         if not force:
             raise StoreMismatch(
@@ -91,31 +95,60 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
         shutil.rmtree(path)
     elif path.exists() and any(p.name != ".lock" for p in path.iterdir()):
         raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
-    out = plan.spec.output
-    compressors = _compressors(out.compressor, out.level)
     root = zarr.open_group(str(path), mode="a", zarr_format=3)
     root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False})
     for mesh_id, mesh in plan.meshes.items():
-        _write_mesh(root.require_group(mesh_path(mesh_id)), mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
-    n_frames = plan.spec.solver.frames
+        write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
     for subject in plan.subjects:
-        mesh = plan.meshes[subject.mesh_id]
-        n_sites, n_nodes = len(plan.sites[subject.mesh_id]), mesh.n_nodes
-        g = root.require_group(subject_path(subject.id))
-        g.attrs.update({"mesh_id": subject.mesh_id, "tissue": spec_dict_of(subject.tissue),
-                        "chunk_sites": out.chunk_sites})  # fmt: skip
-        fields = tissue_fields(mesh, subject.tissue)
-        for name, values in (("a", fields.a), ("D", fields.D), ("label", fields.label)):
-            _array(g, name, SUBJECT_ARRAYS, (n_nodes,))[...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
-        chunk = min(out.chunk_sites, n_sites)
-        _array(g, "u", SUBJECT_ARRAYS, (n_sites, n_frames, n_nodes), (chunk, n_frames, n_nodes),
-               compressors=compressors, fill_value=np.nan)  # fmt: skip
-        _array(g, "activation", SUBJECT_ARRAYS, (n_sites, n_nodes), (chunk, n_nodes), compressors=compressors,
-               fill_value=np.nan)  # fmt: skip
-        _array(g, "done", SUBJECT_ARRAYS, (plan.n_chunks(subject.id),), (1,), fill_value=0)
-        times = plan.spec.solver.output_interval * np.arange(1, n_frames + 1)
-        _array(g, "times", SUBJECT_ARRAYS, (n_frames,))[...] = times
+        write_subject_group(root, subject, plan.meshes[subject.mesh_id], len(plan.sites[subject.mesh_id]),
+                            plan.spec.output, plan.spec.solver)  # fmt: skip
     return True
+
+
+def remove_partials(path: str | Path) -> None:
+    """Delete ``*.partial`` files half-written by a killed writer (the caller holds the store lock)."""
+    for partial in Path(path).rglob("*.partial"):
+        partial.unlink()
+
+
+def write_mesh_group(root: zarr.Group, mesh_id: str, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> zarr.Group:
+    """Write group ``meshes/<mesh_id>``: geometry, node index sets, stimulation sites and electrodes.
+
+    The one code path for mesh groups, used by :func:`create_layout` and by
+    :func:`simgen.build.edit.add_subject`.
+    """
+    g = root.require_group(mesh_path(mesh_id))
+    _write_mesh(g, mesh, sites, electrodes)
+    return g
+
+
+def write_subject_group(
+    root: zarr.Group, subject: Subject, mesh: Mesh, n_sites: int, output: OutputSpec, solver: SolverConfig
+) -> zarr.Group:
+    """Write group ``subjects/<subject.id>``: attributes, tissue fields and the empty result arrays.
+
+    ``u`` and ``activation`` are chunked by ``output.chunk_sites`` sites (NaN until simulated) and
+    ``done`` holds one flag per chunk, all 0. The one code path for subject
+    groups, used by :func:`create_layout` and by
+    :func:`simgen.build.edit.add_subject`.
+    """
+    compressors = _compressors(output.compressor, output.level)
+    n_frames, n_nodes = solver.frames, mesh.n_nodes
+    g = root.require_group(subject_path(subject.id))
+    g.attrs.update({"mesh_id": subject.mesh_id, "tissue": spec_dict_of(subject.tissue),
+                    "chunk_sites": output.chunk_sites})  # fmt: skip
+    fields = tissue_fields(mesh, subject.tissue)
+    for name, values in (("a", fields.a), ("D", fields.D), ("label", fields.label)):
+        _array(g, name, SUBJECT_ARRAYS, (n_nodes,))[...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
+    chunk = min(output.chunk_sites, n_sites)
+    _array(g, "u", SUBJECT_ARRAYS, (n_sites, n_frames, n_nodes), (chunk, n_frames, n_nodes),
+           compressors=compressors, fill_value=np.nan)  # fmt: skip
+    _array(g, "activation", SUBJECT_ARRAYS, (n_sites, n_nodes), (chunk, n_nodes), compressors=compressors,
+           fill_value=np.nan)  # fmt: skip
+    _array(g, "done", SUBJECT_ARRAYS, (-(-n_sites // output.chunk_sites),), (1,), fill_value=0)
+    times = solver.output_interval * np.arange(1, n_frames + 1)
+    _array(g, "times", SUBJECT_ARRAYS, (n_frames,))[...] = times
+    return g
 
 
 def spec_dict_of(obj: Any) -> Any:

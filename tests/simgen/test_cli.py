@@ -86,3 +86,20 @@ def test_build_and_status_commands(tmp_path):
     assert refused.exit_code == 2 and "different spec" in text(refused)
     bad = runner.invoke(app, ["status", str(tmp_path)])
     assert bad.exit_code == 2 and "not a Zarr store" in text(bad)
+
+
+def test_verify_and_export_commands(tmp_path):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(
+        'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nnodes = 500\n[sites]\ncount = 4\n'
+        "[solver]\nframes = 6\n[output]\nchunk_sites = 2\nsock_electrodes = 30\n"
+    )
+    store = tmp_path / "s.zarr"
+    assert runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"]).exit_code == 0
+    ok = runner.invoke(app, ["verify", str(store), "--sample", "2"])
+    assert ok.exit_code == 0 and "0 problem(s)" in text(ok)
+    exported = runner.invoke(app, ["export-vtk", str(store), "lv-healthy", "1", "--out", str(tmp_path / "vtk")])
+    assert exported.exit_code == 0 and len(list((tmp_path / "vtk").glob("*.vtu"))) == 6
+    (store / "subjects/lv-healthy/u/c/1/0/0").write_bytes(b"garbage")
+    broken = runner.invoke(app, ["verify", str(store)])
+    assert broken.exit_code == 1 and "chunk 1" in text(broken)

@@ -1,0 +1,304 @@
+"""Benchmark: dataset builds on Dask into Zarr - 1 vs 2 workers, Zarr write share, paper scale.
+
+Three measurements, each printed as a Markdown table:
+
+1. **Scaling.** One small spec built in code (default: 1 LV mesh of ~2000
+   nodes x 4 tissue settings x 100 sites, 25 sites per chunk = 16 tasks) is
+   built into a fresh temporary store by :func:`simgen.build.runner.build`
+   (LocalCluster of single-threaded worker processes) with 1 and with 2
+   workers. Reported: build wall time and sims/s, the LocalCluster start-up
+   alone (``dask_client`` entered and left with no work), the task phase
+   (first submit to last completion, from the ``on_start``/``on_done`` hooks)
+   and the workers' busy share over it (Dask task stream). The ratio it exists
+   to show is the 2-vs-1 speed-up (goal >= 1.8x), on the whole build and on
+   the task phase.
+2. **Zarr write share.** Without Dask, in this process: for each output
+   setting (zstd level 3, blosc, none; chunk_sites 10/25/50) a store layout
+   is created and the worker's steps are run by hand for every chunk of one
+   subject - ``Simulator.run(sites, threads=1)`` then
+   :func:`simgen.build.store.write_chunk` - timing each part. Reported: the
+   write share of task time (goal <= 5%), bytes written (u + activation
+   chunks on disk) and the compression ratio (stored / raw float32 bytes).
+3. **Paper scale** (``--paper``, not run by default): ``specs/default.toml``
+   (3 meshes x 16 settings x 200 sites = 9,600 simulations) built with 2
+   workers; wall time, sims/s and store size on disk (goal <= 15 min on 2
+   cores).
+
+Run: ``.venv/bin/python bench/build.py [--paper] [--out DIR]`` (DIR gets build.md and build.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import distributed
+import numpy as np
+import zarr
+
+from simgen.build.manifest import make_plan
+from simgen.build.runner import build, dask_client
+from simgen.build.spec import BuildSpec, load_spec, spec_from_mapping, spec_hash, spec_to_dict
+from simgen.build.store import create_layout, write_chunk
+from simgen.build.worker import _simulator
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_SPEC = ROOT / "specs" / "default.toml"
+TISSUE = ["healthy", "scar-anterior-basal", "scar-septal-mid", "scar-lateral-apical"]
+#: (compressor, level, chunk_sites) of the write-share table; the first is the default output setting.
+WRITE_CONFIGS = [("zstd", 3, 25), ("zstd", 1, 25), ("blosc", 3, 25), ("blosc", 1, 25), ("none", 0, 25),
+                 ("zstd", 3, 10), ("zstd", 3, 50)]
+
+
+def small_spec(nodes: int, settings: int, sites: int, chunk: int, compressor="zstd", level=3) -> BuildSpec:
+    """One procedural LV under ``settings`` tissue settings (healthy first), built in code."""
+    from simgen.tissue.defaults import default_settings
+
+    names = [s.name for s in default_settings()]
+    tissue = [n for n in TISSUE if n in names] + [n for n in names if n not in TISSUE]
+    return spec_from_mapping({
+        "name": "bench-build", "seed": 0, "tissue": tissue[:settings],
+        "meshes": [{"id": "lv", "source": "lv", "nodes": nodes}],
+        "sites": {"count": sites},
+        "output": {"chunk_sites": chunk, "compressor": compressor, "level": level},
+    })  # fmt: skip
+
+
+def disk_bytes(path: Path) -> tuple[int, int, int]:
+    """(apparent bytes, allocated bytes as du counts them, file count) of everything under ``path``."""
+    apparent = allocated = files = 0
+    for root, _, names in os.walk(path):
+        for name in names:
+            st = os.lstat(os.path.join(root, name))
+            apparent += st.st_size
+            allocated += st.st_blocks * 512
+            files += 1
+    return apparent, allocated, files
+
+
+def raw_bytes(spec: BuildSpec, plan) -> int:
+    """float32 bytes of every subject's u and activation arrays."""
+    frames = spec.solver.frames
+    return sum(len(plan.sites[s.mesh_id]) * plan.meshes[s.mesh_id].n_nodes * (frames + 1) * 4 for s in plan.subjects)
+
+
+def timed_build(spec: BuildSpec, store: Path, workers: int, progress: bool = False) -> dict:
+    """``build(spec, store, workers=workers)`` with its phases timed and the task stream collected."""
+    marks: dict = {"done": 0}
+
+    def on_start(n_tasks: int, dashboard: str | None) -> None:
+        marks["start"] = time.perf_counter()
+        marks["n_tasks"] = n_tasks
+        client = distributed.default_client()
+        client.get_task_stream()  # make the scheduler record the task stream from now on
+        marks["client"] = client
+
+    def on_done(key: str) -> None:
+        marks["done"] += 1
+        marks["last"] = time.perf_counter()
+        if marks["done"] == marks["n_tasks"]:  # still inside dask_client: fetch the stream before it closes
+            marks["stream"] = marks["client"].get_task_stream()
+        if progress and (marks["done"] % 24 == 0 or marks["done"] == marks["n_tasks"]):
+            el = marks["last"] - marks["t0"]
+            print(f"  {marks['done']}/{marks['n_tasks']} tasks, {el:.0f} s", file=sys.stderr, flush=True)
+
+    marks["t0"] = t0 = time.perf_counter()
+    report = build(spec, store, workers=workers, on_start=on_start, on_done=on_done)
+    wall = time.perf_counter() - t0
+    compute = [
+        ss["stop"] - ss["start"]
+        for rec in marks.get("stream", []) if str(rec.get("key", "")).startswith("simgen-")
+        for ss in rec.get("startstops", ()) if ss.get("action") == "compute"
+    ]  # fmt: skip
+    tasks_s = marks["last"] - marks["start"]
+    return {
+        "workers": workers, "tasks": report.tasks_run, "simulations": report.simulations, "wall_s": wall,
+        "sims_per_s": report.simulations / wall, "before_tasks_s": marks["start"] - t0, "tasks_s": tasks_s,
+        "after_tasks_s": t0 + wall - marks["last"], "task_sims_per_s": report.simulations / tasks_s,
+        "task_compute_mean_s": float(np.mean(compute)) if compute else None,
+        "busy": sum(compute) / (workers * tasks_s) if compute else None,
+    }  # fmt: skip
+
+
+def cluster_startup(workers: int) -> tuple[float, float]:
+    """Seconds to enter (LocalCluster up, workers connected) and to leave ``dask_client`` with no work."""
+    t0 = time.perf_counter()
+    with dask_client(None, workers) as client:
+        client.wait_for_workers(workers)
+        t1 = time.perf_counter()
+    return t1 - t0, time.perf_counter() - t1
+
+
+def bench_scaling(args, tmp: Path) -> list[dict]:
+    spec = small_spec(args.nodes, args.settings, args.sites, args.chunk)
+    rows = []
+    for w in args.workers:
+        up, down = cluster_startup(w)
+        t0 = time.perf_counter()
+        plan = make_plan(spec)
+        create_layout(tmp / f"layout-{w}.zarr", plan, spec_to_dict(spec), spec_hash(spec))
+        layout_s = time.perf_counter() - t0
+        shutil.rmtree(tmp / f"layout-{w}.zarr")
+        best = None
+        for r in range(args.repeat):
+            row = timed_build(spec, tmp / f"scale-{w}-{r}.zarr", w)
+            shutil.rmtree(tmp / f"scale-{w}-{r}.zarr")
+            if best is None or row["wall_s"] < best["wall_s"]:
+                best = row
+        best.update(cluster_up_s=up, cluster_down_s=down, plan_layout_s=layout_s)
+        rows.append(best)
+    base = rows[0]
+    for row in rows:
+        row["speedup"] = base["wall_s"] / row["wall_s"]
+        row["task_speedup"] = base["tasks_s"] / row["tasks_s"]
+    return rows
+
+
+def bench_write(args, tmp: Path) -> list[dict]:
+    """Worker steps by hand for every chunk of the first subject, per output setting."""
+    rows = []
+    for i, (compressor, level, chunk) in enumerate([WRITE_CONFIGS[0], *WRITE_CONFIGS]):  # the first is a warm-up
+        spec = small_spec(args.nodes, 1, args.write_sites, chunk, compressor, level)
+        plan = make_plan(spec)
+        store = tmp / f"write-{i}-{compressor}-{level}-{chunk}.zarr"
+        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec))
+        subject = plan.subjects[0].id
+        t0 = time.perf_counter()
+        sim, sites = _simulator(str(store), subject, spec.solver)  # assembled once per subject, then cached
+        setup_s = time.perf_counter() - t0
+        sim.run(sites[:1], threads=1)  # JIT load / warm-up, untimed
+        run_s = write_s = 0.0
+        n_chunks = -(-len(sites) // chunk)
+        for c in range(n_chunks):
+            start, stop = c * chunk, min((c + 1) * chunk, len(sites))
+            t0 = time.perf_counter()
+            res = sim.run(sites[start:stop], threads=1)
+            t1 = time.perf_counter()
+            write_chunk(store, subject, c, start, stop, res.u, res.activation)
+            t2 = time.perf_counter()
+            run_s, write_s = run_s + t1 - t0, write_s + t2 - t1
+        g = store / "subjects" / subject
+        stored = sum(disk_bytes(g / name)[0] for name in ("u", "activation"))
+        raw = raw_bytes(spec, plan)
+        rows.append({
+            "compressor": compressor if compressor == "none" else f"{compressor} {level}", "chunk_sites": chunk,
+            "chunks": n_chunks, "sites": len(sites), "setup_s": setup_s, "run_s": run_s, "write_s": write_s,
+            "write_share": write_s / (run_s + write_s), "write_ms_per_chunk": 1e3 * write_s / n_chunks,
+            "write_MB_per_s": raw / 1e6 / write_s, "stored_bytes": stored, "raw_bytes": raw, "ratio": stored / raw,
+        })  # fmt: skip
+        shutil.rmtree(store)
+    return rows[1:]
+
+
+def bench_paper(args, tmp: Path) -> dict:
+    spec = load_spec(args.paper_spec)
+    store = args.paper_store or tmp / "paper.zarr"
+    if store.exists():
+        raise SystemExit(f"{store} exists; give a new --paper-store path")
+    print(f"paper-scale build of {args.paper_spec} into {store} with {args.paper_workers} workers ...",
+          file=sys.stderr, flush=True)  # fmt: skip
+    row = timed_build(spec, store, args.paper_workers, progress=True)
+    apparent, allocated, files = disk_bytes(store)
+    raw = raw_bytes(spec, make_plan(spec))
+    row.update(spec=str(args.paper_spec), store_bytes=apparent, store_du_bytes=allocated, store_files=files,
+               raw_bytes=raw, ratio=apparent / raw, subjects=len(zarr.open_group(str(store), mode="r")["subjects"]))  # fmt: skip
+    if not args.paper_store:
+        shutil.rmtree(store)
+    return row
+
+
+def _f(x, fmt: str) -> str:
+    return "-" if x is None else format(x, fmt)
+
+
+def markdown(scaling: list[dict], write: list[dict], paper: dict | None, args) -> str:
+    out = [f"### Scaling: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x {args.sites} sites, "
+           f"{args.chunk} sites per chunk; best of {args.repeat}",  "",
+           "| workers | tasks | sims | cluster up / down (s) | plan + layout (s) | build wall (s) | sims/s "
+           "| before tasks (s) | task phase (s) | after tasks (s) | task sims/s | mean task (s) | busy "
+           "| speed-up (wall) | speed-up (tasks) |",
+           "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for r in scaling:
+        out.append(f"| {r['workers']} | {r['tasks']} | {r['simulations']} | {r['cluster_up_s']:.2f} / "
+                   f"{r['cluster_down_s']:.2f} | {r['plan_layout_s']:.2f} | {r['wall_s']:.2f} | {r['sims_per_s']:.1f} "
+                   f"| {r['before_tasks_s']:.2f} | {r['tasks_s']:.2f} | {r['after_tasks_s']:.2f} "
+                   f"| {r['task_sims_per_s']:.1f} | {_f(r['task_compute_mean_s'], '.3f')} "
+                   f"| {_f(r['busy'] and 100 * r['busy'], '.0f')}% | {r['speedup']:.2f}x | {r['task_speedup']:.2f}x |")  # fmt: skip
+    out += ["", "before tasks = plan + layout + cluster start-up; after tasks = cluster shut-down + consolidate; "
+            "busy = worker compute time / (workers x task phase); mean task = worker compute time per task "
+            "(Dask task stream).", "",
+            f"### Zarr write share: worker steps by hand, 1 subject x {args.write_sites} sites, threads=1, no Dask",
+            "", "| compressor | chunk_sites | chunks | Simulator.run (s) | write_chunk (s) | write share "
+            "| write ms/chunk | raw MB/s written | stored MB | raw MB | stored/raw |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for r in write:
+        out.append(f"| {r['compressor']} | {r['chunk_sites']} | {r['chunks']} | {r['run_s']:.2f} | {r['write_s']:.3f} "
+                   f"| {100 * r['write_share']:.1f}% | {r['write_ms_per_chunk']:.0f} | {r['write_MB_per_s']:.0f} "
+                   f"| {r['stored_bytes'] / 1e6:.1f} | {r['raw_bytes'] / 1e6:.1f} | {r['ratio']:.3f} |")  # fmt: skip
+    out += ["", "write share = write_chunk / (Simulator.run + write_chunk); Simulator assembly (once per subject "
+            f"and process, {write[0]['setup_s']:.2f} s here) excluded. stored = u + activation chunk files."]
+    if paper:
+        p = paper
+        out += ["", f"### Paper scale: {Path(p['spec']).name}, {p['workers']} workers", "",
+                "| subjects | tasks | sims | wall (s) | wall (min) | sims/s | before tasks (s) | task phase (s) "
+                "| after tasks (s) | busy | store GB (du) | raw GB | stored/raw | files |",
+                "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+                f"| {p['subjects']} | {p['tasks']} | {p['simulations']} | {p['wall_s']:.0f} | {p['wall_s'] / 60:.1f} "
+                f"| {p['sims_per_s']:.1f} | {p['before_tasks_s']:.1f} | {p['tasks_s']:.1f} | {p['after_tasks_s']:.1f} "
+                f"| {_f(p['busy'] and 100 * p['busy'], '.0f')}% | {p['store_du_bytes'] / 1e9:.2f} "
+                f"| {p['raw_bytes'] / 1e9:.2f} | {p['ratio']:.3f} | {p['store_files']} |"]  # fmt: skip
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--nodes", type=int, default=2000, help="nodes of the LV mesh (default 2000)")
+    p.add_argument("--settings", type=int, default=4, help="tissue settings of the scaling spec (default 4)")
+    p.add_argument("--sites", type=int, default=100, help="sites per subject of the scaling spec (default 100)")
+    p.add_argument("--chunk", type=int, default=25, help="sites per chunk of the scaling spec (default 25)")
+    p.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts; the first is the base")
+    p.add_argument("--repeat", type=int, default=1, help="builds per worker count, fastest kept (default 1)")
+    p.add_argument("--write-sites", type=int, default=100, help="sites simulated per write-share row (default 100)")
+    p.add_argument("--paper", action="store_true", help="also build the paper-scale spec (minutes)")
+    p.add_argument("--paper-spec", type=Path, default=PAPER_SPEC, help="spec of --paper (default specs/default.toml)")
+    p.add_argument("--paper-workers", type=int, default=2, help="workers of --paper (default 2)")
+    p.add_argument("--paper-store", type=Path, help="keep the --paper store at this new path (default: temporary)")
+    p.add_argument("--tmp", type=Path, help="parent folder of the temporary stores (default: system temp)")
+    p.add_argument("--out", type=Path, help="folder for build.md (the tables) and build.json (raw numbers)")
+    args = p.parse_args(argv)
+
+    load_before = os.getloadavg()[0]
+    t_start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="simgen-bench-build-", dir=args.tmp) as tmp:
+        scaling = bench_scaling(args, Path(tmp))
+        write = bench_write(args, Path(tmp))
+        paper = bench_paper(args, Path(tmp)) if args.paper else None
+    total = time.perf_counter() - t_start
+    header = (f"Build bench: {platform.machine()}, {os.cpu_count()} CPUs, dask.distributed {distributed.__version__}, "
+              f"zarr {zarr.__version__}; total {total:.0f} s; 1-min load average before the run {load_before:.1f}\n")  # fmt: skip
+    if load_before > 0.5:
+        header += "WARNING: other processes may have been using the CPUs; the 2-worker figures may be slow.\n"
+    if os.cpu_count() and max(args.workers) >= os.cpu_count():
+        header += (f"Note: {max(args.workers)} workers on {os.cpu_count()} CPUs share them with the driver, "
+                   "scheduler and nanny processes, so busy < 100% and per-task time grows with workers.\n")  # fmt: skip
+    table = header + "\n" + markdown(scaling, write, paper, args) + "\n"
+    print(table)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "build.md").write_text(table)
+        meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "distributed": distributed.__version__,
+                "zarr": zarr.__version__, "total_s": total, "load_average_before": load_before,
+                "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+                "scaling": scaling, "write": write, "paper": paper}  # fmt: skip
+        (args.out / "build.json").write_text(json.dumps(meta, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,88 @@
+"""``verify_store``: a clean store passes; damaged, unfinished or altered chunks are named."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import zarr
+
+from shared.errors import SchemaError
+from shared.schema import SCHEMA_VERSION
+from simgen.build.verify import verify_store
+
+
+@pytest.fixture
+def store(reference_store, tmp_path) -> Path:
+    """A private copy of the reference store that a test may damage."""
+    copy = tmp_path / "s.zarr"
+    shutil.copytree(reference_store, copy)
+    return copy
+
+
+def _subject(store: Path, subject_id: str) -> zarr.Group:
+    return zarr.open_group(str(store), path=f"subjects/{subject_id}", mode="r+")
+
+
+def _only_problem(store: Path, **kw) -> str:
+    report = verify_store(store, **kw)
+    assert not report.ok and len(report.problems) == 1, report.problems
+    return report.problems[0]
+
+
+def test_clean_store_verifies(reference_store):
+    report = verify_store(reference_store)
+    assert report.ok, report.problems
+    assert (report.chunks_checked, report.chunks_recomputed) == (4, 2)
+    assert verify_store(reference_store, sample=10).chunks_recomputed == 4
+
+
+def test_garbage_chunk_file_is_named(store):
+    (store / "subjects/lv-healthy/u/c/1/0/0").write_bytes(b"\x00garbage" * 64)
+    problem = _only_problem(store, sample=10)
+    assert "lv-healthy chunk 1" in problem and "unreadable" in problem
+    assert "subjects/lv-healthy/u/c/1/0/0" in problem
+
+
+@pytest.mark.parametrize("array, key", [("u", "c/0/0/0"), ("activation", "c/1/0")])
+def test_truncated_chunk_file_is_named(store, array, key):
+    path = store / "subjects/lv-scar-apex" / array / key
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    problem = _only_problem(store, sample=10)
+    chunk = key.split("/")[1]
+    assert f"lv-scar-apex chunk {chunk}" in problem and f"{array} chunk unreadable" in problem
+
+
+def test_missing_chunk_file_reads_as_unwritten(store):
+    (store / "subjects/lv-healthy/u/c/0/0/0").unlink()  # reads back as the NaN fill value
+    problem = _only_problem(store)
+    assert "lv-healthy chunk 0" in problem and "non-finite" in problem
+
+
+def test_cleared_done_flag_is_reported(store):
+    _subject(store, "lv-scar-apex")["done"][1] = 0
+    report = verify_store(store)
+    assert report.problems == ["subject lv-scar-apex chunk 1 (sites 3..5) not done"]
+    assert report.chunks_checked == 3
+
+
+def test_out_of_range_values_are_reported(store):
+    _subject(store, "lv-healthy")["u"][3:6] = 2.0
+    problem = _only_problem(store, sample=0)
+    assert "lv-healthy chunk 1" in problem and "outside [-0.5, 1.5]" in problem
+
+
+def test_altered_valid_data_is_caught_by_recomputation(store):
+    g = _subject(store, "lv-healthy")
+    g["u"][0:3] = g["u"][0:3] * 0.5  # finite, in range: only recomputation can tell
+    assert verify_store(store, sample=0).ok
+    problem = _only_problem(store, sample=10)
+    assert "lv-healthy chunk 0" in problem and "differs from recomputation" in problem
+
+
+def test_wrong_schema_version_is_refused(store):
+    zarr.open_group(str(store), mode="r+").attrs["schema_version"] = SCHEMA_VERSION + 1
+    with pytest.raises(SchemaError, match="schema_version"):
+        verify_store(store)
