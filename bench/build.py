@@ -136,6 +136,57 @@ def cluster_startup(workers: int) -> tuple[float, float]:
     return t1 - t0, time.perf_counter() - t1
 
 
+def _solo(barrier, queue, nodes: int, sites: int, chunk: int) -> None:
+    """Child process of :func:`bench_ceiling`: simulate ``sites`` sites chunk by chunk, no Dask, no writes."""
+    from simgen.meshes.ellipsoid import lv_ellipsoid
+    from simgen.solver.simulate import Simulator
+
+    mesh = lv_ellipsoid(nodes, "tetra")
+    sim = Simulator(mesh)
+    nodes_ = np.random.default_rng(0).choice(mesh.n_nodes, size=sites, replace=False)
+    sim.run(nodes_[:1], threads=1)  # JIT load, untimed
+    barrier.wait()
+    t0 = time.perf_counter()
+    for start in range(0, sites, chunk):
+        sim.run(nodes_[start : start + chunk], threads=1)
+    queue.put(time.perf_counter() - t0)
+
+
+def bench_ceiling(args) -> list[dict]:
+    """The same chunks in P plain processes started together (no Dask): the machine's own scaling."""
+    import multiprocessing as mp
+
+    from simgen.build.runner import SINGLE_THREAD_ENV
+
+    ctx = mp.get_context("spawn")
+    saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
+    os.environ.update(SINGLE_THREAD_ENV)
+    rows = []
+    try:
+        for n_proc in args.workers:
+            barrier, queue = ctx.Barrier(n_proc), ctx.Queue()
+            procs = [ctx.Process(target=_solo, args=(barrier, queue, args.nodes, args.ceiling_sites, args.chunk))
+                     for _ in range(n_proc)]  # fmt: skip
+            for proc in procs:
+                proc.start()
+            times = [queue.get() for _ in procs]
+            for proc in procs:
+                proc.join()
+            chunks = -(-args.ceiling_sites // args.chunk)
+            rows.append({"processes": n_proc, "sims": n_proc * args.ceiling_sites, "wall_s": max(times),
+                         "chunk_s": float(np.mean(times)) / chunks,
+                         "sims_per_s": n_proc * args.ceiling_sites / max(times)})  # fmt: skip
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    for row in rows:
+        row["speedup"] = row["sims_per_s"] / rows[0]["sims_per_s"]
+    return rows
+
+
 def bench_scaling(args, tmp: Path) -> list[dict]:
     spec = small_spec(args.nodes, args.settings, args.sites, args.chunk)
     rows = []
@@ -207,8 +258,9 @@ def bench_paper(args, tmp: Path) -> dict:
     row = timed_build(spec, store, args.paper_workers, progress=True)
     apparent, allocated, files = disk_bytes(store)
     raw = raw_bytes(spec, make_plan(spec))
+    subjects = len(zarr.open_group(str(store), mode="r")["subjects"])
     row.update(spec=str(args.paper_spec), store_bytes=apparent, store_du_bytes=allocated, store_files=files,
-               raw_bytes=raw, ratio=apparent / raw, subjects=len(zarr.open_group(str(store), mode="r")["subjects"]))  # fmt: skip
+               raw_bytes=raw, ratio=apparent / raw, subjects=subjects)  # fmt: skip
     if not args.paper_store:
         shutil.rmtree(store)
     return row
@@ -218,7 +270,7 @@ def _f(x, fmt: str) -> str:
     return "-" if x is None else format(x, fmt)
 
 
-def markdown(scaling: list[dict], write: list[dict], paper: dict | None, args) -> str:
+def markdown(scaling: list[dict], ceiling: list[dict], write: list[dict], paper: dict | None, args) -> str:
     out = [f"### Scaling: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x {args.sites} sites, "
            f"{args.chunk} sites per chunk; best of {args.repeat}",  "",
            "| workers | tasks | sims | cluster up / down (s) | plan + layout (s) | build wall (s) | sims/s "
@@ -230,10 +282,16 @@ def markdown(scaling: list[dict], write: list[dict], paper: dict | None, args) -
                    f"{r['cluster_down_s']:.2f} | {r['plan_layout_s']:.2f} | {r['wall_s']:.2f} | {r['sims_per_s']:.1f} "
                    f"| {r['before_tasks_s']:.2f} | {r['tasks_s']:.2f} | {r['after_tasks_s']:.2f} "
                    f"| {r['task_sims_per_s']:.1f} | {_f(r['task_compute_mean_s'], '.3f')} "
-                   f"| {_f(r['busy'] and 100 * r['busy'], '.0f')}% | {r['speedup']:.2f}x | {r['task_speedup']:.2f}x |")  # fmt: skip
+                   f"| {_f(r['busy'] and 100 * r['busy'], '.0f')}% | {r['speedup']:.2f}x "
+                   f"| {r['task_speedup']:.2f}x |")  # fmt: skip
     out += ["", "before tasks = plan + layout + cluster start-up; after tasks = cluster shut-down + consolidate; "
             "busy = worker compute time / (workers x task phase); mean task = worker compute time per task "
             "(Dask task stream).", "",
+            f"No-Dask ceiling: {args.ceiling_sites} sites per process in chunks of {args.chunk}, "
+            "P plain processes started together (simulation only, no writes):", "",
+            "| processes | sims | wall (s) | s per chunk | sims/s | speed-up |", "|---:|---:|---:|---:|---:|---:|",
+            *[f"| {c['processes']} | {c['sims']} | {c['wall_s']:.2f} | {c['chunk_s']:.3f} | {c['sims_per_s']:.1f} "
+              f"| {c['speedup']:.2f}x |" for c in ceiling], "",
             f"### Zarr write share: worker steps by hand, 1 subject x {args.write_sites} sites, threads=1, no Dask",
             "", "| compressor | chunk_sites | chunks | Simulator.run (s) | write_chunk (s) | write share "
             "| write ms/chunk | raw MB/s written | stored MB | raw MB | stored/raw |",
@@ -265,6 +323,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--chunk", type=int, default=25, help="sites per chunk of the scaling spec (default 25)")
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts; the first is the base")
     p.add_argument("--repeat", type=int, default=1, help="builds per worker count, fastest kept (default 1)")
+    p.add_argument("--ceiling-sites", type=int, default=100, help="sites per process of the no-Dask ceiling")
     p.add_argument("--write-sites", type=int, default=100, help="sites simulated per write-share row (default 100)")
     p.add_argument("--paper", action="store_true", help="also build the paper-scale spec (minutes)")
     p.add_argument("--paper-spec", type=Path, default=PAPER_SPEC, help="spec of --paper (default specs/default.toml)")
@@ -278,17 +337,19 @@ def main(argv: list[str] | None = None) -> None:
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="simgen-bench-build-", dir=args.tmp) as tmp:
         scaling = bench_scaling(args, Path(tmp))
+        ceiling = bench_ceiling(args)
         write = bench_write(args, Path(tmp))
         paper = bench_paper(args, Path(tmp)) if args.paper else None
     total = time.perf_counter() - t_start
-    header = (f"Build bench: {platform.machine()}, {os.cpu_count()} CPUs, dask.distributed {distributed.__version__}, "
-              f"zarr {zarr.__version__}; total {total:.0f} s; 1-min load average before the run {load_before:.1f}\n")  # fmt: skip
+    header = (f"Build bench: {platform.machine()}, {os.cpu_count()} CPUs, dask.distributed "
+              f"{distributed.__version__}, zarr {zarr.__version__}; total {total:.0f} s; "
+              f"1-min load average before the run {load_before:.1f}\n")  # fmt: skip
     if load_before > 0.5:
         header += "WARNING: other processes may have been using the CPUs; the 2-worker figures may be slow.\n"
     if os.cpu_count() and max(args.workers) >= os.cpu_count():
         header += (f"Note: {max(args.workers)} workers on {os.cpu_count()} CPUs share them with the driver, "
                    "scheduler and nanny processes, so busy < 100% and per-task time grows with workers.\n")  # fmt: skip
-    table = header + "\n" + markdown(scaling, write, paper, args) + "\n"
+    table = header + "\n" + markdown(scaling, ceiling, write, paper, args) + "\n"
     print(table)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
@@ -296,7 +357,7 @@ def main(argv: list[str] | None = None) -> None:
         meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "distributed": distributed.__version__,
                 "zarr": zarr.__version__, "total_s": total, "load_average_before": load_before,
                 "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-                "scaling": scaling, "write": write, "paper": paper}  # fmt: skip
+                "scaling": scaling, "ceiling": ceiling, "write": write, "paper": paper}  # fmt: skip
         (args.out / "build.json").write_text(json.dumps(meta, indent=2))
 
 

@@ -1,0 +1,292 @@
+"""Editing a finished (or unfinished) store: add subjects on a new mesh, regenerate chunks.
+
+Both operations take the store lock, check everything they can before
+writing, write only what they own and then simulate through
+:func:`simgen.build.runner.run_pending`, so their chunks are computed and
+written exactly as a build computes and writes them.
+
+* :func:`add_subject` lays out a new mesh group and one subject group per
+  tissue setting with the same code as :func:`simgen.build.store.create_layout`
+  (:func:`~simgen.build.store.write_mesh_group`,
+  :func:`~simgen.build.store.write_subject_group`), with the store's own
+  solver and output settings, and records the addition in the root attribute
+  ``added`` (a list of ``{"mesh", "sites", "tissue", "subjects"}`` dicts).
+  ``spec`` and ``spec_hash`` are left alone, so ``simgen build SPEC`` still
+  recognises (and resumes) the store; its resume covers the added subjects
+  too, since tasks come from the store layout.
+* :func:`regenerate` clears the ``done`` flags of some chunks and rebuilds
+  exactly those chunks; nothing else in the store is rewritten (the root
+  metadata apart).
+
+A store with consolidated metadata hides groups added after consolidation
+from readers that trust it, so :func:`add_subject` re-consolidates right
+after writing its layout.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import time
+import warnings
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import zarr
+
+from shared.errors import ConfigError, InputError, SchemaError
+from shared.schema import subject_path
+from shared.tissue import TissueSpec
+from simgen.build.lock import StoreLock
+from simgen.build.manifest import Plan, Subject, Task, select_sites, sock_electrodes, validate_plan
+from simgen.build.runner import BuildReport, run_pending
+from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection, spec_from_mapping
+from simgen.build.store import (
+    check_store,
+    pending_tasks,
+    remove_partials,
+    spec_dict_of,
+    write_mesh_group,
+    write_subject_group,
+)
+from simgen.meshes.catalog import GENERATORS, get_mesh
+from simgen.tissue.defaults import default_settings
+
+__all__ = ["add_subject", "regenerate", "store_spec", "added_entries"]
+
+_ID = re.compile(r"[A-Za-z0-9_-]+")
+
+OnStart = Callable[[int, "str | None"], None]
+OnDone = Callable[[str], None]
+
+
+def store_spec(store: str | Path) -> BuildSpec:
+    """The build spec a store was created from (root attribute ``spec``), after a schema check."""
+    attrs = check_store(store)
+    if "spec" not in attrs:
+        raise SchemaError(f"{store} has no spec attribute: not a simgen build store")
+    return spec_from_mapping(attrs["spec"])
+
+
+def added_entries(store: str | Path) -> list[dict]:
+    """The additions recorded by :func:`add_subject` (root attribute ``added``), oldest first."""
+    return list(check_store(store).get("added", []))
+
+
+def _root(store: str | Path, mode: str = "r") -> zarr.Group:
+    # Not through consolidated metadata: it may predate groups added since.
+    return zarr.open_group(str(store), mode=mode, use_consolidated=False)
+
+
+def _groups(root: zarr.Group, name: str) -> set[str]:
+    return {key for key, _ in root[name].groups()} if name in root else set()
+
+
+def _tissue_list(tissue: Sequence[TissueSpec | str]) -> list[TissueSpec]:
+    if isinstance(tissue, (str, TissueSpec)):
+        tissue = [tissue]
+    if not tissue:
+        raise ConfigError("add-subject: give at least one tissue setting")
+    defaults = {s.name: s for s in default_settings()}
+    settings = []
+    for item in tissue:
+        if isinstance(item, str):
+            if item not in defaults:
+                raise ConfigError(f"unknown tissue setting {item!r}; use one of {list(defaults)} or a TissueSpec")
+            item = defaults[item]
+        if not isinstance(item, TissueSpec):
+            raise ConfigError(f"tissue settings must be TissueSpec objects or setting names, got {item!r}")
+        if not isinstance(item.name, str) or not _ID.fullmatch(item.name):
+            raise ConfigError(
+                f"tissue setting name {item.name!r} is not a valid identifier: use letters, digits, '_' and '-' only"
+            )
+        settings.append(item)
+    names = [s.name for s in settings]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ConfigError(f"duplicate tissue setting names {dup}: each setting may appear once")
+    return settings
+
+
+def _absolute_source(mesh: MeshEntry) -> MeshEntry:
+    if mesh.source in GENERATORS or Path(mesh.source).is_absolute():
+        return mesh
+    return MeshEntry(mesh.id, str(Path(mesh.source).resolve()), mesh.nodes, mesh.kind)
+
+
+def _file_sha256(source: str) -> str | None:
+    if source in GENERATORS:
+        return None
+    return hashlib.sha256(Path(source).read_bytes()).hexdigest()
+
+
+def _consolidate_metadata(store: str) -> None:
+    with warnings.catch_warnings():  # consolidated metadata is not (yet) part of the v3 spec
+        warnings.simplefilter("ignore")
+        zarr.consolidate_metadata(store)
+
+
+def _known_meshes(spec: BuildSpec, attrs: dict) -> set[str]:
+    return {m.id for m in spec.meshes} | {entry["mesh"]["id"] for entry in attrs.get("added", [])}
+
+
+def _finish(store: str, report: BuildReport, start: float) -> BuildReport:
+    # run_pending marks the store complete; other subjects may still have chunks to do.
+    if pending_tasks(store):
+        zarr.open_group(store, mode="r+").attrs["complete"] = False
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def add_subject(
+    store: str | Path,
+    mesh: MeshEntry,
+    tissue: Sequence[TissueSpec | str],
+    sites: SiteSelection | None = None,
+    scheduler: str | None = None,
+    workers: int = 2,
+    retries: int = 2,
+    on_start: OnStart | None = None,
+    on_done: OnDone | None = None,
+) -> BuildReport:
+    """Add mesh ``mesh`` under each setting of ``tissue`` to ``store`` and simulate the new subjects.
+
+    The new subjects are ``f"{mesh.id}-{setting.name}"``; they use the store's
+    solver and output settings, the store's seed and, unless ``sites`` is
+    given, the store's site selection (applied to the new mesh). ``tissue``
+    holds :class:`TissueSpec` objects or names of default settings.
+
+    Raises :class:`InputError` (nothing written) when the mesh id or a subject
+    id already exists, and the errors of :func:`validate_plan`
+    (:class:`~shared.errors.MeshError`, :class:`~shared.errors.TissueError`,
+    :class:`~shared.errors.StimulusError`, :class:`~shared.errors.TimeStepError`)
+    before anything is written; :class:`~simgen.build.runner.BuildFailed` when
+    tasks keep failing (the layout and finished chunks are kept: rerun
+    ``simgen build SPEC`` or :func:`regenerate` to finish).
+    """
+    start = time.perf_counter()
+    store = str(store)
+    if not isinstance(mesh, MeshEntry):
+        raise ConfigError(f"mesh must be a MeshEntry, got {mesh!r}")
+    if sites is not None and not isinstance(sites, SiteSelection):
+        raise ConfigError(f"sites must be a SiteSelection, got {sites!r}")
+    mesh = _absolute_source(mesh)
+    settings = _tissue_list(tissue)
+    check_store(store)  # before the lock creates anything
+    with StoreLock(store):
+        spec = store_spec(store)
+        root = _root(store)
+        new_ids = [f"{mesh.id}-{s.name}" for s in settings]
+        if mesh.id in _groups(root, "meshes"):
+            if mesh.id not in _known_meshes(spec, dict(root.attrs)):
+                raise InputError(
+                    f"store {store} has a mesh group {mesh.id!r} left over from an interrupted add-subject "
+                    f"(not in the spec, not recorded in 'added'); delete {Path(store) / 'meshes' / mesh.id} "
+                    f"and its subjects' folders {Path(store) / 'subjects' / (mesh.id + '-*')}, then retry"
+                )
+            raise InputError(f"store {store} already has a mesh {mesh.id!r}: choose another mesh id")
+        taken = sorted(set(new_ids) & _groups(root, "subjects"))
+        if taken:
+            raise InputError(
+                f"store {store} already has subject(s) {taken}: choose another mesh id or tissue setting name"
+            )
+        # Everything that can fail, before anything is written (as validate_plan does for a build).
+        m = get_mesh(mesh.source, mesh.nodes, mesh.kind, name=mesh.id)
+        selection = sites if sites is not None else spec.sites
+        site_nodes = select_sites(m, selection, spec.seed, mesh.id)
+        electrodes = sock_electrodes(m, spec.output.sock_electrodes)
+        subjects = [Subject(sid, mesh.id, s) for sid, s in zip(new_ids, settings)]
+        size = spec.output.chunk_sites
+        tasks = [Task(s.id, k, a, min(a + size, len(site_nodes)))
+                 for s in subjects for k, a in enumerate(range(0, len(site_nodes), size))]  # fmt: skip
+        plan = Plan(spec, {mesh.id: m}, {mesh.id: site_nodes}, {mesh.id: electrodes}, subjects, tasks)
+        validate_plan(plan)
+        record = {
+            "mesh": spec_dict_of(mesh),
+            "mesh_sha256": _file_sha256(mesh.source),
+            "sites": spec_dict_of(selection),
+            "tissue": [spec_dict_of(s) for s in settings],
+            "subjects": new_ids,
+        }
+
+        remove_partials(store)
+        root = _root(store, "r+")
+        root.attrs["complete"] = False
+        write_mesh_group(root, mesh.id, m, site_nodes, electrodes)
+        for subject in subjects:
+            write_subject_group(root, subject, m, len(site_nodes), spec.output, spec.solver)
+        root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
+        _consolidate_metadata(store)  # readers of consolidated metadata see the new groups
+        report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=new_ids)
+        return _finish(store, report, start)
+
+
+def _chunks_to_clear(root: zarr.Group, subjects: list[str], sites: list[int] | None) -> dict[str, list[int]]:
+    known = _groups(root, "subjects")
+    unknown = [s for s in subjects if s not in known]
+    if unknown:
+        raise InputError(f"unknown subject(s) {unknown}; the store has {sorted(known)}")
+    chunks = {}
+    for subject_id in subjects:
+        g = root[subject_path(subject_id)]
+        n_sites, size = g["u"].shape[0], int(g.attrs["chunk_sites"])
+        n_chunks = g["done"].shape[0]
+        if sites is None:
+            chunks[subject_id] = list(range(n_chunks))
+            continue
+        bad = [i for i in sites if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < n_sites]
+        if bad:
+            raise InputError(
+                f"site index {bad[0]!r} is out of range for subject {subject_id!r} "
+                f"({n_sites} sites, valid indices 0..{n_sites - 1})"
+            )
+        chunks[subject_id] = sorted({int(i) // size for i in sites})
+    return chunks
+
+
+def regenerate(
+    store: str | Path,
+    subjects: Sequence[str],
+    sites: Sequence[int] | None = None,
+    scheduler: str | None = None,
+    workers: int = 2,
+    retries: int = 2,
+    on_start: OnStart | None = None,
+    on_done: OnDone | None = None,
+) -> BuildReport:
+    """Recompute every chunk of ``subjects`` (or only the chunks holding site indices ``sites``).
+
+    ``sites`` are positions in the subject's site list (``0 .. S-1``, the
+    ``site`` axis of ``u``), not node ids; with several subjects they apply to
+    each. The chunks' ``done`` flags are cleared, then the chunks are simulated
+    and written as in a build; no other chunk is rewritten. Raises
+    :class:`InputError` naming an unknown subject or an out-of-range site
+    index, before anything is changed.
+    """
+    start = time.perf_counter()
+    store = str(store)
+    if isinstance(subjects, str):
+        subjects = [subjects]
+    subjects = list(dict.fromkeys(subjects))
+    if not subjects:
+        raise InputError("regenerate: give at least one subject")
+    if sites is not None:
+        sites = list(sites)
+        if not sites:
+            raise InputError("regenerate: --sites is empty; leave it out to regenerate whole subjects")
+    check_store(store)
+    with StoreLock(store):
+        spec = store_spec(store)
+        chunks = _chunks_to_clear(_root(store), subjects, sites)
+        remove_partials(store)
+        root = _root(store, "r+")
+        root.attrs["complete"] = False
+        for subject_id, ks in chunks.items():
+            done = root[subject_path(subject_id)]["done"]
+            for k in ks:
+                done[k] = 0
+        _consolidate_metadata(store)  # in case an interrupted edit left groups unlisted there
+        report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=subjects)
+        return _finish(store, report, start)
+
