@@ -28,6 +28,8 @@ console = Console()
 MeshOpt = Annotated[str, typer.Option("--mesh", help="'lv', 'biv' or a mesh file (any meshio format).")]
 NodesOpt = Annotated[int, typer.Option("--nodes", help="Target node count of a procedural mesh.")]
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
+SchedulerOpt = Annotated[Optional[str], typer.Option(help="Address of an existing Dask scheduler.")]
+WorkersOpt = Annotated[int, typer.Option(help="Local worker processes when no --scheduler is given.")]
 
 
 def _fail(exc: Exception) -> None:
@@ -132,18 +134,24 @@ def demo(
 def build(
     spec: Annotated[Path, typer.Argument(help="Build spec (TOML), e.g. specs/demo.toml.")],
     store: Annotated[Path, typer.Option(help="Output Zarr store (folder).")],
-    scheduler: Annotated[Optional[str], typer.Option(help="Address of an existing Dask scheduler.")] = None,
-    workers: Annotated[int, typer.Option(help="Local worker processes when no --scheduler is given.")] = 2,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
     force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
     retries: Annotated[int, typer.Option(help="Retries per failing task.")] = 2,
 ) -> None:
     """Build (or resume) the dataset of SPEC into STORE on a Dask cluster."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     from simgen.build import load_spec
     from simgen.build.runner import build as run_build
 
-    bar = Progress(TextColumn("[bold]building"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+    _run_with_progress(store, lambda on_start, on_done: run_build(
+        load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done))  # fmt: skip
+
+
+def _run_with_progress(store: Path, job) -> None:
+    """Run ``job(on_start, on_done)`` behind a progress bar and print what it did."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    bar = Progress(TextColumn("[bold]simulating"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                    TextColumn("{task.description}"), console=console)  # fmt: skip
     state: dict = {}
 
@@ -156,18 +164,59 @@ def build(
         bar.update(state["task"], advance=1, description=key)
 
     try:
-        report = run_build(load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done)
-    except InputError as exc:
+        report = job(on_start, on_done)
+    except (InputError, ValueError) as exc:
         bar.stop()
         _fail(exc)
     bar.stop()
     if report.tasks_run == 0:
-        console.print(f"{store}: already complete ({report.tasks_total} chunks)")
+        console.print(f"{store}: nothing to do, all {report.tasks_total} chunks done")
     else:
         console.print(
             f"{store}: {report.tasks_run}/{report.tasks_total} chunks, {report.simulations} simulations in "
             f"{report.seconds:.1f} s ({report.simulations / report.seconds:.1f} sims/s)"
         )
+
+
+@app.command("add-subject")
+def add_subject(
+    store: Annotated[Path, typer.Argument(help="An existing simgen Zarr store.")],
+    mesh_file: Annotated[str, typer.Option("--mesh", help="Mesh file of the new subject, or 'lv' / 'biv'.")],
+    mesh_id: Annotated[str, typer.Option("--id", help="Mesh id in the store; subjects are '<id>-<tissue>'.")],
+    tissue: Annotated[list[str], typer.Option(help="Tissue setting name or .toml file; repeat for several.")],
+    nodes: NodesOpt = 2000,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
+) -> None:
+    """Add a subject (e.g. a new patient geometry) to STORE and simulate only it."""
+    from simgen.build.edit import add_subject as run_add
+    from simgen.build.spec import MeshEntry
+
+    def job(on_start, on_done):
+        specs = [_tissue_spec(t) for t in tissue]
+        return run_add(store, MeshEntry(mesh_id, mesh_file, nodes), specs, scheduler=scheduler, workers=workers,
+                       on_start=on_start, on_done=on_done)  # fmt: skip
+
+    _run_with_progress(store, job)
+
+
+@app.command()
+def regenerate(
+    store: Annotated[Path, typer.Argument(help="An existing simgen Zarr store.")],
+    subjects: Annotated[str, typer.Option(help="Comma-separated subject ids (see `simgen status`).")],
+    sites: Annotated[Optional[str], typer.Option(help="Comma-separated site indices; all when omitted.")] = None,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
+) -> None:
+    """Recompute only the chunks of SUBJECTS (or of the given site indices) and rewrite them."""
+    from simgen.build.edit import regenerate as run_regenerate
+
+    def job(on_start, on_done):
+        site_ids = None if sites is None else [int(s) for s in sites.split(",") if s.strip()]
+        return run_regenerate(store, [s.strip() for s in subjects.split(",") if s.strip()], site_ids,
+                              scheduler=scheduler, workers=workers, on_start=on_start, on_done=on_done)  # fmt: skip
+
+    _run_with_progress(store, job)
 
 
 @app.command()

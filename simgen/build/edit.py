@@ -28,7 +28,6 @@ from __future__ import annotations
 import hashlib
 import re
 import time
-import warnings
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -43,8 +42,8 @@ from simgen.build.manifest import Plan, Subject, Task, select_sites, sock_electr
 from simgen.build.runner import BuildReport, run_pending
 from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection, spec_from_mapping
 from simgen.build.store import (
+    consolidate_metadata,
     check_store,
-    pending_tasks,
     remove_partials,
     spec_dict_of,
     write_mesh_group,
@@ -121,20 +120,11 @@ def _file_sha256(source: str) -> str | None:
     return hashlib.sha256(Path(source).read_bytes()).hexdigest()
 
 
-def _consolidate_metadata(store: str) -> None:
-    with warnings.catch_warnings():  # consolidated metadata is not (yet) part of the v3 spec
-        warnings.simplefilter("ignore")
-        zarr.consolidate_metadata(store)
-
-
 def _known_meshes(spec: BuildSpec, attrs: dict) -> set[str]:
     return {m.id for m in spec.meshes} | {entry["mesh"]["id"] for entry in attrs.get("added", [])}
 
 
-def _finish(store: str, report: BuildReport, start: float) -> BuildReport:
-    # run_pending marks the store complete; other subjects may still have chunks to do.
-    if pending_tasks(store):
-        zarr.open_group(store, mode="r+").attrs["complete"] = False
+def _finish(report: BuildReport, start: float) -> BuildReport:
     report.seconds = time.perf_counter() - start
     return report
 
@@ -217,9 +207,9 @@ def add_subject(
         for subject in subjects:
             write_subject_group(root, subject, m, len(site_nodes), spec.output, spec.solver)
         root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
-        _consolidate_metadata(store)  # readers of consolidated metadata see the new groups
+        consolidate_metadata(store)  # readers of consolidated metadata see the new groups
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=new_ids)
-        return _finish(store, report, start)
+        return _finish(report, start)
 
 
 def _chunks_to_clear(root: zarr.Group, subjects: list[str], sites: list[int] | None) -> dict[str, list[int]]:
@@ -286,7 +276,7 @@ def regenerate(
             done = root[subject_path(subject_id)]["done"]
             for k in ks:
                 done[k] = 0
-        _consolidate_metadata(store)  # in case an interrupted edit left groups unlisted there
+        consolidate_metadata(store)  # in case an interrupted edit left groups unlisted there
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=subjects)
-        return _finish(store, report, start)
+        return _finish(report, start)
 

@@ -10,6 +10,7 @@ workers never coordinate, and a resumed build rewrites missing chunks only.
 from __future__ import annotations
 
 import json
+import warnings
 import shutil
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,7 @@ __all__ = [
     "read_tissue",
     "read_sites",
     "consolidate",
+    "consolidate_metadata",
     "check_store",
     "StoreMismatch",
 ]
@@ -185,14 +187,14 @@ def write_chunk(
 
 
 def subject_ids(path: str | Path) -> list[str]:
-    """Ids of every subject in the store, sorted."""
-    root = zarr.open_group(str(path), mode="r")
+    """Ids of every subject in the store, sorted (from the live metadata, not the consolidated copy)."""
+    root = zarr.open_group(str(path), mode="r", use_consolidated=False)
     return sorted(name for name, _ in root["subjects"].groups())
 
 
 def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
     """Chunks not flagged done, in subject then chunk order (all subjects, or ``subjects``)."""
-    root = zarr.open_group(str(path), mode="r")
+    root = zarr.open_group(str(path), mode="r", use_consolidated=False)
     tasks = []
     for subject_id in subjects if subjects is not None else subject_ids(path):
         g = root[subject_path(subject_id)]
@@ -229,15 +231,18 @@ def read_sites(path: str | Path, mesh_id: str) -> NDArray[np.int64]:
     return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")["stim_nodes"][...].astype(np.int64)
 
 
-def consolidate(path: str | Path) -> None:
-    """Mark the store complete and consolidate its metadata for fast opening."""
-    import warnings
-
-    root = zarr.open_group(str(path), mode="r+")
-    root.attrs["complete"] = True
+def consolidate_metadata(path: str | Path) -> None:
+    """Consolidate the metadata so readers open the store in one read (and see new groups)."""
     with warnings.catch_warnings():  # consolidated metadata is not (yet) part of the v3 spec
         warnings.simplefilter("ignore")
         zarr.consolidate_metadata(str(path))
+
+
+def consolidate(path: str | Path) -> None:
+    """Mark the store complete when no chunk is pending, then consolidate its metadata."""
+    root = zarr.open_group(str(path), mode="r+", use_consolidated=False)
+    root.attrs["complete"] = not pending_tasks(path)
+    consolidate_metadata(path)
 
 
 def check_store(path: str | Path) -> dict:

@@ -24,7 +24,8 @@ _CACHE_SIZE = 4
 
 
 def _simulator(store: str, subject_id: str, solver: SolverConfig) -> tuple[Simulator, np.ndarray]:
-    key = (store, subject_id, solver)
+    # the spec hash keeps a store rebuilt under the same path (--force) from reusing stale entries
+    key = (store, zarr.open_group(store, mode="r").attrs["spec_hash"], subject_id, solver)
     if key not in _CACHE:
         mesh_id = zarr.open_group(store, path=subject_path(subject_id), mode="r").attrs["mesh_id"]
         sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, subject_id), solver)

@@ -78,7 +78,7 @@ def test_build_and_status_commands(tmp_path):
     assert result.exit_code == 0, result.output
     assert "Dask dashboard: http" in text(result) and "2/2 chunks" in text(result)
     again = runner.invoke(app, ["build", str(spec), "--store", str(store)])
-    assert "already complete" in text(again)
+    assert "nothing to do, all 2 chunks done" in text(again)
     status = runner.invoke(app, ["status", str(store)])
     assert status.exit_code == 0 and "2/2 chunks done (100%)" in text(status)
     spec.write_text(spec.read_text().replace("frames = 6", "frames = 7"))
@@ -103,3 +103,27 @@ def test_verify_and_export_commands(tmp_path):
     (store / "subjects/lv-healthy/u/c/1/0/0").write_bytes(b"garbage")
     broken = runner.invoke(app, ["verify", str(store)])
     assert broken.exit_code == 1 and "chunk 1" in text(broken)
+
+
+def test_add_subject_and_regenerate_commands(tmp_path):
+    from simgen.meshes import lv_ellipsoid, save_mesh
+
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(
+        'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nnodes = 500\n[sites]\ncount = 4\n'
+        "[solver]\nframes = 6\n[output]\nchunk_sites = 2\nsock_electrodes = 30\n"
+    )
+    store = tmp_path / "s.zarr"
+    assert runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"]).exit_code == 0
+    patient = save_mesh(lv_ellipsoid(600), tmp_path / "patient.vtu")
+    added = runner.invoke(app, ["add-subject", str(store), "--mesh", str(patient), "--id", "patient",
+                                "--tissue", "healthy", "--tissue", "scar-apex", "--workers", "1"])  # fmt: skip
+    assert added.exit_code == 0, added.output
+    status = text(runner.invoke(app, ["status", str(store)]))
+    assert "patient-scar-apex" in status and "6/6 chunks done" in status
+    regen = runner.invoke(app, ["regenerate", str(store), "--subjects", "patient-healthy", "--sites", "3",
+                                "--workers", "1"])  # fmt: skip
+    assert regen.exit_code == 0 and "1/" in text(regen)
+    unknown = runner.invoke(app, ["regenerate", str(store), "--subjects", "nobody"])
+    assert unknown.exit_code == 2 and "nobody" in text(unknown)
+    assert runner.invoke(app, ["verify", str(store), "--sample", "6"]).exit_code == 0
