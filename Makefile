@@ -27,6 +27,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/solver.py --out report/bench
 	$(BIN)/python bench/conduction.py --out report/bench
+	$(BIN)/python bench/build.py --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

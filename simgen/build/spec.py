@@ -144,7 +144,7 @@ class OutputSpec:
     """
 
     chunk_sites: int = 25
-    compressor: Literal["zstd", "blosc", "none"] = "zstd"
+    compressor: Literal["zstd", "blosc", "none"] = "blosc"
     level: int = 3
     sock_electrodes: int = 247
 
