@@ -194,13 +194,11 @@ def bench_ceiling(args) -> list[dict]:
     """The same chunks in P plain processes started together (no Dask): the machine's own scaling."""
     import multiprocessing as mp
 
-    from simgen.build.runner import SINGLE_THREAD_ENV
+    from simgen.build.runner import single_thread_env
 
     ctx = mp.get_context("spawn")
-    saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
-    os.environ.update(SINGLE_THREAD_ENV)
     rows = []
-    try:
+    with single_thread_env():
         for n_proc in args.workers:
             times = None
             for _ in range(args.repeat):  # fastest of `repeat` rounds
@@ -218,12 +216,6 @@ def bench_ceiling(args) -> list[dict]:
             rows.append({"processes": n_proc, "sims": n_proc * args.ceiling_sites, "wall_s": max(times),
                          "chunk_s": float(np.mean(times)) / chunks,
                          "sims_per_s": n_proc * args.ceiling_sites / max(times)})  # fmt: skip
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     for row in rows:
         row["speedup"] = row["sims_per_s"] / rows[0]["sims_per_s"]
     return rows

@@ -27,7 +27,7 @@ from simgen.build.store import consolidate, create_layout, done_flags, pending_t
 from simgen.build.worker import run_task
 from simgen.solver.simulate import SolverConfig
 
-__all__ = ["BuildFailed", "BuildReport", "build", "run_pending", "dask_client", "SINGLE_THREAD_ENV"]
+__all__ = ["BuildFailed", "BuildReport", "build", "run_pending", "dask_client", "single_thread_env", "SINGLE_THREAD_ENV"]
 
 #: Environment for worker processes: one thread each for BLAS and numba.
 SINGLE_THREAD_ENV = {
@@ -56,24 +56,30 @@ class BuildReport:
 
 
 @contextmanager
-def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
-    """A client of the cluster at ``scheduler``, or of a new local cluster of ``workers`` processes."""
-    if scheduler:
-        with Client(scheduler) as client:
-            yield client
-        return
+def single_thread_env() -> Iterator[None]:
+    """Set :data:`SINGLE_THREAD_ENV` for processes started inside the block, then restore."""
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
-    os.environ.update(SINGLE_THREAD_ENV)  # inherited by the worker processes
+    os.environ.update(SINGLE_THREAD_ENV)
     try:
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                          dashboard_address=":0") as cluster, Client(cluster) as client:  # fmt: skip
-            yield client
+        yield
     finally:
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@contextmanager
+def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
+    """A client of the cluster at ``scheduler``, or of a new local cluster of ``workers`` processes."""
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    with single_thread_env(), LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=":0") as cluster, Client(cluster) as client:  # fmt: skip
+        yield client
 
 
 def build(

@@ -67,14 +67,19 @@ def test_tissues_lists_sixteen_settings():
     assert "healthy" in result.output and "scar-apex" in result.output
 
 
-def test_build_and_status_commands(tmp_path):
+def tiny_build(tmp_path):
+    """Write a 2-chunk spec and build it with the CLI; returns (spec, store, result)."""
     spec = tmp_path / "tiny.toml"
     spec.write_text(
         'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nnodes = 500\n[sites]\ncount = 4\n'
         "[solver]\nframes = 6\n[output]\nchunk_sites = 2\nsock_electrodes = 30\n"
     )
     store = tmp_path / "s.zarr"
-    result = runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"])
+    return spec, store, runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"])
+
+
+def test_build_and_status_commands(tmp_path):
+    spec, store, result = tiny_build(tmp_path)
     assert result.exit_code == 0, result.output
     assert "Dask dashboard: http" in text(result) and "2/2 chunks" in text(result)
     again = runner.invoke(app, ["build", str(spec), "--store", str(store)])
@@ -89,13 +94,8 @@ def test_build_and_status_commands(tmp_path):
 
 
 def test_verify_and_export_commands(tmp_path):
-    spec = tmp_path / "tiny.toml"
-    spec.write_text(
-        'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nnodes = 500\n[sites]\ncount = 4\n'
-        "[solver]\nframes = 6\n[output]\nchunk_sites = 2\nsock_electrodes = 30\n"
-    )
-    store = tmp_path / "s.zarr"
-    assert runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"]).exit_code == 0
+    _, store, built = tiny_build(tmp_path)
+    assert built.exit_code == 0
     ok = runner.invoke(app, ["verify", str(store), "--sample", "2"])
     assert ok.exit_code == 0 and "0 problem(s)" in text(ok)
     exported = runner.invoke(app, ["export-vtk", str(store), "lv-healthy", "1", "--out", str(tmp_path / "vtk")])
@@ -108,13 +108,8 @@ def test_verify_and_export_commands(tmp_path):
 def test_add_subject_and_regenerate_commands(tmp_path):
     from simgen.meshes import lv_ellipsoid, save_mesh
 
-    spec = tmp_path / "tiny.toml"
-    spec.write_text(
-        'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nnodes = 500\n[sites]\ncount = 4\n'
-        "[solver]\nframes = 6\n[output]\nchunk_sites = 2\nsock_electrodes = 30\n"
-    )
-    store = tmp_path / "s.zarr"
-    assert runner.invoke(app, ["build", str(spec), "--store", str(store), "--workers", "1"]).exit_code == 0
+    _, store, built = tiny_build(tmp_path)
+    assert built.exit_code == 0
     patient = save_mesh(lv_ellipsoid(600), tmp_path / "patient.vtu")
     added = runner.invoke(app, ["add-subject", str(store), "--mesh", str(patient), "--id", "patient",
                                 "--tissue", "healthy", "--tissue", "scar-apex", "--workers", "1"])  # fmt: skip
