@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
+import xarray as xr
 import zarr
 
 from shared.errors import ConfigError, InputError, MeshError, SchemaError, StimulusError, TimeStepError, TissueError
@@ -37,7 +38,6 @@ def test_store_contents_match_direct_simulation(reference_store, tiny_spec):
 
 
 def test_store_opens_with_xarray(reference_store):
-    xr = pytest.importorskip("xarray")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = xr.open_zarr(reference_store, group="subjects/lv-healthy")
