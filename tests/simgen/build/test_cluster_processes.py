@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +44,10 @@ sock_electrodes = 60
 
 def chunks_done(store: Path) -> int:
     try:
-        root = zarr.open_group(str(store), mode="r")
-        return int(sum(g["done"][...].sum() for _, g in root["subjects"].groups()))
+        with warnings.catch_warnings():  # a poll may see a writer's temporary *.partial file
+            warnings.simplefilter("ignore")
+            root = zarr.open_group(str(store), mode="r")
+            return int(sum(g["done"][...].sum() for _, g in root["subjects"].groups()))
     except Exception:  # layout not written yet
         return 0
 
