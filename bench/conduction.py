@@ -46,8 +46,7 @@ def lv_refinement(n_sites: int = 8) -> dict:
     sites = np.random.default_rng(0).choice(coarse.nodes("epicardium"), n_sites, replace=False)
     fine_sites = cKDTree(fine.points).query(coarse.points[sites])[1]
     # same physical stimulus patch on both meshes
-    radius = SolverConfig().stimulus_radius or 1.5 * coarse.mean_edge_length()
-    cfg = SolverConfig(stimulus_radius=radius)
+    cfg = SolverConfig(stimulus_radius=Simulator(coarse).stimulus_radius)
     t_coarse = Simulator(coarse, config=cfg).run(sites, threads=2).activation
     t_fine = Simulator(fine, config=cfg).run(fine_sites, threads=2).activation
     nearest = cKDTree(fine.points).query(coarse.points)[1]

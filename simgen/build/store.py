@@ -20,6 +20,7 @@ import zarr
 from numpy.typing import NDArray
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
+from shared.config import to_mapping
 from shared.errors import InputError, SchemaError
 from shared.mesh import LongAxis, Mesh
 from shared.schema import (
@@ -156,8 +157,6 @@ def write_subject_group(
 
 def spec_dict_of(obj: Any) -> Any:
     """JSON-able form of a dataclass (tissue specs in subject attributes)."""
-    from shared.config import to_mapping
-
     return json.loads(json.dumps(to_mapping(obj)))
 
 

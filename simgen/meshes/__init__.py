@@ -7,7 +7,7 @@ from simgen.meshes.catalog import GENERATORS, get_mesh
 from simgen.meshes.ellipsoid import LVGeometry, lv_ellipsoid
 from simgen.meshes.io import load_mesh, save_mesh
 from simgen.meshes.slab import slab, strip
-from simgen.meshes.topology import boundary_faces, extract_surface
+from simgen.meshes.topology import boundary_faces, edge_graph, extract_surface
 from simgen.meshes.validate import validate_mesh
 
 __all__ = [
@@ -22,6 +22,7 @@ __all__ = [
     "slab",
     "strip",
     "boundary_faces",
+    "edge_graph",
     "extract_surface",
     "validate_mesh",
 ]

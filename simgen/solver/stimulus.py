@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 
 from shared.errors import StimulusError
 from shared.mesh import Mesh
+from simgen.meshes.topology import edge_graph
 
 __all__ = ["check_sites", "patch_mask"]
 
@@ -36,9 +36,6 @@ def patch_mask(mesh: Mesh, sites: NDArray[np.integer], radius: float) -> NDArray
     sites = check_sites(mesh, sites)
     if not np.isfinite(radius) or radius < 0:
         raise StimulusError(f"stimulus radius must be >= 0 mm, got {radius}")
-    e = mesh.edges()
-    w = np.linalg.norm(mesh.points[e[:, 0]] - mesh.points[e[:, 1]], axis=1)
-    graph = sp.coo_matrix((w, (e[:, 0], e[:, 1])), shape=(mesh.n_nodes,) * 2).tocsr()
     unique, inverse = np.unique(sites, return_inverse=True)
-    dist = dijkstra(graph, directed=False, indices=unique, limit=radius * (1 + 1e-9))
+    dist = dijkstra(edge_graph(mesh), directed=False, indices=unique, limit=radius * (1 + 1e-9))
     return (dist <= radius * (1 + 1e-9)).T[:, inverse]

@@ -11,7 +11,7 @@ from simgen.tissue.defaults import (
     default_settings,
     tissue_spec_from_mapping,
 )
-from simgen.tissue.fields import edge_graph, scar_regions, tissue_fields
+from simgen.tissue.fields import scar_regions, tissue_fields
 
 __all__ = [
     "APEX_CAP",
@@ -25,7 +25,6 @@ __all__ = [
     "SCAR_CORE",
     "default_settings",
     "tissue_spec_from_mapping",
-    "edge_graph",
     "scar_regions",
     "tissue_fields",
 ]

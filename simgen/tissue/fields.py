@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from shared.errors import TissueError
@@ -27,21 +26,10 @@ from shared.tissue import (
     TissueFields,
     TissueSpec,
 )
+from simgen.meshes.topology import edge_graph
 from simgen.tissue.aha import aha_segments
 
-__all__ = ["tissue_fields", "scar_regions", "edge_graph"]
-
-
-def edge_graph(mesh: Mesh) -> csr_matrix:
-    """Symmetric sparse graph of the mesh edges weighted by their length (mm)."""
-    e = mesh.edges()
-    w = np.linalg.norm(mesh.points[e[:, 0]] - mesh.points[e[:, 1]], axis=1)
-    # csgraph drops explicit zeros; keep coincident nodes connected.
-    w = np.maximum(w, 1e-12)
-    n = mesh.n_nodes
-    rows = np.concatenate([e[:, 0], e[:, 1]])
-    cols = np.concatenate([e[:, 1], e[:, 0]])
-    return coo_matrix((np.concatenate([w, w]), (rows, cols)), shape=(n, n)).tocsr()
+__all__ = ["tissue_fields", "scar_regions"]
 
 
 def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | None) -> NDArray[np.bool_]:

@@ -12,7 +12,8 @@ from shared.errors import ConfigError, TissueError
 from shared.mesh import Mesh
 from shared.tissue import LABEL_BORDER, LABEL_CORE, Material, ScarSpec, TissueSpec
 from simgen.meshes.ellipsoid import lv_ellipsoid
-from simgen.tissue import default_settings, edge_graph, tissue_fields, tissue_spec_from_mapping
+from simgen.meshes.topology import edge_graph
+from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
 
 
 @pytest.fixture(scope="module", params=["tetra", "triangle"])
