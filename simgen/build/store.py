@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
 from shared.config import to_mapping
-from shared.errors import InputError, SchemaError
-from shared.mesh import LongAxis, Mesh
+from shared.errors import InputError
+from shared.mesh import Mesh
 from shared.schema import (
     MESH_ARRAYS,
     MESH_INDEX_SETS,
@@ -32,7 +32,7 @@ from shared.schema import (
     mesh_path,
     subject_path,
 )
-from shared.tissue import TissueFields
+from shared.reader import check_store, done_flags, read_mesh, read_sites, read_tissue, subject_ids
 from simgen.build.manifest import Subject, Task
 from simgen.build.spec import OutputSpec
 from simgen.solver.simulate import SolverConfig
@@ -186,10 +186,6 @@ def write_chunk(
     g["done"][chunk] = 1
 
 
-def subject_ids(path: str | Path) -> list[str]:
-    """Ids of every subject in the store, sorted (from the live metadata, not the consolidated copy)."""
-    root = zarr.open_group(str(path), mode="r", use_consolidated=False)
-    return sorted(name for name, _ in root["subjects"].groups())
 
 
 def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
@@ -204,31 +200,12 @@ def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[T
     return tasks
 
 
-def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:
-    """Completion flag of every chunk of a subject."""
-    return zarr.open_group(str(path), path=subject_path(subject_id), mode="r")["done"][...].astype(bool)
 
 
-def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
-    """The mesh as stored (points, cells, node sets, axis)."""
-    g = zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")
-    axis = g.attrs.get("axis")
-    sets = {name: g[name][...] for name in MESH_INDEX_SETS if name != "electrodes" and g[name].shape[0]}
-    return Mesh(
-        points=g["points"][...], cells=g["cells"][...], node_sets=sets, name=g.attrs["name"],
-        axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
-    )  # fmt: skip
 
 
-def read_tissue(path: str | Path, subject_id: str) -> TissueFields:
-    """The subject's per-node tissue fields."""
-    g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r")
-    return TissueFields(g["a"][...].astype(float), g["D"][...].astype(float), g["label"][...])
 
 
-def read_sites(path: str | Path, mesh_id: str) -> NDArray[np.int64]:
-    """Stimulation node ids of every subject on ``mesh_id``."""
-    return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")["stim_nodes"][...].astype(np.int64)
 
 
 def consolidate_metadata(path: str | Path) -> None:
@@ -245,11 +222,3 @@ def consolidate(path: str | Path) -> None:
     consolidate_metadata(path)
 
 
-def check_store(path: str | Path) -> dict:
-    """Root attributes of an existing store after a schema-version check."""
-    path = Path(path)
-    if not (path / "zarr.json").exists():
-        raise SchemaError(f"{path} is not a Zarr store (no zarr.json)")
-    attrs = dict(zarr.open_group(str(path), mode="r").attrs)
-    check_schema_version(attrs, str(path))
-    return attrs

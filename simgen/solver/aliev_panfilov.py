@@ -19,11 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import InputError
+from shared.units import MS_PER_TIME_UNIT, to_millivolts
 
 __all__ = ["APParams", "reaction", "front_speed", "MS_PER_TIME_UNIT", "to_millivolts"]
-
-#: Milliseconds per dimensionless time unit.
-MS_PER_TIME_UNIT = 12.9
 
 
 @dataclass(frozen=True)
@@ -62,7 +60,3 @@ def front_speed(D: float, a: float, k: float = 8.0) -> float:
     """Planar front speed of the excitation (recovery neglected): ``sqrt(2kD)(1/2 - a)``."""
     return float(np.sqrt(2.0 * k * D) * (0.5 - a))
 
-
-def to_millivolts(u: NDArray) -> NDArray:
-    """Transmembrane potential in mV from the dimensionless ``u``."""
-    return 100.0 * u - 80.0

@@ -1,0 +1,84 @@
+"""Read-only access to a dataset store through the schema (used by simgen and learner alike).
+
+Every function opens the store lazily and reads only what it returns, so a
+reader never holds more than one subject's arrays.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+
+from shared.errors import SchemaError
+from shared.mesh import LongAxis, Mesh
+from shared.schema import MESH_INDEX_SETS, check_schema_version, mesh_path, subject_path
+from shared.tissue import TissueFields
+
+__all__ = [
+    "check_store",
+    "subject_ids",
+    "subject_attrs",
+    "done_flags",
+    "read_mesh",
+    "read_tissue",
+    "read_sites",
+    "read_index_set",
+]
+
+
+def check_store(path: str | Path) -> dict:
+    """Root attributes of an existing store after a schema-version check."""
+    path = Path(path)
+    if not (path / "zarr.json").exists():
+        raise SchemaError(f"{path} is not a Zarr store (no zarr.json)")
+    attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+    check_schema_version(attrs, str(path))
+    return attrs
+
+
+def subject_ids(path: str | Path) -> list[str]:
+    """Ids of every subject in the store, sorted (from the live metadata, not the consolidated copy)."""
+    root = zarr.open_group(str(path), mode="r", use_consolidated=False)
+    return sorted(name for name, _ in root["subjects"].groups())
+
+
+def subject_attrs(path: str | Path, subject_id: str) -> dict:
+    """Attributes of a subject group: ``mesh_id``, ``tissue``, ``chunk_sites``."""
+    return dict(zarr.open_group(str(path), path=subject_path(subject_id), mode="r").attrs)
+
+
+def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:
+    """Completion flag of every chunk of a subject."""
+    return zarr.open_group(str(path), path=subject_path(subject_id), mode="r")["done"][...].astype(bool)
+
+
+def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
+    """The mesh as stored (points, cells, node sets, axis)."""
+    g = zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")
+    axis = g.attrs.get("axis")
+    sets = {name: g[name][...] for name in MESH_INDEX_SETS if name != "electrodes" and g[name].shape[0]}
+    return Mesh(
+        points=g["points"][...], cells=g["cells"][...], node_sets=sets, name=g.attrs["name"],
+        axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
+    )  # fmt: skip
+
+
+def read_index_set(path: str | Path, mesh_id: str, name: str) -> NDArray[np.int64]:
+    """One stored node index set of a mesh (``surface``, ``epicardium``, ``electrodes``...)."""
+    if name not in MESH_INDEX_SETS:
+        raise SchemaError(f"unknown node set {name!r}; the store has {', '.join(MESH_INDEX_SETS)}")
+    return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")[name][...].astype(np.int64)
+
+
+def read_tissue(path: str | Path, subject_id: str) -> TissueFields:
+    """The subject's per-node tissue fields."""
+    g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r")
+    return TissueFields(g["a"][...].astype(float), g["D"][...].astype(float), g["label"][...])
+
+
+def read_sites(path: str | Path, mesh_id: str) -> NDArray[np.int64]:
+    """Stimulation node ids of every subject on ``mesh_id``."""
+    return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")["stim_nodes"][...].astype(np.int64)
