@@ -1,0 +1,149 @@
+"""The ``learner`` command line: thin wrappers around library functions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from shared.errors import InputError
+
+app = typer.Typer(
+    help="learner: meta-learned personalised neural surrogates (metaPNS) of cardiac simulations.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+console = Console()
+
+
+def _fail(exc: Exception) -> None:
+    console.print(f"[red]error:[/red] {exc}")
+    raise typer.Exit(code=2)
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise InputError(f"expected comma-separated node ids, got {text!r}") from None
+
+
+@app.command()
+def train(
+    config: Annotated[Path, typer.Argument(help="Training config (TOML).")],
+    fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
+    epochs: Annotated[Optional[int], typer.Option(help="Override train.epochs.")] = None,
+    max_minutes: Annotated[Optional[float], typer.Option(help="Override train.max_minutes.")] = None,
+    store: Annotated[Optional[Path], typer.Option(help="Override data.store.")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="Override the run directory.")] = None,
+) -> None:
+    """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly."""
+    from dataclasses import replace
+
+    from learner.config import load_config
+    from learner.train.trainer import TrainingDiverged, train as run
+
+    try:
+        cfg = load_config(config)
+        if epochs is not None or max_minutes is not None:
+            t = replace(cfg.train, epochs=epochs or cfg.train.epochs,
+                        max_minutes=cfg.train.max_minutes if max_minutes is None else max_minutes)  # fmt: skip
+            cfg = replace(cfg, train=t)
+        if store is not None:
+            cfg = replace(cfg, data=replace(cfg.data, store=str(store.resolve())))
+        if out is not None:
+            cfg = replace(cfg, out=str(out.resolve()))
+        console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
+
+        def show(row: dict) -> None:
+            val = f"  val target MSE {row['val_target_mse']:.4g}" if "val_target_mse" in row else ""
+            console.print(f"epoch {row['epoch']:4d}  loss {row['total']:.4g}  target MSE {row['target_mse']:.4g}"
+                          f"  context MSE {row['context_mse']:.4g}  {row['seconds']:.1f} s{val}")  # fmt: skip
+
+        result = run(cfg, fresh=fresh, on_epoch=show)
+    except (InputError, TrainingDiverged) as exc:
+        _fail(exc)
+    note = " (time budget reached)" if result.stopped_early else ""
+    console.print(f"done: {result.epochs_done} epochs{note}; checkpoints in {result.out}")
+
+
+@app.command()
+def evaluate(
+    checkpoint: Annotated[Path, typer.Argument(help="Model checkpoint (best.pt / last.pt).")],
+    store: Annotated[Path, typer.Argument(help="Dataset store.")],
+    out: Annotated[Path, typer.Option(help="Folder for evaluation.json / evaluation.md.")] = Path("report/eval"),
+    subjects: Annotated[str, typer.Option(help="A split name (test, validation, train) or comma-separated ids.")] = "test",
+    context: Annotated[str, typer.Option(help="Context size range 'min,max' (or one size).")] = "1,5",
+    sets: Annotated[int, typer.Option(help="Context sets per subject.")] = 3,
+    max_targets: Annotated[int, typer.Option(help="Targets per context set (0 = all).")] = 40,
+    seed: int = 0,
+) -> None:
+    """Context and target MSE / CC / DC / activation-time error, per subject and overall."""
+    from learner.evaluate import EvalSpec, evaluate as run
+
+    try:
+        sizes = [int(v) for v in context.split(",")]
+        split = subjects if "," not in subjects and subjects in ("test", "validation", "train") else tuple(subjects.split(","))
+        spec = EvalSpec(subjects=split, context=(sizes[0], sizes[-1]), context_sets=sets, max_targets=max_targets, seed=seed)
+        report = run(checkpoint, store, spec, progress=lambda i, n, s: console.print(f"[{i}/{n}] {s}"))
+    except (InputError, ValueError) as exc:
+        _fail(exc)
+    js, md = report.write(out)
+    console.print(report.to_markdown().split("### per subject")[0])
+    console.print(f"wrote {js} and {md}")
+
+
+@app.command()
+def personalize(
+    checkpoint: Annotated[Path, typer.Argument(help="metaPNS checkpoint.")],
+    out: Annotated[Path, typer.Option(help="Personalised surrogate file to write.")],
+    store: Annotated[Optional[Path], typer.Option(help="Store holding the subject's simulations.")] = None,
+    subject: Annotated[Optional[str], typer.Option(help="Subject id in --store.")] = None,
+    sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the context set.")] = "",
+    observe: Annotated[str, typer.Option(help="Observed node set (surface, epicardium, electrodes, ...).")] = "surface",
+    observations: Annotated[Optional[Path], typer.Option(help=".npz with points, cells, sites, obs, observed, times (instead of --store).")] = None,  # noqa: E501
+) -> None:
+    """Embed a subject's few observations into a saved personalised surrogate."""
+    from learner.personalize import observations_from_file, observations_from_store, personalize as run
+
+    try:
+        if observations is not None:
+            obs = observations_from_file(observations)
+        elif store is not None and subject is not None:
+            obs = observations_from_store(store, subject, _int_list(sites), observe)
+        else:
+            raise InputError("give either --observations FILE or --store, --subject and --sites")
+        info = run(checkpoint, obs, out)
+    except InputError as exc:
+        _fail(exc)
+    console.print(f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms "
+                  f"-> {out}")  # fmt: skip
+
+
+@app.command()
+def predict(
+    personalized: Annotated[Path, typer.Argument(help="Personalised surrogate (from `learner personalize`).")],
+    sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")],
+    out: Annotated[Path, typer.Option(help=".npz with sites, times and u (site, time, node).")] = Path("prediction.npz"),
+    vtk: Annotated[Optional[Path], typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
+    samples: Annotated[int, typer.Option(help="Draws of c for a predictive spread (0 = mean only).")] = 0,
+) -> None:
+    """Predict full-mesh sequences for new stimulation sites."""
+    from learner.personalize import predict as run, write_vtk
+
+    try:
+        pred = run(personalized, _int_list(sites), samples=samples)
+    except InputError as exc:
+        _fail(exc)
+    arrays = {"sites": pred.sites, "times": pred.times, "u": pred.u}
+    if pred.spread is not None:
+        arrays["spread"] = pred.spread
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, **arrays)
+    console.print(f"{len(pred.sites)} sequence(s) in {1000 * pred.seconds:.1f} ms -> {out}")
+    if vtk is not None:
+        paths = write_vtk(pred, vtk)
+        console.print(f"wrote {len(paths)} .vtu file(s) to {vtk}")

@@ -1,0 +1,122 @@
+"""Training configuration: one TOML file, defaults in code, unknown keys refused.
+
+Example (TOML)::
+
+    out = "runs/default"             # run directory: checkpoints, logs, hierarchy cache
+
+    [data]
+    store = "default.zarr"           # relative paths are relative to this file
+    [data.split]
+    seed = 0
+    test = 0.25
+    [data.episodes]
+    context = [1, 5]
+    targets = 20
+    observe = "surface"
+
+    [model]
+    kind = "metapns"                 # or "pns" (same generator, no context embedding)
+
+    [train]
+    epochs = 100
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+from shared.config import from_mapping, load_toml, to_mapping
+from shared.errors import ConfigError
+
+from learner.data.episodes import EpisodeSpec
+from learner.data.split import SplitSpec
+
+__all__ = ["DataConfig", "ModelConfig", "TrainConfig", "LearnerConfig", "load_config", "config_from_mapping"]
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Where episodes come from and how they are drawn."""
+
+    store: str = ""
+    workers: int = 1  # DataLoader worker processes (0 = load in the training process)
+    split: SplitSpec = field(default_factory=SplitSpec)
+    episodes: EpisodeSpec = field(default_factory=EpisodeSpec)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network sizes (defaults near the reference: channels 1-8-16-32-64-128, latent 64)."""
+
+    kind: Literal["metapns", "pns"] = "metapns"
+    channels: tuple[int, ...] = (8, 16, 32, 64)  # per encoder block, fine to coarse
+    hidden: int = 128  # the 1x1 layers between the graph blocks and the latent space
+    latent: int = 64  # channels of z_t and of c, per coarse node
+    levels: int = 5  # graphs in the mesh hierarchy (len(channels) + 1)
+    coarsest: int = 40  # nodes of the coarsest graph (approximately)
+    coarse_blocks: int = 3  # graph blocks at the coarsest level before z_0 (a mesh-wide receptive field)
+
+    def __post_init__(self) -> None:
+        if self.levels != len(self.channels) + 1:
+            raise ConfigError(f"model.levels ({self.levels}) must be len(model.channels) + 1 ({len(self.channels) + 1})")
+        if min(self.channels + (self.hidden, self.latent)) < 1:
+            raise ConfigError("model channel counts must be positive")
+        if self.coarsest < 4:
+            raise ConfigError(f"model.coarsest must be >= 4, got {self.coarsest}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation (SPEC section 4: Adam 1e-3 halved every 50 epochs, lambda1 1e-4, lambda2 0.1)."""
+
+    epochs: int = 100
+    lr: float = 1e-3
+    lr_halve_every: int = 50
+    grad_clip: float = 10.0
+    lambda1: float = 1e-4
+    lambda2: float = 0.1
+    kl_anneal_epochs: int = 0  # KL weights ramp linearly from 0 over this many epochs (0 = off)
+    loss_frames: int = 0  # decode only this many random frames per episode for the loss (0 = all)
+    seed: int = 0
+    threads: int = 0  # torch intra-op threads (0 = torch's default)
+    max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
+    validate_every: int = 5  # epochs between validation passes (best checkpoint kept)
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1 or self.lr <= 0 or self.lr_halve_every < 1:
+            raise ConfigError("train.epochs, train.lr and train.lr_halve_every must be positive")
+        if self.lambda1 < 0 or self.lambda2 < 0 or self.grad_clip <= 0:
+            raise ConfigError("train.lambda1/lambda2 must be >= 0 and train.grad_clip > 0")
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    """A whole training run."""
+
+    out: str = "runs/default"
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def to_dict(self) -> dict:
+        """Plain-dict form (stored in checkpoints, reloaded with :func:`config_from_mapping`)."""
+        return to_mapping(self)
+
+
+def config_from_mapping(data: dict, base: Path | None = None) -> LearnerConfig:
+    """Validate a mapping; relative ``out`` and ``data.store`` are resolved against ``base``."""
+    cfg = from_mapping(LearnerConfig, data)
+    if not cfg.data.store:
+        raise ConfigError("data.store is required: the dataset store built by `simgen build`")
+    if base is not None:
+        store = str((base / cfg.data.store).resolve()) if "://" not in cfg.data.store else cfg.data.store
+        cfg = replace(cfg, out=str((base / cfg.out).resolve()), data=replace(cfg.data, store=store))
+    return cfg
+
+
+def load_config(path: str | Path) -> LearnerConfig:
+    """Read and validate a TOML config file."""
+    path = Path(path)
+    return config_from_mapping(load_toml(path), base=path.parent)

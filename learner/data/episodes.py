@@ -1,0 +1,504 @@
+"""Meta-learning episodes read from a dataset store.
+
+An episode is one subject: ``K`` context simulations (what the set encoder
+sees, observed on a node subset) and ``M`` other target simulations of the
+same subject (what the generator must predict). Sites are drawn without
+replacement, so targets never include the context.
+
+I/O contract: the store is opened lazily (inside each DataLoader worker) and
+an episode reads only its ``K + M`` site rows of ``u`` (Zarr decodes whole
+chunks, so ``chunks_per_episode`` bounds the chunks touched). Every random
+choice of an episode comes from ``np.random.default_rng([seed, epoch,
+subject_index, k])``, so an episode is a pure function of those four numbers
+and training can resume exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import zarr
+from numpy.typing import ArrayLike, NDArray
+from torch.utils.data import IterableDataset, get_worker_info
+
+from shared.errors import InputError, SchemaError
+from shared.reader import check_store, read_index_set, read_sites, subject_ids
+from shared.schema import MESH_INDEX_SETS, subject_path
+
+__all__ = ["OBSERVE_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode"]
+
+#: Observation sets an episode may use: a stored mesh node set, or every node.
+OBSERVE_SETS = (*MESH_INDEX_SETS, "all")
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """How episodes are drawn.
+
+    Parameters
+    ----------
+    context
+        ``(min, max)`` context size, both inclusive; ``K`` is uniform on it.
+    targets
+        Number of target simulations ``M`` per episode.
+    observe
+        Node set the context is observed on: one of :data:`OBSERVE_SETS`.
+    noise_std
+        Standard deviation of Gaussian noise added to observed context values.
+    chunks_per_episode
+        ``0``: draw sites from the whole subject; ``k > 0``: only from ``k``
+        random chunks, so an episode decodes at most ``k`` chunks of ``u``.
+    """
+
+    context: tuple[int, int] = (1, 5)
+    targets: int = 20
+    observe: str = "surface"
+    noise_std: float = 0.0
+    chunks_per_episode: int = 0
+
+    def __post_init__(self) -> None:
+        context = self.context
+        if isinstance(context, (int, np.integer)) and not isinstance(context, bool):
+            context = (int(context), int(context))
+        if not (isinstance(context, Sequence) and len(context) == 2 and all(_is_int(c) for c in context)):
+            raise InputError(f"context must be a (min, max) pair of integers, got {self.context!r}")
+        lo, hi = int(context[0]), int(context[1])
+        object.__setattr__(self, "context", (lo, hi))  # TOML gives lists; keep the spec hashable
+        if lo < 1:
+            raise InputError(f"context size must be >= 1, got context={self.context!r}")
+        if hi < lo:
+            raise InputError(f"context max must be >= context min, got context={self.context!r}")
+        if not _is_int(self.targets) or self.targets < 0:
+            raise InputError(f"targets must be a non-negative integer, got {self.targets!r}")
+        if self.observe not in OBSERVE_SETS:
+            raise InputError(f"unknown observation set {self.observe!r}; choose one of {', '.join(OBSERVE_SETS)}")
+        if not (isinstance(self.noise_std, (int, float)) and np.isfinite(self.noise_std) and self.noise_std >= 0):
+            raise InputError(f"noise_std must be a finite number >= 0, got {self.noise_std!r}")
+        if not _is_int(self.chunks_per_episode) or self.chunks_per_episode < 0:
+            raise InputError(f"chunks_per_episode must be an integer >= 0, got {self.chunks_per_episode!r}")
+
+    @property
+    def max_sites(self) -> int:
+        """Most site rows one episode needs (largest context plus targets)."""
+        return self.context[1] + self.targets
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One subject's context and target simulations, as tensors.
+
+    ``K`` context, ``M`` targets, ``T`` frames, ``N`` mesh nodes. Sites are
+    stimulation *node ids*; ``*_rows`` are the matching site rows of the
+    subject's arrays (for reading ``activation`` etc. later).
+
+    Attributes
+    ----------
+    context_sites, target_sites : LongTensor (K,), (M,)
+    context_obs : FloatTensor (K, T, N)
+        Observed context: ``u`` (+ noise) on observed nodes, 0 elsewhere.
+    observed : BoolTensor (N,)
+        Observation mask.
+    context_u, target_u : FloatTensor (K, T, N), (M, T, N)
+        Full ground truth (the loss covers all nodes).
+    times : FloatTensor (T,)
+        Frame times in time units.
+    context_rows, target_rows : LongTensor (K,), (M,)
+    """
+
+    subject_id: str
+    mesh_id: str
+    context_sites: torch.Tensor
+    context_obs: torch.Tensor
+    observed: torch.Tensor
+    context_u: torch.Tensor
+    target_sites: torch.Tensor
+    target_u: torch.Tensor
+    times: torch.Tensor
+    context_rows: torch.Tensor | None = None
+    target_rows: torch.Tensor | None = None
+
+    def to(self, device: torch.device | str, non_blocking: bool = False) -> Episode:
+        """A copy with every tensor moved to ``device``."""
+        return self._map(lambda t: t.to(device, non_blocking=non_blocking))
+
+    def _map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> Episode:
+        values: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            values[f.name] = fn(value) if isinstance(value, torch.Tensor) else value
+        return Episode(**values)
+
+    def pin_memory(self) -> Episode:
+        """A copy in pinned memory (``DataLoader(pin_memory=True)`` calls this)."""
+        return self._map(lambda t: t.pin_memory())
+
+    def __repr__(self) -> str:
+        k, t, n = self.context_u.shape
+        return (
+            f"Episode(subject_id={self.subject_id!r}, mesh_id={self.mesh_id!r}, context={k}, "
+            f"targets={self.target_u.shape[0]}, frames={t}, nodes={n}, observed={int(self.observed.sum())})"
+        )
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+
+@dataclass(frozen=True)
+class _SubjectMeta:
+    """What an episode needs to know about a subject before reading ``u`` (small arrays only)."""
+
+    subject_id: str
+    mesh_id: str
+    n_sites: int
+    n_frames: int
+    n_nodes: int
+    chunk_sites: int
+    stim_nodes: NDArray[np.int64]  # (site,) node id of each site row
+    observed: NDArray[np.bool_]  # (node,)
+    done: NDArray[np.bool_]  # (chunk,)
+
+    @property
+    def chunk_sizes(self) -> NDArray[np.int64]:
+        """Number of site rows in each chunk (the last one may be short)."""
+        starts = np.arange(0, self.n_sites, self.chunk_sites)
+        return np.minimum(starts + self.chunk_sites, self.n_sites) - starts
+
+    def chunks_of(self, rows: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Sorted unique chunk indices holding ``rows``."""
+        return np.unique(rows // self.chunk_sites)
+
+
+def _observed_mask(store: str, mesh_id: str, n_nodes: int, observe: str) -> NDArray[np.bool_]:
+    if observe not in OBSERVE_SETS:
+        raise InputError(f"unknown observation set {observe!r}; choose one of {', '.join(OBSERVE_SETS)}")
+    if observe == "all":
+        return np.ones(n_nodes, dtype=bool)
+    idx = read_index_set(store, mesh_id, observe)
+    if idx.size == 0:
+        raise InputError(f"mesh {mesh_id!r} has an empty {observe!r} node set: nothing would be observed")
+    if idx.min() < 0 or idx.max() >= n_nodes:
+        raise SchemaError(f"node set {observe!r} of mesh {mesh_id!r} has ids outside [0, {n_nodes})")
+    mask = np.zeros(n_nodes, dtype=bool)
+    mask[idx] = True
+    return mask
+
+
+def _subject_meta(
+    store: str, subject_id: str, observe: str, mesh_cache: dict[str, tuple[NDArray, NDArray]] | None = None
+) -> _SubjectMeta:
+    """Read and check a subject's metadata; raise :class:`InputError` for an unknown subject."""
+    try:
+        g = zarr.open_group(store, path=subject_path(subject_id), mode="r", zarr_format=3)
+    except FileNotFoundError:  # zarr's GroupNotFoundError derives from it
+        raise InputError(f"unknown subject {subject_id!r} in store {store}") from None
+    attrs = dict(g.attrs)
+    mesh_id, chunk_sites = attrs.get("mesh_id"), attrs.get("chunk_sites")
+    if mesh_id is None or chunk_sites is None:
+        raise SchemaError(f"subject {subject_id!r} in {store} lacks the mesh_id / chunk_sites attributes")
+    n_sites, n_frames, n_nodes = g["u"].shape  # metadata only: no chunk is read
+    done = g["done"][...].astype(bool)
+    cache = {} if mesh_cache is None else mesh_cache
+    if mesh_id not in cache:
+        cache[mesh_id] = (read_sites(store, mesh_id), _observed_mask(store, mesh_id, n_nodes, observe))
+    stim_nodes, observed = cache[mesh_id]
+    if stim_nodes.shape[0] != n_sites or observed.shape[0] != n_nodes:
+        raise SchemaError(
+            f"subject {subject_id!r}: u has shape {(n_sites, n_frames, n_nodes)} but mesh {mesh_id!r} has "
+            f"{stim_nodes.shape[0]} stimulation sites and {observed.shape[0]} nodes"
+        )
+    n_chunks = -(-n_sites // int(chunk_sites))
+    if done.shape[0] != n_chunks:
+        raise SchemaError(f"subject {subject_id!r}: {done.shape[0]} done flags for {n_chunks} chunks")
+    return _SubjectMeta(
+        subject_id, str(mesh_id), int(n_sites), int(n_frames), int(n_nodes), int(chunk_sites),
+        stim_nodes, observed, done,
+    )  # fmt: skip
+
+
+def _refuse_missing(meta: _SubjectMeta, chunks: NDArray[np.int64] | None = None) -> None:
+    """Raise :class:`SchemaError` if any of ``chunks`` (default: all) is not done."""
+    chunks = np.arange(meta.done.shape[0]) if chunks is None else chunks
+    missing = chunks[~meta.done[chunks]]
+    if missing.size:
+        raise SchemaError(
+            f"subject {meta.subject_id!r} has unfinished chunk(s) {', '.join(map(str, missing.tolist()))} "
+            f"(done == 0); finish the build (simgen build resumes) or leave the subject out"
+        )
+
+
+def _as_rows(rows: ArrayLike, name: str, n_sites: int) -> NDArray[np.int64]:
+    arr = np.asarray(rows)
+    if arr.ndim == 0:
+        arr = arr.reshape(1)
+    if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+        raise InputError(f"{name} must be a 1-D sequence of integer site rows, got {rows!r}")
+    arr = arr.astype(np.int64)
+    if arr.size and (arr.min() < 0 or arr.max() >= n_sites):
+        raise InputError(f"{name} {arr.tolist()} outside the subject's site rows [0, {n_sites})")
+    if np.unique(arr).size != arr.size:
+        raise InputError(f"{name} {arr.tolist()} has repeated site rows")
+    return arr
+
+
+def _read_rows(u: zarr.Array, rows: NDArray[np.int64]) -> NDArray[np.float32]:
+    """``u[rows]``, decoding only the chunks that hold ``rows``, one chunk at a time.
+
+    A chunk-aligned slice per chunk measured ~20 % faster than one orthogonal
+    selection (``u.oindex[rows]``) and bounds the extra memory to one chunk.
+    """
+    step = u.chunks[0]
+    out = np.empty((rows.size, *u.shape[1:]), dtype=np.float32)
+    chunk_of = rows // step
+    for c in np.unique(chunk_of):
+        pick = np.flatnonzero(chunk_of == c)
+        start = int(c) * step
+        block = u[start : min(start + step, u.shape[0])]
+        out[pick] = block[rows[pick] - start]
+    return out
+
+
+def _build_episode(
+    meta: _SubjectMeta,
+    u: zarr.Array,
+    times: NDArray[np.float64],
+    context_rows: NDArray[np.int64],
+    target_rows: NDArray[np.int64],
+    noise_std: float,
+    rng: np.random.Generator | None,
+) -> Episode:
+    if noise_std > 0 and rng is None:
+        raise InputError("noise_std > 0 needs an rng (np.random.Generator) for reproducible noise")
+    k = context_rows.size
+    data = _read_rows(u, np.concatenate([context_rows, target_rows]))
+    if not np.isfinite(data).all():
+        bad = np.concatenate([context_rows, target_rows])[~np.isfinite(data).all(axis=(1, 2))]
+        raise SchemaError(f"subject {meta.subject_id!r}: u has non-finite values in site row(s) {bad.tolist()}")
+    context_u, target_u = data[:k], data[k:]
+    obs = context_u.copy()
+    if noise_std > 0:
+        obs += np.float32(noise_std) * rng.standard_normal(obs.shape, dtype=np.float32)
+    obs[:, :, ~meta.observed] = 0.0  # unobserved nodes carry no information, noise included
+    return Episode(
+        subject_id=meta.subject_id,
+        mesh_id=meta.mesh_id,
+        context_sites=torch.from_numpy(meta.stim_nodes[context_rows]),
+        context_obs=torch.from_numpy(obs),
+        observed=torch.from_numpy(meta.observed.copy()),
+        context_u=torch.from_numpy(context_u),
+        target_sites=torch.from_numpy(meta.stim_nodes[target_rows]),
+        target_u=torch.from_numpy(target_u),
+        times=torch.from_numpy(np.asarray(times, dtype=np.float32)),
+        context_rows=torch.from_numpy(context_rows),
+        target_rows=torch.from_numpy(target_rows),
+    )
+
+
+def load_episode(
+    store: str | Path,
+    subject_id: str,
+    context_sites: ArrayLike,
+    target_sites: ArrayLike,
+    observe: str = "surface",
+    noise_std: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> Episode:
+    """One episode with fixed sites (evaluation; the dataset draws its own).
+
+    Parameters
+    ----------
+    store
+        Dataset store path.
+    subject_id
+        Subject to read.
+    context_sites, target_sites
+        Site *rows* of the subject (indices into its ``u`` site axis, ``0 ..
+        n_sites-1``), disjoint; ``target_sites`` may be empty. The episode's
+        ``*_sites`` hold the matching stimulation node ids.
+    observe
+        Observation set (one of :data:`OBSERVE_SETS`).
+    noise_std, rng
+        Observation noise and its generator (required when ``noise_std > 0``).
+
+    Raises
+    ------
+    SchemaError
+        Wrong schema version, or a requested row lies in an unfinished chunk.
+    InputError
+        Unknown subject or observation set, bad or overlapping rows.
+    """
+    store = str(store)
+    check_store(store)
+    meta = _subject_meta(store, subject_id, observe)
+    context_rows = _as_rows(context_sites, "context sites", meta.n_sites)
+    target_rows = _as_rows(target_sites, "target sites", meta.n_sites)
+    if context_rows.size < 1:
+        raise InputError("context size must be >= 1, got no context sites")
+    overlap = np.intersect1d(context_rows, target_rows)
+    if overlap.size:
+        raise InputError(f"target sites must not include context sites; both have rows {overlap.tolist()}")
+    if not (np.isfinite(noise_std) and noise_std >= 0):
+        raise InputError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
+    # Only the chunks actually read must be finished: evaluation may run on a partial store.
+    _refuse_missing(meta, meta.chunks_of(np.concatenate([context_rows, target_rows])))
+    g = zarr.open_group(store, path=subject_path(subject_id), mode="r", zarr_format=3)
+    return _build_episode(meta, g["u"], g["times"][...], context_rows, target_rows, noise_std, rng)
+
+
+class EpisodeDataset(IterableDataset):
+    """Stream of training episodes over a list of subjects.
+
+    Each epoch visits the subjects in the order
+    ``np.random.default_rng([seed, epoch]).permutation(len(subjects))``,
+    ``episodes_per_subject`` rounds over that order; DataLoader workers take
+    interleaved slices of it. Episode ``k`` of ``subjects[i]`` in ``epoch``
+    draws everything from ``np.random.default_rng([seed, epoch, i, k])``.
+    Use ``DataLoader(dataset, batch_size=None, num_workers=...)`` and call
+    :meth:`set_epoch` before each epoch (with ``persistent_workers=False``,
+    the default, so workers see the new epoch).
+
+    Only the store path and small metadata (site node ids, observation masks,
+    done flags) live in the object, so it pickles to workers; each worker
+    opens the store itself.
+
+    Raises
+    ------
+    SchemaError
+        Wrong schema version; a subject with an unfinished chunk.
+    InputError
+        No or duplicate or unknown subjects, an episode needing more sites than
+        a subject has, an empty observation set, a negative seed or epoch.
+    """
+
+    def __init__(
+        self,
+        store: str | Path,
+        subjects: Sequence[str],
+        spec: EpisodeSpec,
+        seed: int,
+        epoch: int = 0,
+        episodes_per_subject: int = 1,
+    ) -> None:
+        super().__init__()
+        if isinstance(subjects, str):
+            raise InputError(f"subjects must be a list of subject ids, not the string {subjects!r}")
+        self.store = str(store)
+        self.subjects = list(subjects)
+        self.spec = spec
+        if not isinstance(spec, EpisodeSpec):
+            raise InputError(f"spec must be an EpisodeSpec, got {type(spec).__name__}")
+        if not _is_int(seed) or seed < 0:
+            raise InputError(f"seed must be a non-negative integer, got {seed!r}")
+        self.seed = int(seed)
+        self.epoch = 0
+        self.set_epoch(epoch)
+        if not _is_int(episodes_per_subject) or episodes_per_subject < 1:
+            raise InputError(f"episodes_per_subject must be an integer >= 1, got {episodes_per_subject!r}")
+        self.episodes_per_subject = int(episodes_per_subject)
+        if not self.subjects:
+            raise InputError("EpisodeDataset needs at least one subject")
+        if len(set(self.subjects)) != len(self.subjects):
+            raise InputError(f"duplicate subjects in {self.subjects}")
+
+        check_store(self.store)
+        known = set(subject_ids(self.store))
+        unknown = [s for s in self.subjects if s not in known]
+        if unknown:
+            raise InputError(f"unknown subject(s) {', '.join(unknown)} in store {self.store}")
+        mesh_cache: dict[str, tuple[NDArray, NDArray]] = {}
+        self._meta = [_subject_meta(self.store, s, spec.observe, mesh_cache) for s in self.subjects]
+        for meta in self._meta:
+            _refuse_missing(meta)
+            available = meta.n_sites
+            if spec.chunks_per_episode:
+                # Worst case: the drawn chunks are the smallest ones (the last chunk may be short).
+                available = int(np.sort(meta.chunk_sizes)[: spec.chunks_per_episode].sum())
+            if spec.max_sites > available:
+                where = (
+                    f"{spec.chunks_per_episode} chunk(s) of {meta.chunk_sites} sites hold as few as {available}"
+                    if spec.chunks_per_episode
+                    else f"it has {available} sites"
+                )
+                raise InputError(
+                    f"subject {meta.subject_id!r}: an episode needs up to {spec.context[1]} context + "
+                    f"{spec.targets} targets = {spec.max_sites} sites, but {where}"
+                )
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch whose episodes the next iteration yields."""
+        if not _is_int(epoch) or epoch < 0:
+            raise InputError(f"epoch must be a non-negative integer, got {epoch!r}")
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return len(self.subjects) * self.episodes_per_subject
+
+    def order(self) -> list[int]:
+        """Subject indices in this epoch's visiting order (before worker sharding)."""
+        return np.random.default_rng([self.seed, self.epoch]).permutation(len(self.subjects)).tolist()
+
+    def draw_sites(self, subject: int | str, k: int = 0) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Site rows ``(context, targets)`` of episode ``k`` of a subject in the current epoch."""
+        rows, _ = self._draw(self._index(subject), k)
+        return rows
+
+    def episode(self, subject: int | str, k: int = 0) -> Episode:
+        """Episode ``k`` of a subject (index into ``subjects`` or id) in the current epoch."""
+        return self._episode(self._index(subject), k, {})
+
+    def __iter__(self) -> Iterator[Episode]:
+        info = get_worker_info()
+        worker, n_workers = (0, 1) if info is None else (info.id, info.num_workers)
+        mine = self.order()[worker::n_workers]
+        # Array handles (metadata only) opened in this process, never stored on self: self must pickle.
+        handles: dict[int, tuple[zarr.Array, NDArray[np.float64]]] = {}
+        for k in range(self.episodes_per_subject):
+            for i in mine:
+                yield self._episode(i, k, handles)
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(store={self.store!r}, subjects={len(self.subjects)}, seed={self.seed}, "
+            f"epoch={self.epoch}, episodes_per_subject={self.episodes_per_subject}, spec={self.spec!r})"
+        )
+
+    def _index(self, subject: int | str) -> int:
+        if isinstance(subject, str):
+            if subject not in self.subjects:
+                raise InputError(f"subject {subject!r} is not in this dataset")
+            return self.subjects.index(subject)
+        if not _is_int(subject) or not 0 <= subject < len(self.subjects):
+            raise InputError(f"subject index {subject!r} outside [0, {len(self.subjects)})")
+        return int(subject)
+
+    def _draw(
+        self, i: int, k: int
+    ) -> tuple[tuple[NDArray[np.int64], NDArray[np.int64]], np.random.Generator]:
+        if not _is_int(k) or not 0 <= k < self.episodes_per_subject:
+            raise InputError(f"episode index k={k!r} outside [0, {self.episodes_per_subject})")
+        meta, spec = self._meta[i], self.spec
+        rng = np.random.default_rng([self.seed, self.epoch, i, int(k)])
+        n_context = int(rng.integers(spec.context[0], spec.context[1] + 1))
+        if spec.chunks_per_episode:
+            n_chunks = meta.done.shape[0]
+            chunks = rng.choice(n_chunks, size=min(spec.chunks_per_episode, n_chunks), replace=False)
+            pool = np.concatenate(
+                [np.arange(c * meta.chunk_sites, min((c + 1) * meta.chunk_sites, meta.n_sites)) for c in chunks]
+            )
+        else:
+            pool = np.arange(meta.n_sites)
+        rows = rng.choice(pool, size=n_context + spec.targets, replace=False).astype(np.int64)
+        return (rows[:n_context], rows[n_context:]), rng
+
+    def _episode(self, i: int, k: int, handles: dict[int, tuple[zarr.Array, NDArray[np.float64]]]) -> Episode:
+        (context_rows, target_rows), rng = self._draw(i, k)
+        if i not in handles:
+            g = zarr.open_group(self.store, path=subject_path(self.subjects[i]), mode="r", zarr_format=3)
+            handles[i] = (g["u"], g["times"][...])
+        u, times = handles[i]
+        return _build_episode(self._meta[i], u, times, context_rows, target_rows, self.spec.noise_std, rng)

@@ -1,0 +1,120 @@
+"""Subject-level train / validation / test split.
+
+Splitting is by subject, never by simulation: every simulation of a subject
+lands in the same part, so a test subject's tissue is never seen in training.
+Subjects on a held-out mesh all go to ``test`` (an unseen geometry, the
+paper's real-data setting); the others are shuffled by ``seed`` and cut by
+fractions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from shared.errors import InputError
+
+__all__ = ["SPLITS", "SplitSpec", "split_subjects"]
+
+#: Names of the parts, in the order they are cut.
+SPLITS = ("train", "validation", "test")
+
+
+@dataclass(frozen=True)
+class SplitSpec:
+    """How to split subjects.
+
+    Parameters
+    ----------
+    seed
+        Seed of the shuffle (non-negative).
+    validation, test
+        Fractions of the subjects *not* on a held-out mesh; each in ``[0, 1)``,
+        sum ``< 1``.
+    held_out_meshes
+        Mesh ids whose subjects all go to ``test``.
+    """
+
+    seed: int = 0
+    validation: float = 0.1
+    test: float = 0.2
+    held_out_meshes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        # TOML gives lists; a tuple keeps the spec hashable and comparable.
+        if isinstance(self.held_out_meshes, str):
+            raise InputError(f"held_out_meshes must be a list of mesh ids, not the string {self.held_out_meshes!r}")
+        object.__setattr__(self, "held_out_meshes", tuple(self.held_out_meshes))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise InputError(f"split seed must be a non-negative integer, got {self.seed!r}")
+        for name in ("validation", "test"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 <= value < 1.0):
+                raise InputError(f"{name} fraction must be in [0, 1), got {value!r}")
+        if self.validation + self.test >= 1.0:
+            raise InputError(
+                f"validation + test fractions must be < 1 to leave training subjects, "
+                f"got {self.validation} + {self.test}"
+            )
+
+
+def _round_half_up(x: float) -> int:
+    # Python's round() is banker's rounding (round(2.5) == 2); counts should not depend on parity.
+    return int(np.floor(x + 0.5))
+
+
+def split_subjects(
+    subject_ids: Iterable[str], mesh_of: Mapping[str, str], spec: SplitSpec = SplitSpec()
+) -> dict[str, list[str]]:
+    """Split subjects into disjoint ``train``, ``validation`` and ``test`` lists.
+
+    With ``n`` subjects off the held-out meshes, ``validation`` gets
+    ``round(spec.validation * n)`` and ``test`` ``round(spec.test * n)`` of them
+    (then shrunk, test first, until at least one subject is left for training);
+    ``train`` gets the rest. The result depends only on the *set* of subjects,
+    their meshes and ``spec`` (input order does not matter); each list is sorted.
+
+    Raises
+    ------
+    InputError
+        Duplicate subjects, a subject missing from ``mesh_of``, a held-out mesh
+        that no subject uses, or no subject left for training.
+    """
+    ids = list(subject_ids)
+    if len(set(ids)) != len(ids):
+        dupes = sorted({s for s in ids if ids.count(s) > 1})
+        raise InputError(f"duplicate subject ids: {', '.join(dupes)}")
+    missing = [s for s in ids if s not in mesh_of]
+    if missing:
+        raise InputError(f"no mesh id given for subject(s): {', '.join(sorted(missing))}")
+    used_meshes = {mesh_of[s] for s in ids}
+    unknown = [m for m in spec.held_out_meshes if m not in used_meshes]
+    if unknown:
+        raise InputError(
+            f"held-out mesh(es) {', '.join(unknown)} not used by any subject; "
+            f"meshes are {', '.join(sorted(used_meshes))}"
+        )
+
+    held = set(spec.held_out_meshes)
+    held_out = sorted(s for s in ids if mesh_of[s] in held)
+    rest = sorted(s for s in ids if mesh_of[s] not in held)  # sorted first: order of the input must not matter
+    if not rest:
+        raise InputError(
+            f"no subject left for training: all {len(ids)} subject(s) are on held-out meshes "
+            f"{', '.join(spec.held_out_meshes) or '(none)'}"
+        )
+    n = len(rest)
+    n_val, n_test = _round_half_up(spec.validation * n), _round_half_up(spec.test * n)
+    while n_val + n_test > n - 1:  # keep at least one training subject
+        if n_test >= n_val:
+            n_test -= 1
+        else:
+            n_val -= 1
+    order = np.random.default_rng(spec.seed).permutation(n)
+    shuffled = [rest[i] for i in order]
+    val = shuffled[:n_val]
+    test = shuffled[n_val : n_val + n_test]
+    train = shuffled[n_val + n_test :]
+    return {"train": sorted(train), "validation": sorted(val), "test": sorted(test + held_out)}

@@ -1,0 +1,44 @@
+"""The meta-model q(c | Y): feed-forward embedding of a set of observed sequences."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from learner.graph.hierarchy import MeshHierarchy
+from learner.models.graph_encoder import GraphEncoder
+from learner.nn.gcn_gru import GCNGRU
+
+__all__ = ["ContextEncoder"]
+
+
+class ContextEncoder(nn.Module):
+    r"""Observed sequences ``(K, T, N_0)`` on nodes ``observed`` to :math:`(\mu_c, \log\sigma^2_c)`.
+
+    Each sequence passes the graph encoder (inputs: the observed values, zero
+    elsewhere, and the observation mask), a GCN-GRU over time on the coarsest
+    graph and a linear layer compressing time; the embeddings are averaged over
+    the set, and two linear layers give the mean and log-variance of ``c``
+    (``latent`` channels per coarse node). Averaging makes the embedding
+    independent of the order and (in form) of the size of the set.
+    """
+
+    def __init__(self, frames: int, channels: tuple[int, ...], hidden: int, latent: int) -> None:
+        super().__init__()
+        self.frames = frames
+        self.encoder = GraphEncoder(2, channels, hidden, latent)
+        self.gru = GCNGRU(latent, latent)
+        self.compress_time = nn.Linear(frames, 1)
+        self.mu = nn.Linear(latent, latent)
+        self.logvar = nn.Linear(latent, latent)
+
+    def forward(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, Tensor]:
+        k, t, n = obs.shape
+        if t != self.frames:
+            raise ValueError(f"context sequences have {t} frames, the model was built for {self.frames}")
+        mask = observed.to(obs.dtype).expand(k, t, n)
+        x = torch.stack([obs * mask, mask], dim=-1).reshape(k * t, n, 2)
+        e = self.encoder(x, hierarchy)  # (K*T, V, L)
+        h = self.gru(e.reshape(k, t, *e.shape[1:]), hierarchy.graphs[-1])  # (K, T, V, L)
+        pooled = self.compress_time(h.permute(0, 2, 3, 1)).squeeze(-1).mean(dim=0)  # (V, L)
+        return self.mu(pooled), self.logvar(pooled).clamp(-10.0, 10.0)

@@ -1,0 +1,105 @@
+"""The generative surrogates: metaPNS (set-conditioned) and PNS (the same generator without c).
+
+Generation for a stimulus ``s`` (a one-hot node map on the mesh)::
+
+    z_0 = Linear(E_s(s))                      E_s: graph encoder + coarse blocks
+    z_t = T(z_{t-1}, c),  t = 1..T            conditional gated transition, per coarse node
+    x_t = G(z_t)                              graph decoder, one value per mesh node
+
+metaPNS draws ``c`` from the context embedding q(c | Y); PNS has no ``c``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from learner.config import ModelConfig
+from learner.graph.hierarchy import MeshHierarchy
+from learner.models.context_encoder import ContextEncoder
+from learner.models.graph_decoder import GraphDecoder
+from learner.models.graph_encoder import GraphEncoder
+from learner.nn.gated_transition import ConditionalGatedTransition
+from learner.nn.residual_block import ResidualGraphBlock
+
+__all__ = ["Posterior", "PNS", "MetaPNS", "build_model"]
+
+
+@dataclass
+class Posterior:
+    """Diagonal Gaussian over ``c``: mean and log-variance, each ``(V, latent)``."""
+
+    mu: Tensor
+    logvar: Tensor
+
+    def sample(self, generator: torch.Generator | None = None) -> Tensor:
+        """One reparameterised draw ``mu + eps * sigma``."""
+        eps = torch.randn(self.mu.shape, generator=generator, dtype=self.mu.dtype)
+        return self.mu + eps * torch.exp(0.5 * self.logvar)
+
+
+class PNS(nn.Module):
+    """Generic neural surrogate: stimulus site -> full-mesh sequence, the same for every subject."""
+
+    conditioned = False
+
+    def __init__(self, config: ModelConfig, frames: int) -> None:
+        super().__init__()
+        self.config, self.frames = config, frames
+        ch, hid, lat = config.channels, config.hidden, config.latent
+        self.stimulus_encoder = GraphEncoder(1, ch, hid, lat)
+        self.coarse_blocks = nn.ModuleList(ResidualGraphBlock(lat, lat) for _ in range(config.coarse_blocks))
+        self.initial_state = nn.Linear(lat, lat)
+        self.transition = ConditionalGatedTransition(lat, conditioned=self.conditioned)
+        self.decoder = GraphDecoder(lat, ch, hid)
+
+    def initial(self, sites: Tensor, hierarchy: MeshHierarchy) -> Tensor:
+        """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""
+        n = hierarchy.graphs[0].num_nodes
+        onehot = torch.zeros(len(sites), n, 1)
+        onehot[torch.arange(len(sites)), sites.long(), 0] = 1.0
+        e = self.stimulus_encoder(onehot, hierarchy)
+        for block in self.coarse_blocks:
+            e = block(e, hierarchy.graphs[-1])
+        return self.initial_state(e)
+
+    def latent_path(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
+        """Latent states ``z_1..z_T``: ``(S, T, V, latent)``."""
+        z = self.initial(sites, hierarchy)
+        cc = None if c is None else c.unsqueeze(0).expand_as(z)
+        states = []
+        for _ in range(self.frames):
+            z = self.transition(z, cc)
+            states.append(z)
+        return torch.stack(states, dim=1)
+
+    def generate(
+        self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, frames: Tensor | None = None
+    ) -> Tensor:
+        """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices)."""
+        z = self.latent_path(sites, hierarchy, c)
+        if frames is not None:
+            z = z[:, frames]
+        s, t, v, l = z.shape
+        return self.decoder(z.reshape(s * t, v, l), hierarchy).reshape(s, t, -1)
+
+
+class MetaPNS(PNS):
+    """Personalised surrogate: the generator conditioned on an embedding ``c`` of the context set."""
+
+    conditioned = True
+
+    def __init__(self, config: ModelConfig, frames: int) -> None:
+        super().__init__(config, frames)
+        self.context_encoder = ContextEncoder(frames, config.channels, config.hidden, config.latent)
+
+    def embed(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Posterior:
+        """q(c | Y) from observed sequences ``obs`` (K, T, N) and the observation mask (N,)."""
+        return Posterior(*self.context_encoder(obs, observed, hierarchy))
+
+
+def build_model(config: ModelConfig, frames: int) -> PNS:
+    """The model named by ``config.kind`` for sequences of ``frames`` frames."""
+    return (MetaPNS if config.kind == "metapns" else PNS)(config, frames)

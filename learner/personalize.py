@@ -1,0 +1,168 @@
+"""Personalise and predict: a subject's few observations -> a saved surrogate -> new stimulation sites.
+
+A personalised surrogate file holds the trained weights, the context embedding
+``c`` (mean and log-variance of p(c | Y)), the mesh and the frame times, so
+:func:`predict` needs neither the store nor the training run.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from shared.errors import InputError
+from shared.mesh import Mesh
+from shared.units import MS_PER_TIME_UNIT
+
+from learner.config import config_from_mapping
+from learner.data.episodes import load_episode
+from learner.graph.hierarchy import hierarchy_for_mesh
+from learner.models.surrogate import MetaPNS, Posterior, build_model
+from learner.train.checkpoint import load_checkpoint, save_checkpoint
+from learner.store_view import StoreView
+from learner.train.trainer import load_model
+
+__all__ = ["Observations", "Prediction", "observations_from_store", "observations_from_file", "personalize",
+           "predict", "write_vtk"]  # fmt: skip
+
+
+@dataclass
+class Observations:
+    """A subject's context set: stimulation nodes, observed sequences and where they were observed."""
+
+    mesh: Mesh
+    sites: np.ndarray  # (K,) stimulation node ids
+    obs: np.ndarray  # (K, T, N) observed values (anything at unobserved nodes is ignored)
+    observed: np.ndarray  # (N,) bool
+    times: np.ndarray  # (T,) model time units
+    subject: str = ""
+
+    def __post_init__(self) -> None:
+        k, t, n = self.obs.shape
+        if k < 1:
+            raise InputError("context size must be >= 1: give at least one observed simulation")
+        if n != len(self.mesh.points) or self.observed.shape != (n,) or len(self.sites) != k or len(self.times) != t:
+            raise InputError(
+                f"observations do not fit together: obs {self.obs.shape}, observed {self.observed.shape}, "
+                f"sites {len(self.sites)}, times {len(self.times)}, mesh nodes {len(self.mesh.points)}"
+            )
+        if not np.isfinite(self.obs[:, :, self.observed]).all():
+            raise InputError("observations contain NaN or inf at observed nodes")
+        bad = [int(s) for s in self.sites if not 0 <= s < n]
+        if bad:
+            raise InputError(f"stimulation nodes {bad} are not nodes of the {n}-node mesh")
+
+
+def observations_from_store(store: str | Path, subject: str, sites: list[int], observe: str) -> Observations:
+    """Observe ``subject``'s simulations at stimulation nodes ``sites`` through node set ``observe``."""
+    view = StoreView(store)
+    view.check_subject(subject)
+    mesh_id = view.mesh_of[subject]
+    stored = view.sites(mesh_id)
+    unknown = sorted(set(int(s) for s in sites) - set(stored.tolist()))
+    if unknown:
+        raise InputError(f"subject {subject!r} has no simulation stimulated at node(s) {unknown}")
+    rows = [int(np.flatnonzero(stored == s)[0]) for s in sites]
+    ep = load_episode(store, subject, rows, [], observe)
+    return Observations(view.mesh(mesh_id), np.asarray(sites), ep.context_obs.numpy(), ep.observed.numpy(),
+                        ep.times.numpy(), subject)  # fmt: skip
+
+
+def observations_from_file(path: str | Path) -> Observations:
+    """Observations from an ``.npz`` with ``points, cells, sites, obs, observed, times``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"observation file not found: {path}")
+    data = np.load(path)
+    missing = sorted({"points", "cells", "sites", "obs", "observed", "times"} - set(data.files))
+    if missing:
+        raise InputError(f"{path} lacks array(s) {missing}")
+    mesh = Mesh(points=data["points"], cells=data["cells"], name=path.stem)
+    return Observations(mesh, data["sites"], data["obs"].astype(np.float32), data["observed"].astype(bool),
+                        data["times"], path.stem)  # fmt: skip
+
+
+def personalize(checkpoint: str | Path, observations: Observations, out: str | Path) -> dict:
+    """Embed the context set and save a personalised surrogate; returns timing and shape facts."""
+    model, config, ckpt = load_model(checkpoint)
+    if not isinstance(model, MetaPNS):
+        raise InputError(f"{checkpoint} is a PNS model: it has no context embedding to personalise")
+    if observations.obs.shape[1] != model.frames:
+        raise InputError(f"observations have {observations.obs.shape[1]} frames, the model expects {model.frames}")
+    hier = hierarchy_for_mesh(observations.mesh, config.model.levels, config.model.coarsest, None)
+    obs = torch.as_tensor(observations.obs, dtype=torch.float32)
+    observed = torch.as_tensor(observations.observed)
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        post = model.embed(obs, observed, hier)
+    seconds = time.perf_counter() - t0
+    save_checkpoint(out, {
+        "kind": "personalized", "config": ckpt["config"], "frames": model.frames, "model": ckpt["model"],
+        "c_mu": post.mu, "c_logvar": post.logvar, "subject": observations.subject,
+        "context_sites": torch.as_tensor(np.asarray(observations.sites, np.int64)),
+        "points": torch.as_tensor(observations.mesh.points), "cells": torch.as_tensor(observations.mesh.cells),
+        "times": torch.as_tensor(np.asarray(observations.times, np.float64)),
+    })  # fmt: skip
+    return {"embed_seconds": seconds, "context_size": len(observations.sites), "out": str(out)}
+
+
+@dataclass
+class Prediction:
+    """Predicted sequences of a personalised surrogate."""
+
+    sites: np.ndarray  # (S,)
+    u: np.ndarray  # (S, T, N) mean prediction
+    times: np.ndarray  # (T,)
+    mesh: Mesh
+    spread: np.ndarray | None = None  # (S, T, N) std over samples of c, when samples > 1
+    seconds: float = 0.0
+
+
+def predict(personalized: str | Path, sites: list[int], samples: int = 0, seed: int = 0) -> Prediction:
+    """Full-mesh sequences for new stimulation nodes; ``samples > 1`` also draws c for a spread."""
+    p = load_checkpoint(personalized, kind="personalized")
+    config = config_from_mapping(p["config"])
+    model = build_model(config.model, p["frames"])
+    model.load_state_dict(p["model"])
+    model.eval()
+    mesh = Mesh(points=p["points"].numpy(), cells=p["cells"].numpy(), name=p["subject"] or "mesh")
+    n = len(mesh.points)
+    bad = [int(s) for s in sites if not 0 <= int(s) < n]
+    if bad or not sites:
+        raise InputError(f"stimulation nodes {bad or sites} are not nodes of the {n}-node mesh")
+    hier = hierarchy_for_mesh(mesh, config.model.levels, config.model.coarsest, None)
+    s = torch.as_tensor(np.asarray(sites, np.int64))
+    post = Posterior(p["c_mu"], p["c_logvar"])
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        u = model.generate(s, hier, post.mu)
+        seconds = time.perf_counter() - t0
+        spread = None
+        if samples > 1:
+            g = torch.Generator().manual_seed(seed)
+            draws = torch.stack([model.generate(s, hier, post.sample(g)) for _ in range(samples)])
+            spread = draws.std(dim=0).numpy()
+    return Prediction(np.asarray(sites), u.numpy(), p["times"].numpy(), mesh, spread, seconds)
+
+
+def write_vtk(prediction: Prediction, folder: str | Path, threshold: float = 0.5) -> list[Path]:
+    """One ``.vtu`` per site with ``u`` per frame and the predicted activation time (ms) as point data."""
+    import meshio
+
+    from learner.metrics import activation_times
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    cell_type = "tetra" if prediction.mesh.cells.shape[1] == 4 else "triangle"
+    paths = []
+    for site, u in zip(prediction.sites, prediction.u):
+        data = {f"u_{t:03d}": u[t] for t in range(u.shape[0])}
+        data["activation_ms"] = activation_times(u, prediction.times, threshold) * MS_PER_TIME_UNIT
+        path = folder / f"site-{int(site)}.vtu"
+        meshio.write(path, meshio.Mesh(prediction.mesh.points, [(cell_type, prediction.mesh.cells)], point_data=data))
+        paths.append(path)
+    return paths

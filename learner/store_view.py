@@ -1,0 +1,83 @@
+"""What the learner needs to know about a dataset store, read once: subjects, meshes, frames, hierarchies."""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import zarr
+
+from shared.errors import InputError, SchemaError
+from shared.mesh import Mesh
+from shared.reader import check_store, read_mesh, read_sites, subject_attrs, subject_ids
+from shared.schema import subject_path
+
+from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
+
+__all__ = ["StoreView"]
+
+
+class StoreView:
+    """Read-only summary of a store plus a per-mesh cache of graph hierarchies.
+
+    Parameters
+    ----------
+    store : path of the Zarr store (schema-checked on construction).
+    cache_dir : where hierarchies are cached as ``.npz`` (None: in memory only).
+    """
+
+    def __init__(self, store: str | Path, cache_dir: str | Path | None = None) -> None:
+        self.store = str(store)
+        self.attrs = check_store(store)
+        self.cache_dir = Path(cache_dir) if cache_dir is not None else None
+        self._hierarchies: dict[tuple, MeshHierarchy] = {}
+        self._meshes: dict[str, Mesh] = {}
+
+    def __repr__(self) -> str:
+        return f"StoreView({self.store!r}, subjects={len(self.subjects)}, frames={self.frames})"
+
+    @cached_property
+    def subjects(self) -> list[str]:
+        """Every subject id, sorted."""
+        return subject_ids(self.store)
+
+    @cached_property
+    def mesh_of(self) -> dict[str, str]:
+        """Subject id -> mesh id."""
+        return {sid: subject_attrs(self.store, sid)["mesh_id"] for sid in self.subjects}
+
+    @cached_property
+    def frames(self) -> int:
+        """Frames per simulation (the same for every subject of a store)."""
+        counts = {zarr.open_group(self.store, path=subject_path(s), mode="r")["u"].shape[1] for s in self.subjects}
+        if len(counts) != 1:
+            raise SchemaError(f"{self.store}: subjects have different frame counts {sorted(counts)}")
+        return counts.pop()
+
+    @cached_property
+    def times(self) -> np.ndarray:
+        """Output times (model time units) of the frames."""
+        return zarr.open_group(self.store, path=subject_path(self.subjects[0]), mode="r")["times"][...]
+
+    def check_subject(self, subject_id: str) -> None:
+        """Refuse an unknown subject id with the known ones in the message."""
+        if subject_id not in self.mesh_of:
+            raise InputError(f"unknown subject {subject_id!r}; the store has {', '.join(self.subjects)}")
+
+    def mesh(self, mesh_id: str) -> Mesh:
+        """The stored mesh (cached)."""
+        if mesh_id not in self._meshes:
+            self._meshes[mesh_id] = read_mesh(self.store, mesh_id)
+        return self._meshes[mesh_id]
+
+    def sites(self, mesh_id: str) -> np.ndarray:
+        """Stimulation node ids of the mesh's site rows."""
+        return read_sites(self.store, mesh_id)
+
+    def hierarchy(self, mesh_id: str, levels: int, coarsest: int) -> MeshHierarchy:
+        """The mesh's graph hierarchy (computed once, cached in memory and in ``cache_dir``)."""
+        key = (mesh_id, levels, coarsest)
+        if key not in self._hierarchies:
+            self._hierarchies[key] = hierarchy_for_mesh(self.mesh(mesh_id), levels, coarsest, self.cache_dir)
+        return self._hierarchies[key]

@@ -1,0 +1,44 @@
+"""Checkpoints: plain tensors and containers only, written atomically, read with ``weights_only=True``."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from shared.errors import InputError
+
+__all__ = ["CHECKPOINT_FORMAT", "save_checkpoint", "load_checkpoint"]
+
+#: Bumped on incompatible changes of the checkpoint contents.
+CHECKPOINT_FORMAT = 1
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` to ``path`` via a temporary file and an atomic rename (no torn checkpoint on a kill)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    torch.save({"format": CHECKPOINT_FORMAT, **payload}, tmp)
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]:
+    """Read a checkpoint safely (``weights_only=True``); ``kind`` checks its ``kind`` entry."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"checkpoint not found: {path}")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # unpickling errors have many types
+        raise InputError(f"{path} is not a readable learner checkpoint: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{path}: checkpoint format {data.get('format') if isinstance(data, dict) else '?'}, "
+                         f"this code reads format {CHECKPOINT_FORMAT}")
+    if kind is not None and data.get("kind") != kind:
+        raise InputError(f"{path} holds a {data.get('kind')!r}, expected a {kind!r}")
+    return data

@@ -1,0 +1,90 @@
+r"""The episode loss of SPEC section 4 (negative ELBO of the set-conditioned model).
+
+.. math::
+
+    \mathcal{L} = \mathrm{rec}(X_{target}) + \mathrm{rec}(X_{context})
+      + \lambda_1 \mathrm{KL}(q(c \mid Y \cup X) \,\|\, p(c \mid Y))
+      + \lambda_2 \mathrm{KL}(p(c \mid Y) \,\|\, \mathcal{N}(0, I))
+
+where ``rec`` is the squared error summed over nodes and frames and averaged
+over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
+embedding of the context set and ``q(c | Y u X)`` that of context and targets
+(both by the same network). PNS has no ``c``: its loss is the reconstruction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from learner.data.episodes import Episode
+from learner.graph.hierarchy import MeshHierarchy
+from learner.models.surrogate import PNS, Posterior
+
+__all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss"]
+
+
+@dataclass
+class LossTerms:
+    """The loss and its parts (the MSEs are per node and frame, for logs)."""
+
+    total: Tensor
+    target_mse: Tensor
+    context_mse: Tensor
+    kl_posterior: Tensor
+    kl_prior: Tensor
+
+    def as_floats(self) -> dict[str, float]:
+        """Detached values for logging."""
+        return {k: float(v.detach()) for k, v in vars(self).items()}
+
+
+def gaussian_kl(q: Posterior, p: Posterior) -> Tensor:
+    """KL(q || p) of diagonal Gaussians, summed over every dimension."""
+    var_ratio = torch.exp(q.logvar - p.logvar)
+    return 0.5 * torch.sum(var_ratio + (q.mu - p.mu) ** 2 / torch.exp(p.logvar) - 1.0 - (q.logvar - p.logvar))
+
+
+def standard_normal_kl(p: Posterior) -> Tensor:
+    """KL(p || N(0, I)), summed over every dimension."""
+    return 0.5 * torch.sum(torch.exp(p.logvar) + p.mu**2 - 1.0 - p.logvar)
+
+
+def episode_loss(
+    model: PNS,
+    episode: Episode,
+    hierarchy: MeshHierarchy,
+    lambda1: float,
+    lambda2: float,
+    kl_weight: float = 1.0,
+    frames: Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> LossTerms:
+    """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
+
+    With a frame subset the summed error is rescaled by ``T / len(frames)``, an
+    unbiased estimate of the full sum that decodes fewer frames.
+    """
+    sites = torch.cat([episode.context_sites, episode.target_sites])
+    truth = torch.cat([episode.context_u, episode.target_u])
+    zero = torch.zeros(())
+    c, kl_q, kl_p = None, zero, zero
+    if model.conditioned:
+        prior = model.embed(episode.context_obs, episode.observed, hierarchy)
+        mask = episode.observed.to(truth.dtype)
+        everything = torch.cat([episode.context_obs, episode.target_u * mask])
+        posterior = model.embed(everything, episode.observed, hierarchy)
+        c = posterior.sample(generator)
+        kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
+    pred = model.generate(sites, hierarchy, c, frames)
+    if frames is not None:
+        truth = truth[:, frames]
+    err = (pred - truth) ** 2
+    k = len(episode.context_sites)
+    n_frames, n_nodes = model.frames, truth.shape[-1]
+    scale = n_nodes * n_frames  # error summed over nodes and (all) frames, per sequence
+    target_mse, context_mse = err[k:].mean(), err[:k].mean()
+    total = scale * (target_mse + context_mse) + kl_weight * (lambda1 * kl_q + lambda2 * kl_p)
+    return LossTerms(total, target_mse, context_mse, kl_q, kl_p)

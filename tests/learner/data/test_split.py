@@ -1,0 +1,75 @@
+"""Subject splits: disjoint, covering, deterministic, held-out meshes to test."""
+
+from __future__ import annotations
+
+import pytest
+
+from learner.data import SPLITS, SplitSpec, split_subjects
+from shared.errors import InputError
+
+IDS = [f"m{m}-s{s:02d}" for m in range(3) for s in range(20)]
+MESH_OF = {sid: sid.split("-")[0] for sid in IDS}
+
+
+def _check_partition(parts: dict[str, list[str]], ids: list[str]) -> None:
+    assert set(parts) == set(SPLITS)
+    together = [s for name in SPLITS for s in parts[name]]
+    assert sorted(together) == sorted(ids)  # covering, and no subject twice (disjoint)
+    assert all(parts[name] == sorted(parts[name]) for name in SPLITS)
+
+
+def test_partition_counts_and_determinism():
+    spec = SplitSpec(seed=3, validation=0.1, test=0.2)
+    parts = split_subjects(IDS, MESH_OF, spec)
+    _check_partition(parts, IDS)
+    assert (len(parts["train"]), len(parts["validation"]), len(parts["test"])) == (42, 6, 12)
+    assert split_subjects(list(reversed(IDS)), MESH_OF, spec) == parts  # input order is irrelevant
+    assert split_subjects(IDS, MESH_OF, SplitSpec(seed=4)) != parts
+
+
+def test_held_out_meshes_all_go_to_test():
+    spec = SplitSpec(seed=0, validation=0.25, test=0.25, held_out_meshes=["m1"])
+    assert spec.held_out_meshes == ("m1",)
+    parts = split_subjects(IDS, MESH_OF, spec)
+    _check_partition(parts, IDS)
+    on_m1 = {s for s in IDS if MESH_OF[s] == "m1"}
+    assert on_m1 <= set(parts["test"])
+    assert not on_m1 & (set(parts["train"]) | set(parts["validation"]))
+    # fractions apply to the 40 subjects not held out: round(10) each
+    assert (len(parts["train"]), len(parts["validation"]), len(parts["test"])) == (20, 10, 30)
+
+
+def test_rounding_keeps_one_training_subject():
+    parts = split_subjects(["a"], {"a": "m"}, SplitSpec(validation=0.3, test=0.6))
+    assert parts == {"train": ["a"], "validation": [], "test": []}
+    parts = split_subjects(["a", "b"], {"a": "m", "b": "m"}, SplitSpec(validation=0.45, test=0.5))
+    assert len(parts["train"]) == 1 and len(parts["validation"]) == 1 and parts["test"] == []
+
+
+@pytest.mark.parametrize(
+    "ids, mesh_of, spec, match",
+    [
+        (["a"], {"a": "m"}, SplitSpec(held_out_meshes=("m",)), "no subject left for training"),
+        (["a"], {"a": "m"}, SplitSpec(held_out_meshes=("x",)), "held-out mesh.*x.*not used"),
+        (["a", "b"], {"a": "m"}, SplitSpec(), "no mesh id given for subject.*b"),
+        (["a", "a"], {"a": "m"}, SplitSpec(), "duplicate subject ids: a"),
+    ],
+)
+def test_refusals(ids, mesh_of, spec, match):
+    with pytest.raises(InputError, match=match):
+        split_subjects(ids, mesh_of, spec)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"validation": 0.5, "test": 0.5}, "must be < 1"),
+        ({"test": -0.1}, r"test fraction must be in \[0, 1\)"),
+        ({"validation": 1.0}, r"validation fraction must be in \[0, 1\)"),
+        ({"seed": -1}, "non-negative integer"),
+        ({"held_out_meshes": "lv"}, "list of mesh ids"),
+    ],
+)
+def test_bad_spec(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        SplitSpec(**kwargs)

@@ -1,0 +1,81 @@
+"""Shapes, gradients and invariances of the metaPNS / PNS networks."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from learner.config import ModelConfig
+from learner.data.episodes import load_episode
+from learner.models.surrogate import PNS, MetaPNS, build_model
+from learner.store_view import StoreView
+from learner.train.loss import episode_loss
+
+CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10, coarse_blocks=1)
+
+
+@pytest.fixture(scope="module")
+def setup(tiny_store):
+    view = StoreView(tiny_store)
+    hier = view.hierarchy("lv", CONFIG.levels, CONFIG.coarsest)
+    episode = load_episode(tiny_store, "lv-scar-apex", [0, 5], [1, 2, 3], "surface")
+    return view, hier, episode
+
+
+def test_generate_and_embed_shapes(setup):
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = MetaPNS(CONFIG, view.frames)
+    n, v = hier.graphs[0].num_nodes, hier.graphs[-1].num_nodes
+    post = model.embed(ep.context_obs, ep.observed, hier)
+    assert post.mu.shape == post.logvar.shape == (v, CONFIG.latent)
+    out = model.generate(ep.target_sites, hier, post.mu)
+    assert out.shape == (3, view.frames, n)
+    sub = model.generate(ep.target_sites, hier, post.mu, frames=torch.tensor([0, 4]))
+    assert torch.allclose(sub, out[:, [0, 4]], atol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["metapns", "pns"])
+def test_every_parameter_gets_a_finite_gradient(setup, kind):
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = build_model(ModelConfig(**{**CONFIG.__dict__, "kind": kind}), view.frames)
+    assert isinstance(model, MetaPNS) == (kind == "metapns")
+    terms = episode_loss(model, ep, hier, lambda1=1e-4, lambda2=0.1, generator=torch.Generator().manual_seed(0))
+    terms.total.backward()
+    for name, p in model.named_parameters():
+        assert p.grad is not None, f"{name} gets no gradient"
+        assert torch.isfinite(p.grad).all(), name
+    if kind == "pns":
+        assert float(terms.kl_posterior) == float(terms.kl_prior) == 0.0
+        assert not hasattr(model, "context_encoder")
+
+
+def test_context_embedding_ignores_the_order_of_the_set(setup):
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = MetaPNS(CONFIG, view.frames).eval()
+    a = model.embed(ep.context_obs, ep.observed, hier)
+    b = model.embed(ep.context_obs.flip(0), ep.observed, hier)
+    assert torch.allclose(a.mu, b.mu, atol=1e-6) and torch.allclose(a.logvar, b.logvar, atol=1e-6)
+
+
+def test_unobserved_values_do_not_reach_the_embedding(setup):
+    view, hier, ep = setup
+    model = MetaPNS(CONFIG, view.frames).eval()
+    noisy = ep.context_obs.clone()
+    noisy[:, :, ~ep.observed] = 123.0
+    assert torch.equal(model.embed(noisy, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
+
+
+def test_frame_count_mismatch_is_refused(setup):
+    view, hier, ep = setup
+    model = MetaPNS(CONFIG, view.frames + 1)
+    with pytest.raises(ValueError, match="frames"):
+        model.embed(ep.context_obs, ep.observed, hier)
+
+
+def test_reference_size_model_is_near_one_million_parameters():
+    n = sum(p.numel() for p in MetaPNS(ModelConfig(), 55).parameters())
+    assert 2e5 < n < 3e6, n
+    assert sum(p.numel() for p in PNS(ModelConfig(), 55).parameters()) < n

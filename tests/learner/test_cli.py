@@ -1,0 +1,102 @@
+"""End to end through the ``learner`` CLI: train, evaluate, personalise, predict (with VTK)."""
+
+from __future__ import annotations
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from shared.reader import read_sites
+
+from learner.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_store, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cli")
+    cfg = folder / "train.toml"
+    cfg.write_text(f"""
+out = "run"
+[data]
+store = "{tiny_store}"
+workers = 0
+[data.split]
+test = 0.2
+validation = 0.2
+[data.episodes]
+context = [1, 3]
+targets = 4
+[model]
+channels = [4, 8]
+hidden = 16
+latent = 8
+levels = 3
+coarsest = 10
+coarse_blocks = 1
+[train]
+epochs = 2
+""")
+    result = runner.invoke(app, ["train", str(cfg)])
+    assert result.exit_code == 0, result.output
+    assert "epoch    2" in result.output
+    return folder
+
+
+def test_evaluate_writes_json_and_markdown(trained, tiny_store):
+    out = trained / "eval"
+    result = runner.invoke(app, ["evaluate", str(trained / "run" / "best.pt"), str(tiny_store), "--out", str(out),
+                                 "--sets", "2", "--max-targets", "3"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "evaluation.json").read_text())
+    assert set(report["overall"]) == {"context", "target"}
+    assert {"mse", "cc_spatial", "cc_temporal", "dc", "act_error_ms"} <= set(report["overall"]["target"])
+    assert len(report["rows"]) > 0 and report["timing"]["generate_s_per_sim"] > 0
+    assert "| target |" in (out / "evaluation.md").read_text()
+
+
+def test_personalize_then_predict_with_vtk(trained, tiny_store):
+    sites = read_sites(tiny_store, "lv")
+    person = trained / "p.pt"
+    result = runner.invoke(app, ["personalize", str(trained / "run" / "best.pt"), "--out", str(person),
+                                 "--store", str(tiny_store), "--subject", "lv-scar-apex",
+                                 "--sites", f"{sites[0]},{sites[3]}"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert torch.load(person, weights_only=True)["kind"] == "personalized"
+    out = trained / "pred.npz"
+    result = runner.invoke(app, ["predict", str(person), "--sites", f"{sites[5]}", "--out", str(out),
+                                 "--vtk", str(trained / "vtk"), "--samples", "3"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = np.load(out)
+    assert data["u"].shape == (1, 12, 520) and data["spread"].shape == (1, 12, 520)
+    mesh = meshio.read(trained / "vtk" / f"site-{sites[5]}.vtu")
+    assert "u_011" in mesh.point_data and "activation_ms" in mesh.point_data
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--subject", "nobody", "--sites", "1"], "unknown subject"),
+        (["--subject", "lv-healthy", "--sites", "999999"], "no simulation stimulated at node"),
+        (["--subject", "lv-healthy", "--sites", ""], "context size must be >= 1"),
+    ],
+)
+def test_personalize_refuses_bad_input(trained, tiny_store, args, message):
+    result = runner.invoke(app, ["personalize", str(trained / "run" / "best.pt"), "--out", str(trained / "x.pt"),
+                                 "--store", str(tiny_store), *args])  # fmt: skip
+    assert result.exit_code == 2 and message in result.output.replace("\n", " ")
+    assert not (trained / "x.pt").exists()
+
+
+def test_predict_refuses_unknown_nodes(trained, tiny_store):
+    person = trained / "p2.pt"
+    sites = read_sites(tiny_store, "lv")
+    runner.invoke(app, ["personalize", str(trained / "run" / "best.pt"), "--out", str(person),
+                        "--store", str(tiny_store), "--subject", "lv-healthy", "--sites", f"{sites[1]}"])  # fmt: skip
+    result = runner.invoke(app, ["predict", str(person), "--sites", "100000"])
+    assert result.exit_code == 2 and "not nodes of the" in result.output

@@ -1,0 +1,94 @@
+"""Training: a tiny model overfits one subject, resume is exact, NaN stops cleanly, checkpoints are safe."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from shared.errors import ConfigError, InputError
+
+from learner.data.episodes import load_episode
+from learner.train.checkpoint import load_checkpoint
+from learner.train.trainer import Trainer, TrainingDiverged, load_model, train
+
+
+def _episode_mse(model, trainer, ep) -> float:
+    hier = trainer.view.hierarchy(ep.mesh_id, trainer.config.model.levels, trainer.config.model.coarsest)
+    with torch.no_grad():
+        c = model.embed(ep.context_obs, ep.observed, hier).mu
+        pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c)
+    return float(((pred - torch.cat([ep.context_u, ep.target_u])) ** 2).mean())
+
+
+def test_tiny_model_overfits_one_subject(tiny_store, tiny_config, tmp_path):
+    cfg = tiny_config(tiny_store, tmp_path / "run", epochs=150, lr=3e-3, lr_halve_every=100, validate_every=1000)
+    trainer = Trainer(cfg, progress=False)
+    trainer.splits = {"train": ["lv-scar-apex"], "validation": [], "test": []}
+    ep = load_episode(tiny_store, "lv-scar-apex", [0, 1], list(range(2, 12)), "surface")
+    before = _episode_mse(trainer.model, trainer, ep)
+    trainer.fit()
+    after = _episode_mse(trainer.model, trainer, ep)
+    assert after < before / 10, (before, after)
+
+
+def test_resume_continues_exactly(tiny_store, tiny_config, tmp_path):
+    straight = train(tiny_config(tiny_store, tmp_path / "a", epochs=2), progress=False)
+    train(tiny_config(tiny_store, tmp_path / "b", epochs=1), progress=False)
+    resumed = train(tiny_config(tiny_store, tmp_path / "b", epochs=2), progress=False)
+    keys = ("total", "target_mse", "context_mse", "kl_posterior", "kl_prior", "val_target_mse")
+    assert [[r[k] for k in keys] for r in straight.history] == [[r[k] for k in keys] for r in resumed.history]
+    a, b = load_checkpoint(tmp_path / "a" / "last.pt"), load_checkpoint(tmp_path / "b" / "last.pt")
+    assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
+
+
+def test_resume_refuses_another_configuration(tiny_store, tiny_config, tmp_path):
+    train(tiny_config(tiny_store, tmp_path / "r", epochs=1), progress=False)
+    with pytest.raises(InputError, match="different configuration"):
+        train(tiny_config(tiny_store, tmp_path / "r", epochs=1, lr=5e-4), progress=False)
+
+
+def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_store, tiny_config, tmp_path, monkeypatch):
+    cfg = tiny_config(tiny_store, tmp_path / "nan", epochs=1)
+    train(cfg, progress=False)
+    good = load_checkpoint(tmp_path / "nan" / "last.pt")
+    import learner.train.trainer as trainer_module
+
+    real = trainer_module.episode_loss
+
+    def poisoned(*args, **kw):
+        terms = real(*args, **kw)
+        terms.total = terms.total * float("nan")
+        return terms
+
+    monkeypatch.setattr(trainer_module, "episode_loss", poisoned)
+    with pytest.raises(TrainingDiverged, match="non-finite"):
+        train(dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, epochs=2)), progress=False)
+    kept = load_checkpoint(tmp_path / "nan" / "last.pt")
+    assert kept["epoch"] == good["epoch"] == 1
+    assert all(torch.equal(kept["model"][k], good["model"][k]) for k in good["model"])
+
+
+def test_checkpoint_loads_with_weights_only_and_rebuilds_the_model(tiny_store, tiny_config, tmp_path):
+    train(tiny_config(tiny_store, tmp_path / "w", epochs=1), progress=False)
+    raw = torch.load(tmp_path / "w" / "best.pt", weights_only=True)
+    assert raw["kind"] == "model" and raw["frames"] == 12
+    model, config, _ = load_model(tmp_path / "w" / "best.pt")
+    assert config.model.kind == "metapns" and not model.training
+    assert (tmp_path / "w" / "log.csv").read_text().startswith("epoch,")
+
+
+def test_bad_configs_are_refused(tiny_store, tiny_config, tmp_path):
+    from learner.config import config_from_mapping
+
+    with pytest.raises(InputError, match="context size must be >= 1"):
+        config_from_mapping({"data": {"store": str(tiny_store), "episodes": {"context": [0, 2]}}})
+    with pytest.raises(ConfigError, match="unknown key"):
+        config_from_mapping({"data": {"store": str(tiny_store)}, "train": {"epoch": 3}})
+    with pytest.raises(ConfigError, match="data.store is required"):
+        config_from_mapping({})
+    with pytest.raises(ConfigError, match="levels"):
+        config_from_mapping({"data": {"store": "x"}, "model": {"levels": 3}})
+    with pytest.raises(InputError):
+        Trainer(tiny_config(tmp_path / "missing.zarr", tmp_path / "o"), progress=False)
