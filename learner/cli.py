@@ -39,11 +39,12 @@ def train(
     max_minutes: Annotated[Optional[float], typer.Option(help="Override train.max_minutes.")] = None,
     store: Annotated[Optional[Path], typer.Option(help="Override data.store.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Override the run directory.")] = None,
+    kind: Annotated[Optional[str], typer.Option(help="Override model.kind (metapns or pns).")] = None,
 ) -> None:
     """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly."""
     from dataclasses import replace
 
-    from learner.config import load_config
+    from learner.config import config_from_mapping, load_config
     from learner.train.trainer import TrainingDiverged, train as run
 
     try:
@@ -56,6 +57,8 @@ def train(
             cfg = replace(cfg, data=replace(cfg.data, store=str(store.resolve())))
         if out is not None:
             cfg = replace(cfg, out=str(out.resolve()))
+        if kind is not None:
+            cfg = config_from_mapping({**cfg.to_dict(), "model": {**cfg.to_dict()["model"], "kind": kind}})
         console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
 
         def show(row: dict) -> None:

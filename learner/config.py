@@ -79,6 +79,7 @@ class TrainConfig:
     lambda2: float = 0.1
     kl_anneal_epochs: int = 0  # KL weights ramp linearly from 0 over this many epochs (0 = off)
     loss_frames: int = 0  # decode only this many random frames per episode for the loss (0 = all)
+    posterior_targets: int = 0  # targets that join the context in q(c | Y u X) (0 = all)
     seed: int = 0
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)

@@ -32,7 +32,8 @@ class ContextEncoder(nn.Module):
         self.mu = nn.Linear(latent, latent)
         self.logvar = nn.Linear(latent, latent)
 
-    def forward(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, Tensor]:
+    def embed_sequences(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Tensor:
+        """Per-sequence embeddings ``h(y_1:T)``: ``(K, V, latent)`` (before the set average)."""
         k, t, n = obs.shape
         if t != self.frames:
             raise ValueError(f"context sequences have {t} frames, the model was built for {self.frames}")
@@ -40,5 +41,12 @@ class ContextEncoder(nn.Module):
         x = torch.stack([obs * mask, mask], dim=-1).reshape(k * t, n, 2)
         e = self.encoder(x, hierarchy)  # (K*T, V, L)
         h = self.gru(e.reshape(k, t, *e.shape[1:]), hierarchy.graphs[-1])  # (K, T, V, L)
-        pooled = self.compress_time(h.permute(0, 2, 3, 1)).squeeze(-1).mean(dim=0)  # (V, L)
+        return self.compress_time(h.permute(0, 2, 3, 1)).squeeze(-1)
+
+    def distribution(self, embeddings: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean and log-variance of ``c`` from the set average of per-sequence embeddings."""
+        pooled = embeddings.mean(dim=0)
         return self.mu(pooled), self.logvar(pooled).clamp(-10.0, 10.0)
+
+    def forward(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, Tensor]:
+        return self.distribution(self.embed_sequences(obs, observed, hierarchy))

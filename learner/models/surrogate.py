@@ -99,6 +99,14 @@ class MetaPNS(PNS):
         """q(c | Y) from observed sequences ``obs`` (K, T, N) and the observation mask (N,)."""
         return Posterior(*self.context_encoder(obs, observed, hierarchy))
 
+    def embed_prior_and_posterior(
+        self, context: Tensor, extra: Tensor, observed: Tensor, hierarchy: MeshHierarchy
+    ) -> tuple[Posterior, Posterior]:
+        """p(c | Y) from ``context`` and q(c | Y u X) from ``context`` plus ``extra``, encoding each sequence once."""
+        h = self.context_encoder.embed_sequences(torch.cat([context, extra]), observed, hierarchy)
+        enc = self.context_encoder
+        return Posterior(*enc.distribution(h[: len(context)])), Posterior(*enc.distribution(h))
+
 
 def build_model(config: ModelConfig, frames: int) -> PNS:
     """The model named by ``config.kind`` for sequences of ``frames`` frames."""

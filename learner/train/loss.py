@@ -61,21 +61,23 @@ def episode_loss(
     kl_weight: float = 1.0,
     frames: Tensor | None = None,
     generator: torch.Generator | None = None,
+    posterior_targets: int | None = None,
 ) -> LossTerms:
     """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
 
-    With a frame subset the summed error is rescaled by ``T / len(frames)``, an
-    unbiased estimate of the full sum that decodes fewer frames.
+    The reconstruction is a mean over the decoded frames times ``N T``: with a
+    frame subset, an unbiased estimate of the full sum that decodes fewer
+    frames. ``posterior_targets`` caps how many targets join the context in
+    q(c | Y u X) (None: all), since encoding a sequence costs more than
+    decoding a frame.
     """
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
     zero = torch.zeros(())
     c, kl_q, kl_p = None, zero, zero
     if model.conditioned:
-        prior = model.embed(episode.context_obs, episode.observed, hierarchy)
-        mask = episode.observed.to(truth.dtype)
-        everything = torch.cat([episode.context_obs, episode.target_u * mask])
-        posterior = model.embed(everything, episode.observed, hierarchy)
+        extra = episode.target_u[:posterior_targets] * episode.observed.to(truth.dtype)
+        prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
         c = posterior.sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
     pred = model.generate(sites, hierarchy, c, frames)
@@ -84,7 +86,7 @@ def episode_loss(
     err = (pred - truth) ** 2
     k = len(episode.context_sites)
     n_frames, n_nodes = model.frames, truth.shape[-1]
-    scale = n_nodes * n_frames  # error summed over nodes and (all) frames, per sequence
+    scale = n_nodes * n_frames
     target_mse, context_mse = err[k:].mean(), err[:k].mean()
     total = scale * (target_mse + context_mse) + kl_weight * (lambda1 * kl_q + lambda2 * kl_p)
     return LossTerms(total, target_mse, context_mse, kl_q, kl_p)

@@ -122,7 +122,7 @@ class Trainer:
         for n, ep in enumerate(bar, start=1):
             hier = self.view.hierarchy(ep.mesh_id, self.config.model.levels, self.config.model.coarsest)
             terms = episode_loss(m, ep, hier, cfg.lambda1, cfg.lambda2, self._kl_weight(), self._frames(),
-                                 self.generator)  # fmt: skip
+                                 self.generator, cfg.posterior_targets or None)  # fmt: skip
             self.optimizer.zero_grad(set_to_none=True)
             terms.total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(m.parameters(), cfg.grad_clip)
