@@ -20,6 +20,8 @@ demo: $(STAMP)
 	$(BIN)/simgen demo --out report/demo
 	$(BIN)/simgen build specs/demo.toml --store report/demo/demo.zarr
 	$(BIN)/simgen status report/demo/demo.zarr
+	$(BIN)/learner train specs/train-demo.toml --fresh
+	$(BIN)/learner evaluate report/demo/train/best.pt report/demo/demo.zarr --out report/demo/eval
 
 test: $(STAMP)
 	$(BIN)/pytest -q
@@ -28,6 +30,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/solver.py --out report/bench
 	$(BIN)/python bench/conduction.py --out report/bench
 	$(BIN)/python bench/build.py --out report/bench
+	$(BIN)/python bench/surrogate.py --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -1,0 +1,155 @@
+"""Benchmark: the surrogate's speeds on CPU, next to the simulator's, measured in one run.
+
+* generation: one 55-frame full-mesh sequence for a new stimulation site given
+  ``c`` (batch of 1, and per simulation in a batch of 16), against
+  ``Simulator.run`` for the same site on the same mesh (one simulation);
+* context embedding: q(c | Y) for a set of 1 and of 5 observed sequences;
+* training: one episode (forward + backward + Adam) of the configured size,
+  metaPNS and PNS, and the loader's episodes/s (it should outrun training >= 5x).
+
+The model is untrained (timings do not depend on the weights). Meshes and
+sequences come from a store built by ``simgen build`` (default: a 2k-node LV,
+55 frames, built here in a temporary folder when ``--store`` is not given).
+
+Run: ``.venv/bin/python bench/surrogate.py [--store PATH] [--mesh lv] [--out DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from learner.config import ModelConfig, TrainConfig
+from learner.data.episodes import EpisodeDataset, EpisodeSpec, load_episode
+from learner.models.surrogate import MetaPNS, PNS
+from learner.runtime import tune_allocator
+from learner.store_view import StoreView
+from learner.train.loss import episode_loss
+
+GOALS = {"generate_ms": 50.0, "embed_ms": 30.0, "loader_over_training": 5.0}
+
+
+def best_of(fn, repeat: int) -> float:
+    """Fastest wall time of ``repeat`` calls (after one warm-up call)."""
+    fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def small_store(folder: Path) -> Path:
+    """A 2k-node LV x 2 settings x 25 sites store, 55 frames (the default spec's resolution)."""
+    from simgen.build import spec_from_mapping
+    from simgen.build.runner import build
+
+    spec = spec_from_mapping({"meshes": [{"id": "lv", "source": "lv", "nodes": 2000}],
+                              "tissue": ["healthy", "scar-apex"], "sites": {"count": 25},
+                              "output": {"chunk_sites": 25}})  # fmt: skip
+    store = folder / "bench.zarr"
+    build(spec, store, workers=2)
+    return store
+
+
+def simulator_seconds(store: Path, subject: str, site: int) -> float:
+    """One AP simulation of ``subject`` at ``site`` with the solver that built the store."""
+    from shared.reader import read_tissue
+    from simgen.solver.simulate import Simulator
+
+    view = StoreView(store)
+    mesh = view.mesh(view.mesh_of[subject])
+    sim = Simulator(mesh, read_tissue(store, subject))
+    return best_of(lambda: sim.run(np.array([site]), threads=1), 2)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--store", type=Path)
+    p.add_argument("--subject", default=None, help="subject id (default: the first on --mesh)")
+    p.add_argument("--mesh", default="lv")
+    p.add_argument("--targets", type=int, default=10)
+    p.add_argument("--loss-frames", type=int, default=12)
+    p.add_argument("--posterior-targets", type=int, default=3)
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--out", type=Path)
+    args = p.parse_args(argv)
+    tune_allocator()
+    tmp = None
+    if args.store is None:
+        tmp = tempfile.TemporaryDirectory()
+        args.store = small_store(Path(tmp.name))
+    view = StoreView(args.store)
+    subject = args.subject or next(s for s in view.subjects if view.mesh_of[s] == args.mesh)
+    cfg = ModelConfig()
+    hier = view.hierarchy(view.mesh_of[subject], cfg.levels, cfg.coarsest)
+    n_nodes, frames = hier.graphs[0].num_nodes, view.frames
+    torch.manual_seed(0)
+    meta, pns = MetaPNS(cfg, frames).eval(), PNS(cfg, frames).eval()
+    ep = load_episode(view.store, subject, [0, 1, 2, 3, 4], list(range(5, 5 + 16)), "surface")
+    rows: dict[str, float] = {}
+    with torch.no_grad():
+        c = meta.embed(ep.context_obs, ep.observed, hier).mu
+        rows["generate_ms"] = 1e3 * best_of(lambda: meta.generate(ep.target_sites[:1], hier, c), args.repeat)
+        rows["generate_batch16_ms_per_sim"] = 1e3 * best_of(
+            lambda: meta.generate(ep.target_sites, hier, c), args.repeat) / 16  # fmt: skip
+        rows["embed_1_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs[:1], ep.observed, hier), args.repeat)
+        rows["embed_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs, ep.observed, hier), args.repeat)
+    rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
+
+    train = TrainConfig(loss_frames=args.loss_frames, posterior_targets=args.posterior_targets)
+    spec = EpisodeSpec(context=(1, 5), targets=args.targets)
+    ds = EpisodeDataset(view.store, [s for s in view.subjects if view.mesh_of[s] == args.mesh], spec, seed=0)
+    episodes = list(ds)
+    t0 = time.perf_counter()
+    for epoch in range(1, 4):
+        ds.set_epoch(epoch)
+        n_loaded = sum(1 for _ in ds)
+    loader_eps = 3 * n_loaded / (time.perf_counter() - t0)
+    g = torch.Generator().manual_seed(0)
+    for name, model in (("metapns", meta), ("pns", pns)):
+        model.train()
+        opt = torch.optim.Adam(model.parameters(), 1e-3)
+        frames_idx = torch.arange(0, frames, max(frames // train.loss_frames, 1))[: train.loss_frames]
+
+        def step(model=model, opt=opt):
+            for episode in episodes[:2]:
+                terms = episode_loss(model, episode, hier, train.lambda1, train.lambda2, 1.0, frames_idx, g,
+                                     train.posterior_targets)  # fmt: skip
+                opt.zero_grad()
+                terms.total.backward()
+                opt.step()
+
+        rows[f"train_{name}_s_per_episode"] = best_of(step, 2) / 2
+    rows["loader_episodes_per_s"] = loader_eps
+    rows["loader_over_training"] = loader_eps * rows["train_metapns_s_per_episode"]
+    rows["speedup_generate_vs_simulate"] = rows["simulate_ms"] / rows["generate_ms"]
+
+    head = (f"# Surrogate speed (CPU: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+            f"torch {torch.__version__}, {torch.get_num_threads()} threads)\n\n"
+            f"Mesh `{view.mesh_of[subject]}` ({n_nodes} nodes, hierarchy {hier.sizes}), {frames} frames; "
+            f"reference-size model ({sum(p.numel() for p in meta.parameters()):,} parameters).\n\n")  # fmt: skip
+    table = "| quantity | value | goal |\n|---|---|---|\n" + "".join(
+        f"| {k} | {v:.3g} | {('<= ' if k != 'loader_over_training' else '>= ') + str(GOALS[k]) if k in GOALS else ''} |\n"
+        for k, v in rows.items())  # fmt: skip
+    print(head + table)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "surrogate.md").write_text(head + table)
+        (args.out / "surrogate.json").write_text(json.dumps({"rows": rows, "nodes": n_nodes, "frames": frames,
+                                                             "targets": args.targets}, indent=2))  # fmt: skip
+    if tmp is not None:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()
