@@ -57,12 +57,15 @@ class ModelConfig:
     levels: int = 5  # graphs in the mesh hierarchy (len(channels) + 1)
     coarsest: int = 40  # nodes of the coarsest graph (approximately)
     coarse_blocks: int = 3  # graph blocks at the coarsest level before z_0 (a mesh-wide receptive field)
+    context_stride: int = 1  # the context encoder sees every k-th frame (1 = all, as in the paper)
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
             raise ConfigError(f"model.levels ({self.levels}) must be len(model.channels) + 1 ({len(self.channels) + 1})")
         if min(self.channels + (self.hidden, self.latent)) < 1:
             raise ConfigError("model channel counts must be positive")
+        if self.context_stride < 1:
+            raise ConfigError(f"model.context_stride must be >= 1, got {self.context_stride}")
         if self.coarsest < 4:
             raise ConfigError(f"model.coarsest must be >= 4, got {self.coarsest}")
 

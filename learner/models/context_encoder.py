@@ -23,20 +23,25 @@ class ContextEncoder(nn.Module):
     independent of the order and (in form) of the size of the set.
     """
 
-    def __init__(self, frames: int, channels: tuple[int, ...], hidden: int, latent: int) -> None:
+    def __init__(self, frames: int, channels: tuple[int, ...], hidden: int, latent: int, stride: int = 1) -> None:
         super().__init__()
-        self.frames = frames
+        self.frames, self.stride = frames, stride
         self.encoder = GraphEncoder(2, channels, hidden, latent)
         self.gru = GCNGRU(latent, latent)
-        self.compress_time = nn.Linear(frames, 1)
+        self.compress_time = nn.Linear(len(range(0, frames, stride)), 1)
         self.mu = nn.Linear(latent, latent)
         self.logvar = nn.Linear(latent, latent)
 
     def embed_sequences(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Tensor:
-        """Per-sequence embeddings ``h(y_1:T)``: ``(K, V, latent)`` (before the set average)."""
+        """Per-sequence embeddings ``h(y_1:T)``: ``(K, V, latent)`` (before the set average).
+
+        Every ``stride``-th frame is encoded: the graph encoder runs once per
+        encoded frame, which dominates the cost of a training episode.
+        """
+        if obs.shape[1] != self.frames:
+            raise ValueError(f"context sequences have {obs.shape[1]} frames, the model was built for {self.frames}")
+        obs = obs[:, :: self.stride]
         k, t, n = obs.shape
-        if t != self.frames:
-            raise ValueError(f"context sequences have {t} frames, the model was built for {self.frames}")
         mask = observed.to(obs.dtype).expand(k, t, n)
         x = torch.stack([obs * mask, mask], dim=-1).reshape(k * t, n, 2)
         e = self.encoder(x, hierarchy)  # (K*T, V, L)

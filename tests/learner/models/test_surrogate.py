@@ -79,3 +79,16 @@ def test_reference_size_model_is_near_one_million_parameters():
     n = sum(p.numel() for p in MetaPNS(ModelConfig(), 55).parameters())
     assert 2e5 < n < 3e6, n
     assert sum(p.numel() for p in PNS(ModelConfig(), 55).parameters()) < n
+
+
+def test_context_stride_encodes_every_kth_frame(setup):
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    cfg = ModelConfig(**{**CONFIG.__dict__, "context_stride": 3})
+    model = MetaPNS(cfg, view.frames).eval()
+    assert model.context_encoder.compress_time.in_features == len(range(0, view.frames, 3))
+    changed = ep.context_obs.clone()
+    changed[:, 1] += 1.0  # frame 1 is skipped with stride 3
+    assert torch.equal(model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
+    changed[:, 3] += 1.0  # frame 3 is encoded
+    assert not torch.equal(model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
