@@ -5,7 +5,9 @@
   ``Simulator.run`` for the same site on the same mesh (one simulation);
 * context embedding: q(c | Y) for a set of 1 and of 5 observed sequences;
 * training: one episode (forward + backward + Adam) of the configured size,
-  metaPNS and PNS, and the loader's episodes/s (it should outrun training >= 5x).
+  metaPNS and PNS, and the loader's episodes/s (it should outrun training >= 5x);
+  the metaPNS episode again in a child process with glibc's default allocator
+  (no ``learner.runtime.tune_allocator``), for the allocator's share.
 
 The model is untrained (timings do not depend on the weights). Meshes and
 sequences come from a store built by ``simgen build`` (default: a 2k-node LV,
@@ -20,6 +22,8 @@ import argparse
 import json
 import os
 import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -72,40 +76,8 @@ def simulator_seconds(store: Path, subject: str, site: int) -> float:
     return best_of(lambda: sim.run(np.array([site]), threads=1), 2)
 
 
-def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--store", type=Path)
-    p.add_argument("--subject", default=None, help="subject id (default: the first on --mesh)")
-    p.add_argument("--mesh", default="lv")
-    p.add_argument("--targets", type=int, default=10)
-    p.add_argument("--loss-frames", type=int, default=12)
-    p.add_argument("--posterior-targets", type=int, default=3)
-    p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--out", type=Path)
-    args = p.parse_args(argv)
-    tune_allocator()
-    tmp = None
-    if args.store is None:
-        tmp = tempfile.TemporaryDirectory()
-        args.store = small_store(Path(tmp.name))
-    view = StoreView(args.store)
-    subject = args.subject or next(s for s in view.subjects if view.mesh_of[s] == args.mesh)
-    cfg = ModelConfig()
-    hier = view.hierarchy(view.mesh_of[subject], cfg.levels, cfg.coarsest)
-    n_nodes, frames = hier.graphs[0].num_nodes, view.frames
-    torch.manual_seed(0)
-    meta, pns = MetaPNS(cfg, frames).eval(), PNS(cfg, frames).eval()
-    ep = load_episode(view.store, subject, [0, 1, 2, 3, 4], list(range(5, 5 + 16)), "surface")
-    rows: dict[str, float] = {}
-    with torch.no_grad():
-        c = meta.embed(ep.context_obs, ep.observed, hier).mu
-        rows["generate_ms"] = 1e3 * best_of(lambda: meta.generate(ep.target_sites[:1], hier, c), args.repeat)
-        rows["generate_batch16_ms_per_sim"] = 1e3 * best_of(
-            lambda: meta.generate(ep.target_sites, hier, c), args.repeat) / 16  # fmt: skip
-        rows["embed_1_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs[:1], ep.observed, hier), args.repeat)
-        rows["embed_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs, ep.observed, hier), args.repeat)
-    rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
-
+def measure_training(view: StoreView, subject: str, hier, meta: MetaPNS, pns: PNS, args) -> tuple[dict, float]:
+    """Seconds per training episode (metaPNS, PNS) and the loader's episodes/s."""
     train = TrainConfig(loss_frames=args.loss_frames, posterior_targets=args.posterior_targets)
     spec = EpisodeSpec(context=(1, 5), targets=args.targets)
     ds = EpisodeDataset(view.store, [s for s in view.subjects if view.mesh_of[s] == args.mesh], spec, seed=0)
@@ -116,6 +88,8 @@ def main(argv: list[str] | None = None) -> None:
         n_loaded = sum(1 for _ in ds)
     loader_eps = 3 * n_loaded / (time.perf_counter() - t0)
     g = torch.Generator().manual_seed(0)
+    rows = {}
+    frames = view.frames
     for name, model in (("metapns", meta), ("pns", pns)):
         model.train()
         opt = torch.optim.Adam(model.parameters(), 1e-3)
@@ -130,6 +104,58 @@ def main(argv: list[str] | None = None) -> None:
                 opt.step()
 
         rows[f"train_{name}_s_per_episode"] = best_of(step, 2) / 2
+    return rows, loader_eps
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--store", type=Path)
+    p.add_argument("--subject", default=None, help="subject id (default: the first on --mesh)")
+    p.add_argument("--mesh", default="lv")
+    p.add_argument("--targets", type=int, default=10)
+    p.add_argument("--loss-frames", type=int, default=12)
+    p.add_argument("--posterior-targets", type=int, default=3)
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--out", type=Path)
+    p.add_argument("--context-stride", type=int, default=3, help="model.context_stride of the timed metaPNS")
+    p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--no-tune", action="store_true", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if not args.no_tune:
+        tune_allocator()
+    tmp = None
+    if args.store is None:
+        tmp = tempfile.TemporaryDirectory()
+        args.store = small_store(Path(tmp.name))
+    view = StoreView(args.store)
+    subject = args.subject or next(s for s in view.subjects if view.mesh_of[s] == args.mesh)
+    cfg = ModelConfig(context_stride=args.context_stride)
+    hier = view.hierarchy(view.mesh_of[subject], cfg.levels, cfg.coarsest)
+    n_nodes, frames = hier.graphs[0].num_nodes, view.frames
+    torch.manual_seed(0)
+    meta, pns = MetaPNS(cfg, frames).eval(), PNS(cfg, frames).eval()
+    if args.train_only:  # the child process of the allocator comparison
+        print(json.dumps(measure_training(view, subject, hier, meta, pns, args)[0]))
+        return
+    ep = load_episode(view.store, subject, [0, 1, 2, 3, 4], list(range(5, 5 + 16)), "surface")
+    rows: dict[str, float] = {}
+    with torch.no_grad():
+        c = meta.embed(ep.context_obs, ep.observed, hier).mu
+        rows["generate_ms"] = 1e3 * best_of(lambda: meta.generate(ep.target_sites[:1], hier, c), args.repeat)
+        rows["generate_batch16_ms_per_sim"] = 1e3 * best_of(
+            lambda: meta.generate(ep.target_sites, hier, c), args.repeat) / 16  # fmt: skip
+        rows["embed_1_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs[:1], ep.observed, hier), args.repeat)
+        rows["embed_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs, ep.observed, hier), args.repeat)
+    rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
+
+    train_rows, loader_eps = measure_training(view, subject, hier, meta, pns, args)
+    rows.update(train_rows)
+    child = subprocess.run([sys.executable, __file__, "--store", str(args.store), "--subject", subject,
+                            "--mesh", args.mesh, "--targets", str(args.targets), "--loss-frames", str(args.loss_frames),
+                            "--posterior-targets", str(args.posterior_targets),
+                            "--context-stride", str(args.context_stride), "--train-only", "--no-tune"],
+                           capture_output=True, text=True, check=True)  # fmt: skip
+    rows["train_metapns_s_per_episode_default_malloc"] = json.loads(child.stdout)["train_metapns_s_per_episode"]
     rows["loader_episodes_per_s"] = loader_eps
     rows["loader_over_training"] = loader_eps * rows["train_metapns_s_per_episode"]
     rows["speedup_generate_vs_simulate"] = rows["simulate_ms"] / rows["generate_ms"]

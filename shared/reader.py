@@ -29,10 +29,20 @@ __all__ = [
 ]
 
 
+def _has_root_metadata(path: str | Path) -> bool:
+    """Whether ``zarr.json`` exists in the store: a folder, or an fsspec URL (``s3://bucket/x.zarr``)."""
+    if isinstance(path, str) and "://" in path:
+        import fsspec
+
+        fs, root = fsspec.url_to_fs(path)
+        fs.invalidate_cache(root)  # a listing cached earlier in this process may predate the store
+        return fs.exists(f"{root.rstrip('/')}/zarr.json")
+    return (Path(path) / "zarr.json").exists()
+
+
 def check_store(path: str | Path) -> dict:
-    """Root attributes of an existing store after a schema-version check."""
-    path = Path(path)
-    if not (path / "zarr.json").exists():
+    """Root attributes of an existing store (a folder or an fsspec URL) after a schema-version check."""
+    if not _has_root_metadata(path):
         raise SchemaError(f"{path} is not a Zarr store (no zarr.json)")
     attrs = dict(zarr.open_group(str(path), mode="r").attrs)
     check_schema_version(attrs, str(path))

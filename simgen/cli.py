@@ -30,6 +30,8 @@ NodesOpt = Annotated[int, typer.Option("--nodes", help="Target node count of a p
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
 SchedulerOpt = Annotated[Optional[str], typer.Option(help="Address of an existing Dask scheduler.")]
 WorkersOpt = Annotated[int, typer.Option(help="Local worker processes when no --scheduler is given.")]
+# A string, not a Path: Path("s3://bucket/x.zarr") would collapse the "//" of a URL.
+StoreArg = Annotated[str, typer.Argument(help="A simgen Zarr store: a folder or an fsspec URL (s3://bucket/x.zarr).")]
 
 
 def _fail(exc: Exception) -> None:
@@ -133,7 +135,7 @@ def demo(
 @app.command()
 def build(
     spec: Annotated[Path, typer.Argument(help="Build spec (TOML), e.g. specs/demo.toml.")],
-    store: Annotated[Path, typer.Option(help="Output Zarr store (folder).")],
+    store: Annotated[str, typer.Option(help="Output Zarr store: a folder or an fsspec URL (s3://bucket/name.zarr).")],
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
     force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
@@ -147,7 +149,7 @@ def build(
         load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done))  # fmt: skip
 
 
-def _run_with_progress(store: Path, job) -> None:
+def _run_with_progress(store: str, job) -> None:
     """Run ``job(on_start, on_done)`` behind a progress bar and print what it did."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -180,7 +182,7 @@ def _run_with_progress(store: Path, job) -> None:
 
 @app.command("add-subject")
 def add_subject(
-    store: Annotated[Path, typer.Argument(help="An existing simgen Zarr store.")],
+    store: StoreArg,
     mesh_file: Annotated[str, typer.Option("--mesh", help="Mesh file of the new subject, or 'lv' / 'biv'.")],
     mesh_id: Annotated[str, typer.Option("--id", help="Mesh id in the store; subjects are '<id>-<tissue>'.")],
     tissue: Annotated[list[str], typer.Option(help="Tissue setting name or .toml file; repeat for several.")],
@@ -202,7 +204,7 @@ def add_subject(
 
 @app.command()
 def regenerate(
-    store: Annotated[Path, typer.Argument(help="An existing simgen Zarr store.")],
+    store: StoreArg,
     subjects: Annotated[str, typer.Option(help="Comma-separated subject ids (see `simgen status`).")],
     sites: Annotated[Optional[str], typer.Option(help="Comma-separated site indices; all when omitted.")] = None,
     scheduler: SchedulerOpt = None,
@@ -220,7 +222,7 @@ def regenerate(
 
 
 @app.command()
-def status(store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")]) -> None:
+def status(store: StoreArg) -> None:
     """Per-subject progress of a (possibly unfinished) build."""
     from simgen.build.inspect import store_status
 
@@ -238,8 +240,23 @@ def status(store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")]) 
 
 
 @app.command()
+def unlock(store: StoreArg) -> None:
+    """Remove the lock of STORE left by a build that is gone (never while a build of STORE runs)."""
+    from simgen.build.lock import unlock as run_unlock
+
+    try:
+        holder = run_unlock(store)
+    except InputError as exc:
+        _fail(exc)
+    if holder is None:
+        console.print(f"{store}: not locked")
+    else:
+        console.print(f"{store}: removed the lock of host {holder.get('host')}, pid {holder.get('pid')}")
+
+
+@app.command()
 def verify(
-    store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")],
+    store: StoreArg,
     sample: Annotated[int, typer.Option(help="Chunks recomputed and compared bit for bit.")] = 2,
     seed: Annotated[int, typer.Option(help="Seed of the chunk sample.")] = 0,
 ) -> None:
@@ -262,7 +279,7 @@ def verify(
 
 @app.command("export-vtk")
 def export_vtk(
-    store: Annotated[Path, typer.Argument(help="A simgen Zarr store.")],
+    store: StoreArg,
     subject: Annotated[str, typer.Argument(help="Subject id (see `simgen status`).")],
     site: Annotated[int, typer.Argument(help="Site index within the subject (0-based).")],
     out: Annotated[Path, typer.Option(help="Output folder for the .vtu frames and .pvd collection.")] = Path("vtk"),

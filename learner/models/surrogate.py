@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from learner.config import ModelConfig
+from learner.graph.geodesic import geodesic_distances
 from learner.graph.hierarchy import MeshHierarchy
 from learner.models.context_encoder import ContextEncoder
 from learner.models.graph_decoder import GraphDecoder
@@ -49,18 +50,26 @@ class PNS(nn.Module):
         super().__init__()
         self.config, self.frames = config, frames
         ch, hid, lat = config.channels, config.hidden, config.latent
-        self.stimulus_encoder = GraphEncoder(1, ch, hid, lat)
+        self.stimulus_encoder = GraphEncoder(2 if config.stimulus_distance else 1, ch, hid, lat)
         self.coarse_blocks = nn.ModuleList(ResidualGraphBlock(lat, lat) for _ in range(config.coarse_blocks))
         self.initial_state = nn.Linear(lat, lat)
         self.transition = ConditionalGatedTransition(lat, conditioned=self.conditioned)
         self.decoder = GraphDecoder(lat, ch, hid)
 
     def initial(self, sites: Tensor, hierarchy: MeshHierarchy) -> Tensor:
-        """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""
+        """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``.
+
+        The stimulus is a one-hot node map; with ``stimulus_distance`` its
+        geodesic distance map joins it as a second channel, so every node sees
+        where the site is from the first layer on (a one-hot alone fades
+        through mean aggregation and pooling, and the generator learns slowly).
+        """
         n = hierarchy.graphs[0].num_nodes
-        onehot = torch.zeros(len(sites), n, 1)
-        onehot[torch.arange(len(sites)), sites.long(), 0] = 1.0
-        e = self.stimulus_encoder(onehot, hierarchy)
+        x = torch.zeros(len(sites), n, 1)
+        x[torch.arange(len(sites)), sites.long(), 0] = 1.0
+        if self.config.stimulus_distance:
+            x = torch.cat([x, geodesic_distances(hierarchy.graphs[0], sites).unsqueeze(-1)], dim=-1)
+        e = self.stimulus_encoder(x, hierarchy)
         for block in self.coarse_blocks:
             e = block(e, hierarchy.graphs[-1])
         return self.initial_state(e)

@@ -37,6 +37,7 @@ import zarr
 from shared.errors import ConfigError, InputError, SchemaError
 from shared.schema import subject_path
 from shared.tissue import TissueSpec
+from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
 from simgen.build.manifest import Plan, Subject, Task, select_sites, sock_electrodes, validate_plan
 from simgen.build.runner import BuildReport, run_pending
@@ -156,7 +157,7 @@ def add_subject(
     ``simgen build SPEC`` or :func:`regenerate` to finish).
     """
     start = time.perf_counter()
-    store = str(store)
+    store = store_location(store, for_workers=True)
     if not isinstance(mesh, MeshEntry):
         raise ConfigError(f"mesh must be a MeshEntry, got {mesh!r}")
     if sites is not None and not isinstance(sites, SiteSelection):
@@ -172,8 +173,8 @@ def add_subject(
             if mesh.id not in _known_meshes(spec, dict(root.attrs)):
                 raise InputError(
                     f"store {store} has a mesh group {mesh.id!r} left over from an interrupted add-subject "
-                    f"(not in the spec, not recorded in 'added'); delete {Path(store) / 'meshes' / mesh.id} "
-                    f"and its subjects' folders {Path(store) / 'subjects' / (mesh.id + '-*')}, then retry"
+                    f"(not in the spec, not recorded in 'added'); delete {store}/meshes/{mesh.id} "
+                    f"and its subjects' folders {store}/subjects/{mesh.id}-*, then retry"
                 )
             raise InputError(f"store {store} already has a mesh {mesh.id!r}: choose another mesh id")
         taken = sorted(set(new_ids) & _groups(root, "subjects"))
@@ -255,7 +256,7 @@ def regenerate(
     index, before anything is changed.
     """
     start = time.perf_counter()
-    store = str(store)
+    store = store_location(store, for_workers=True)
     if isinstance(subjects, str):
         subjects = [subjects]
     subjects = list(dict.fromkeys(subjects))

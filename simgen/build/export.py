@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from shared.errors import InputError
 from shared.schema import subject_path
+from simgen.build.location import store_location
 from simgen.build.store import check_store, read_mesh, subject_ids
 from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 
@@ -62,7 +63,7 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
 
     Parameters
     ----------
-    store : path of the dataset store.
+    store : folder or fsspec URL (``s3://bucket/name.zarr``) of the dataset store.
     subject_id : subject to export (e.g. ``"lv-healthy"``).
     site_index : index of the stimulation site (0-based, along the store's ``site`` axis).
     out_dir : folder for the files (created if needed).
@@ -77,8 +78,8 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
     InputError
         Unknown subject, site index out of range, or the site's chunk not done.
     """
+    store = store_location(store)
     check_store(store)
-    store = str(store)
     g = _subject_group(store, subject_id)
     _check_site(g, subject_id, site_index)
     site = int(site_index)

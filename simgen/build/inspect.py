@@ -7,6 +7,7 @@ from pathlib import Path
 
 import zarr
 
+from simgen.build.location import store_location
 from simgen.build.store import check_store
 
 __all__ = ["SubjectStatus", "store_status"]
@@ -23,8 +24,9 @@ class SubjectStatus:
 
 def store_status(store: str | Path) -> list[SubjectStatus]:
     """Chunks done per subject (works on unfinished and finished stores)."""
+    store = store_location(store)
     check_store(store)
-    root = zarr.open_group(str(store), mode="r")
+    root = zarr.open_group(store, mode="r")
     rows = []
     for subject_id, g in sorted(root["subjects"].groups()):
         done = g["done"][...]

@@ -20,6 +20,7 @@ from typing import Callable, Iterator
 from distributed import Client, LocalCluster, as_completed
 
 from shared.errors import InputError
+from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
 from simgen.build.manifest import make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
@@ -94,6 +95,9 @@ def build(
 ) -> BuildReport:
     """Build (or resume) the dataset of ``spec`` into ``store``.
 
+    ``store`` is a folder (made absolute, so that workers started elsewhere
+    write to the same one) or an fsspec URL such as ``s3://bucket/name.zarr``
+    that every worker can reach (:mod:`simgen.build.location`).
     ``on_start(n_tasks, dashboard_link)`` and ``on_done(task_key)`` let a
     caller show progress. Raises :class:`BuildFailed` naming the tasks that
     failed ``retries + 1`` times; the store keeps every finished chunk.
@@ -101,7 +105,7 @@ def build(
     start = time.perf_counter()
     plan = make_plan(spec)
     validate_plan(plan)  # every error that can be found before writing
-    store = str(store)
+    store = store_location(store, for_workers=True)
     with StoreLock(store):
         create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force)
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import warnings
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,8 @@ from shared.schema import (
     subject_path,
 )
 from shared.reader import check_store, done_flags, read_mesh, read_sites, read_tissue, subject_ids
+from simgen.build import location
+from simgen.build.lock import LOCK_NAME
 from simgen.build.manifest import Subject, Task
 from simgen.build.spec import OutputSpec
 from simgen.solver.simulate import SolverConfig
@@ -80,14 +81,16 @@ def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...
 def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force: bool = False) -> bool:
     """Create the store for ``plan`` unless it exists with the same spec hash.
 
+    ``path`` is a folder or an fsspec URL (:mod:`simgen.build.location`).
     Returns ``True`` when a new layout was written, ``False`` when an existing
     store of the same spec is reused (resume). A store from another spec is
-    refused with :class:`StoreMismatch` unless ``force`` (then it is replaced).
+    refused with :class:`StoreMismatch` unless ``force`` (then everything in it
+    but the lock is deleted and the store written anew).
     """
-    path = Path(path)
-    if (path / "zarr.json").exists():
-        attrs = dict(zarr.open_group(str(path), mode="r").attrs)
-        check_schema_version(attrs, str(path))
+    path = location.store_location(path)
+    if location.exists(path, "zarr.json"):
+        attrs = dict(zarr.open_group(path, mode="r").attrs)
+        check_schema_version(attrs, path)
         if attrs.get("spec_hash") == spec_hash:
             remove_partials(path)
             return False
@@ -96,10 +99,10 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
                 f"store {path} was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
                 f"this spec {spec_hash[:12]}...); use a new store path or --force to replace it"
             )
-        shutil.rmtree(path)
-    elif path.exists() and any(p.name != ".lock" for p in path.iterdir()):
+        location.clear(path, keep={LOCK_NAME})  # the lock stays: this build still holds the store
+    elif any(name != LOCK_NAME for name in location.entries(path)):
         raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
-    root = zarr.open_group(str(path), mode="a", zarr_format=3)
+    root = zarr.open_group(path, mode="a", zarr_format=3)
     root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False})
     for mesh_id, mesh in plan.meshes.items():
         write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
@@ -111,8 +114,7 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
 
 def remove_partials(path: str | Path) -> None:
     """Delete ``*.partial`` files half-written by a killed writer (the caller holds the store lock)."""
-    for partial in Path(path).rglob("*.partial"):
-        partial.unlink()
+    location.remove_partials(location.store_location(path))
 
 
 def write_mesh_group(root: zarr.Group, mesh_id: str, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> zarr.Group:
@@ -186,8 +188,6 @@ def write_chunk(
     g["done"][chunk] = 1
 
 
-
-
 def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
     """Chunks not flagged done, in subject then chunk order (all subjects, or ``subjects``)."""
     root = zarr.open_group(str(path), mode="r", use_consolidated=False)
@@ -198,14 +198,6 @@ def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[T
         for chunk in np.flatnonzero(g["done"][...] == 0):
             tasks.append(Task(subject_id, int(chunk), int(chunk) * size, min((int(chunk) + 1) * size, n_sites)))
     return tasks
-
-
-
-
-
-
-
-
 
 
 def consolidate_metadata(path: str | Path) -> None:

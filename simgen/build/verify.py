@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from shared.schema import SUBJECT_ARRAYS, mesh_path, subject_path
 from simgen.build.spec import spec_from_mapping
+from simgen.build.location import store_location
 from simgen.build.store import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from simgen.solver.simulate import Simulator, SolverConfig
 
@@ -171,7 +172,7 @@ def verify_store(store: str | Path, sample: int = 2, seed: int = 0) -> VerifyRep
 
     Parameters
     ----------
-    store : path of the dataset store.
+    store : folder or fsspec URL (``s3://bucket/name.zarr``) of the dataset store.
     sample : number of done, readable chunks simulated again and compared bitwise.
     seed : seed of the chunk sample (:func:`numpy.random.default_rng`).
 
@@ -186,8 +187,8 @@ def verify_store(store: str | Path, sample: int = 2, seed: int = 0) -> VerifyRep
     SchemaError
         When ``store`` is not a store of this schema version.
     """
+    store = store_location(store)
     attrs = check_store(store)
-    store = str(store)
     solver = spec_from_mapping(attrs["spec"]).solver
     root = zarr.open_group(store, mode="r")
     report = VerifyReport(store)

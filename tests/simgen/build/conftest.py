@@ -40,7 +40,7 @@ def reference_store(tmp_path_factory) -> Path:
     return store
 
 
-@pytest.fixture(name="tiny_spec")
+@pytest.fixture(name="tiny_spec", scope="session")
 def tiny_spec_fixture():
     """The :func:`tiny_spec` factory."""
     return tiny_spec
