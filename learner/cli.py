@@ -150,3 +150,19 @@ def predict(
     if vtk is not None:
         paths = write_vtk(pred, vtk)
         console.print(f"wrote {len(paths)} .vtu file(s) to {vtk}")
+
+
+@app.command()
+def benchmark(
+    config: Annotated[Path, typer.Argument(help="Benchmark config (TOML): store, checkpoints, baselines, real data.")],
+) -> None:
+    """Table 1 (4 methods), Fig. 3, timings, activation maps, calibration and real-data emulation -> <out>/."""
+    from learner.benchmark import load_benchmark_config, run_benchmark
+
+    try:
+        cfg = load_benchmark_config(config)
+        run_benchmark(cfg, progress=console.print)
+    except InputError as exc:
+        _fail(exc)
+    console.print((Path(cfg.out) / "benchmark.md").read_text())
+    console.print(f"wrote {cfg.out}/benchmark.md, benchmark.json, table1.md, timing.md and figures")

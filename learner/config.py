@@ -57,6 +57,7 @@ class ModelConfig:
     levels: int = 5  # graphs in the mesh hierarchy (len(channels) + 1)
     coarsest: int = 40  # nodes of the coarsest graph (approximately)
     coarse_blocks: int = 3  # graph blocks at the coarsest level before z_0 (a mesh-wide receptive field)
+    decoder_skips: bool = False  # decoder blocks also see the stimulus encoder's features of their level
     stimulus_distance: bool = True  # the site's geodesic distance map joins its one-hot map as an input
     context_stride: int = 1  # the context encoder sees every k-th frame (1 = all, as in the paper)
 

@@ -1,9 +1,10 @@
 """Evaluation of a trained surrogate on held-out subjects: MSE, CC, DC and activation-time error.
 
 For each subject, ``context_sets`` context sets are drawn (sizes uniform in
-``context``); the surrogate is personalised on each (c = mean of p(c | Y)) and
-predicts both its context (fit) and the subject's other simulations (targets,
-prediction). Metrics are per sequence (``learner.metrics``), summarised per
+``context``); every method (:class:`Method`: metaPNS, PNS, the BO baselines)
+is personalised on each - for metaPNS c = mean of p(c | Y) - and predicts both
+its context (fit) and the subject's other simulations (targets, prediction),
+the same sets for every method. Metrics are per sequence (``learner.metrics``), summarised per
 subject and overall for each role.
 """
 
@@ -11,21 +12,26 @@ from __future__ import annotations
 
 import json
 import time
+from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from shared.errors import InputError
+from shared.mesh import Mesh
 from shared.units import MS_PER_TIME_UNIT
 
-from learner.data.episodes import load_episode
+from learner.data.episodes import Episode, load_episode
+from learner.graph.hierarchy import MeshHierarchy
+from learner.models.surrogate import PNS
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
 
-__all__ = ["EvalSpec", "EvalReport", "evaluate", "default_dc_frame"]
+__all__ = ["EvalSpec", "EvalReport", "Method", "NeuralMethod", "evaluate_methods", "evaluate", "default_dc_frame"]
 
 
 def default_dc_frame(frames: int) -> int:
@@ -75,8 +81,8 @@ class EvalReport:
         for subject, roles in self.per_subject.items():
             lines += [f"| {subject} | {role} | {fmt(s)} |\n" for role, s in roles.items()]
         t = self.timing
-        lines.append(f"\nGeneration {1000 * t.get('generate_s_per_sim', float('nan')):.1f} ms per simulation, "
-                     f"context embedding {1000 * t.get('embed_s', float('nan')):.1f} ms per set (CPU).\n")  # fmt: skip
+        lines.append(f"\nPrediction {1000 * t.get('predict_s_per_sim', float('nan')):.1f} ms per simulation, "
+                     f"personalisation {1000 * t.get('fit_s', float('nan')):.1f} ms per context set (CPU).\n")  # fmt: skip
         return "".join(lines)
 
     def write(self, folder: str | Path, stem: str = "evaluation") -> tuple[Path, Path]:
@@ -88,11 +94,49 @@ class EvalReport:
         return js, md
 
 
-def _subjects(spec: EvalSpec, ckpt: dict, view: StoreView) -> list[str]:
+class Method(ABC):
+    """A way to personalise on a context set and then predict any stimulation site of that subject."""
+
+    name: str = "method"
+
+    @abstractmethod
+    def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
+        """Personalise on ``episode``'s context; returns what it cost (``fit_s``, optional ``calls``)."""
+
+    @abstractmethod
+    def predict(self, sites: Tensor) -> np.ndarray:
+        """Sequences ``(S, T, N)`` for stimulation node ids ``sites`` of the fitted subject."""
+
+
+class NeuralMethod(Method):
+    """metaPNS (c = mean of p(c | Y)) or PNS (no c) behind the :class:`Method` interface."""
+
+    def __init__(self, model: PNS, name: str, batch: int = 16) -> None:
+        self.model, self.name, self.batch = model.eval(), name, batch
+        self._c: Tensor | None = None
+        self._hier: MeshHierarchy | None = None
+
+    def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
+        self._hier, self._c = hierarchy, None
+        if not self.model.conditioned:
+            return {"fit_s": 0.0}
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            self._c = self.model.embed(episode.context_obs, episode.observed, hierarchy).mu
+        return {"fit_s": time.perf_counter() - t0}
+
+    def predict(self, sites: Tensor) -> np.ndarray:
+        with torch.no_grad():
+            parts = [self.model.generate(sites[i : i + self.batch], self._hier, self._c)
+                     for i in range(0, len(sites), self.batch)]  # fmt: skip
+        return torch.cat(parts).numpy()
+
+
+def _subjects(spec: EvalSpec, splits: dict, view: StoreView) -> list[str]:
     if isinstance(spec.subjects, str):
-        if spec.subjects not in ckpt["splits"]:
-            raise InputError(f"unknown split {spec.subjects!r}; the checkpoint has {sorted(ckpt['splits'])}")
-        subjects = list(ckpt["splits"][spec.subjects])
+        if spec.subjects not in splits:
+            raise InputError(f"unknown split {spec.subjects!r}; the checkpoint has {sorted(splits)}")
+        subjects = list(splits[spec.subjects])
     else:
         subjects = list(spec.subjects)
     for s in subjects:
@@ -102,26 +146,23 @@ def _subjects(spec: EvalSpec, ckpt: dict, view: StoreView) -> list[str]:
     return subjects
 
 
-def evaluate(checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpec(), progress=None) -> EvalReport:
-    """Evaluate ``checkpoint`` on ``store`` (see :class:`EvalSpec`)."""
-    model, config, ckpt = load_model(checkpoint)
-    view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
-    if view.frames != model.frames:
-        raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {model.frames}")
+def evaluate_methods(
+    methods: list[Method], view: StoreView, subjects: list[str], spec: EvalSpec, observe: str, noise: float,
+    levels: int, coarsest: int, progress=None,
+) -> dict[str, EvalReport]:  # fmt: skip
+    """Every method on the same context sets and targets; one :class:`EvalReport` per method."""
     lo, hi = spec.context
     if lo < 1 or hi < lo:
         raise InputError(f"context sizes must satisfy 1 <= min <= max, got {spec.context}")
-    observe = spec.observe or config.data.episodes.observe
-    noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
     dc_frame = default_dc_frame(view.frames) if spec.dc_frame is None else spec.dc_frame
     times = view.times
-    report = EvalReport(model=config.model.kind)
-    embed_s, gen_s, gen_n = [], 0.0, 0
-    subjects = _subjects(spec, ckpt, view)
+    reports = {m.name: EvalReport(model=m.name) for m in methods}
+    costs: dict[str, dict[str, list[float]]] = {m.name: {"fit_s": [], "calls": [], "predict_s": []} for m in methods}
+    n_predicted = 0
     for si, subject in enumerate(subjects):
         mesh_id = view.mesh_of[subject]
         n_sites = len(view.sites(mesh_id))
-        hier = view.hierarchy(mesh_id, config.model.levels, config.model.coarsest)
+        mesh, hier = view.mesh(mesh_id), view.hierarchy(mesh_id, levels, coarsest)
         for r in range(spec.context_sets):
             rng = np.random.default_rng([spec.seed, si, r])
             k = int(rng.integers(lo, hi + 1))
@@ -130,34 +171,48 @@ def evaluate(checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpe
             perm = rng.permutation(n_sites)
             rest = perm[k:] if spec.max_targets <= 0 else perm[k : k + spec.max_targets]
             ep = load_episode(view.store, subject, perm[:k], np.sort(rest), observe, noise, rng)
-            with torch.no_grad():
-                c = None
-                if model.conditioned:
-                    t0 = time.perf_counter()
-                    c = model.embed(ep.context_obs, ep.observed, hier).mu
-                    embed_s.append(time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                sites = torch.cat([ep.context_sites, ep.target_sites])
-                pred = torch.cat([model.generate(sites[i : i + spec.batch], hier, c)
-                                  for i in range(0, len(sites), spec.batch)]).numpy()  # fmt: skip
-                gen_s, gen_n = gen_s + time.perf_counter() - t0, gen_n + len(sites)
+            sites = torch.cat([ep.context_sites, ep.target_sites])
             truth = torch.cat([ep.context_u, ep.target_u]).numpy()
-            for j in range(len(sites)):
-                # the truth's activation from its own frames, like the prediction's: no frame-rate bias
-                true_act = activation_times(truth[j], times)
-                m = sequence_metrics(pred[j], truth[j], true_act, times, dc_frame)
-                report.rows.append({"subject": subject, "set": r, "context_size": k,
-                                    "role": "context" if j < k else "target", "site": int(sites[j]), **m})  # fmt: skip
+            # the truth's activation from its own frames, like the prediction's: no frame-rate bias
+            true_act = [activation_times(truth[j], times) for j in range(len(sites))]
+            n_predicted += len(sites)
+            for m in methods:
+                cost = m.fit(ep, mesh, hier)
+                t0 = time.perf_counter()
+                pred = m.predict(sites)
+                costs[m.name]["predict_s"].append(time.perf_counter() - t0)
+                costs[m.name]["fit_s"].append(cost["fit_s"])
+                costs[m.name]["calls"].append(cost.get("calls", 0.0))
+                for j in range(len(sites)):
+                    metrics = sequence_metrics(pred[j], truth[j], true_act[j], times, dc_frame)
+                    reports[m.name].rows.append({"subject": subject, "set": r, "context_size": k,
+                                                 "role": "context" if j < k else "target", "site": int(sites[j]),
+                                                 **metrics})  # fmt: skip
         if progress is not None:
             progress(si + 1, len(subjects), subject)
-    _summarise(report)
-    report.timing = {
-        "embed_s": float(np.mean(embed_s)) if embed_s else float("nan"),
-        "generate_s_per_sim": gen_s / max(gen_n, 1),
-        "ms_per_time_unit": MS_PER_TIME_UNIT,
-        "dc_frame": dc_frame,
-    }
-    return report
+    for m in methods:
+        report, c = reports[m.name], costs[m.name]
+        _summarise(report)
+        report.timing = {
+            "fit_s": float(np.mean(c["fit_s"])), "simulator_calls": float(np.mean(c["calls"])),
+            "predict_s_per_sim": float(np.sum(c["predict_s"]) / max(n_predicted, 1)),
+            "ms_per_time_unit": MS_PER_TIME_UNIT, "dc_frame": dc_frame,
+        }  # fmt: skip
+    return reports
+
+
+def evaluate(checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpec(), progress=None) -> EvalReport:
+    """Evaluate ``checkpoint`` on ``store`` (see :class:`EvalSpec`)."""
+    model, config, ckpt = load_model(checkpoint)
+    view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
+    if view.frames != model.frames:
+        raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {model.frames}")
+    observe = spec.observe or config.data.episodes.observe
+    noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
+    method = NeuralMethod(model, config.model.kind, spec.batch)
+    reports = evaluate_methods([method], view, _subjects(spec, ckpt["splits"], view), spec, observe, noise,
+                               config.model.levels, config.model.coarsest, progress)  # fmt: skip
+    return reports[method.name]
 
 
 def _summarise(report: EvalReport) -> None:

@@ -27,6 +27,13 @@ class GraphEncoder(nn.Module):
         self.fc2 = nn.Linear(hidden, latent)
 
     def forward(self, x: Tensor, hierarchy: MeshHierarchy) -> Tensor:
+        return self.forward_levels(x, hierarchy)[0]
+
+    def forward_levels(self, x: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, list[Tensor]]:
+        """The latent features and each block's output on its own level (fine to coarse)."""
+        levels = []
         for level, block in enumerate(self.blocks):
-            x = hierarchy.pool(block(x, hierarchy.graphs[level]), level)
-        return torch.tanh(self.fc2(nn.functional.elu(self.fc1(x))))
+            x = block(x, hierarchy.graphs[level])
+            levels.append(x)
+            x = hierarchy.pool(x, level)
+        return torch.tanh(self.fc2(nn.functional.elu(self.fc1(x)))), levels

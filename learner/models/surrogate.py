@@ -54,10 +54,14 @@ class PNS(nn.Module):
         self.coarse_blocks = nn.ModuleList(ResidualGraphBlock(lat, lat) for _ in range(config.coarse_blocks))
         self.initial_state = nn.Linear(lat, lat)
         self.transition = ConditionalGatedTransition(lat, conditioned=self.conditioned)
-        self.decoder = GraphDecoder(lat, ch, hid)
+        self.decoder = GraphDecoder(lat, ch, hid, skips=config.decoder_skips)
 
     def initial(self, sites: Tensor, hierarchy: MeshHierarchy) -> Tensor:
-        """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``.
+        """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""
+        return self._encode_stimulus(sites, hierarchy)[0]
+
+    def _encode_stimulus(self, sites: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, list[Tensor]]:
+        """``z_0`` and the stimulus encoder's per-level features.
 
         The stimulus is a one-hot node map; with ``stimulus_distance`` its
         geodesic distance map joins it as a second channel, so every node sees
@@ -69,14 +73,16 @@ class PNS(nn.Module):
         x[torch.arange(len(sites)), sites.long(), 0] = 1.0
         if self.config.stimulus_distance:
             x = torch.cat([x, geodesic_distances(hierarchy.graphs[0], sites).unsqueeze(-1)], dim=-1)
-        e = self.stimulus_encoder(x, hierarchy)
+        e, levels = self.stimulus_encoder.forward_levels(x, hierarchy)
         for block in self.coarse_blocks:
             e = block(e, hierarchy.graphs[-1])
-        return self.initial_state(e)
+        return self.initial_state(e), levels
 
     def latent_path(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
         """Latent states ``z_1..z_T``: ``(S, T, V, latent)``."""
-        z = self.initial(sites, hierarchy)
+        return self._latent_path(self.initial(sites, hierarchy), c)
+
+    def _latent_path(self, z: Tensor, c: Tensor | None) -> Tensor:
         cc = None if c is None else c.unsqueeze(0).expand_as(z)
         states = []
         for _ in range(self.frames):
@@ -88,11 +94,13 @@ class PNS(nn.Module):
         self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, frames: Tensor | None = None
     ) -> Tensor:
         """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices)."""
-        z = self.latent_path(sites, hierarchy, c)
+        z0, levels = self._encode_stimulus(sites, hierarchy)
+        z = self._latent_path(z0, c)
         if frames is not None:
             z = z[:, frames]
         s, t, v, l = z.shape
-        return self.decoder(z.reshape(s * t, v, l), hierarchy).reshape(s, t, -1)
+        skips = [f.repeat_interleave(t, dim=0) for f in levels] if self.config.decoder_skips else None
+        return self.decoder(z.reshape(s * t, v, l), hierarchy, skips).reshape(s, t, -1)
 
 
 class MetaPNS(PNS):

@@ -56,7 +56,7 @@ def test_evaluate_writes_json_and_markdown(trained, tiny_store):
     report = json.loads((out / "evaluation.json").read_text())
     assert set(report["overall"]) == {"context", "target"}
     assert {"mse", "cc_spatial", "cc_temporal", "dc", "act_error_ms"} <= set(report["overall"]["target"])
-    assert len(report["rows"]) > 0 and report["timing"]["generate_s_per_sim"] > 0
+    assert len(report["rows"]) > 0 and report["timing"]["predict_s_per_sim"] > 0
     assert "| target |" in (out / "evaluation.md").read_text()
 
 

@@ -22,10 +22,11 @@ def setup(tiny_store):
     return view, hier, episode
 
 
-def test_generate_and_embed_shapes(setup):
+@pytest.mark.parametrize("skips", [False, True])
+def test_generate_and_embed_shapes(setup, skips):
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = MetaPNS(CONFIG, view.frames)
+    model = MetaPNS(ModelConfig(**{**CONFIG.__dict__, "decoder_skips": skips}), view.frames)
     n, v = hier.graphs[0].num_nodes, hier.graphs[-1].num_nodes
     post = model.embed(ep.context_obs, ep.observed, hier)
     assert post.mu.shape == post.logvar.shape == (v, CONFIG.latent)
@@ -35,11 +36,11 @@ def test_generate_and_embed_shapes(setup):
     assert torch.allclose(sub, out[:, [0, 4]], atol=1e-6)
 
 
-@pytest.mark.parametrize("kind", ["metapns", "pns"])
-def test_every_parameter_gets_a_finite_gradient(setup, kind):
+@pytest.mark.parametrize("kind, skips", [("metapns", False), ("pns", False), ("metapns", True)])
+def test_every_parameter_gets_a_finite_gradient(setup, kind, skips):
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = build_model(ModelConfig(**{**CONFIG.__dict__, "kind": kind}), view.frames)
+    model = build_model(ModelConfig(**{**CONFIG.__dict__, "kind": kind, "decoder_skips": skips}), view.frames)
     assert isinstance(model, MetaPNS) == (kind == "metapns")
     terms = episode_loss(model, ep, hier, lambda1=1e-4, lambda2=0.1, generator=torch.Generator().manual_seed(0))
     terms.total.backward()

@@ -1,0 +1,333 @@
+"""One command for the paper's comparison: Table 1, Fig. 3, timings, maps, calibration, real-data emulation.
+
+``learner benchmark CONFIG`` loads (or trains) metaPNS and PNS, evaluates them on
+the test subjects, runs the two Bayesian-optimisation baselines (FS-BO, VAE-BO)
+on a subset of them with the same context sets, and writes ``<out>/``:
+
+* ``benchmark.md`` - everything below as Markdown, ``benchmark.json`` - the numbers;
+* ``table1.md`` - context / target MSE, CC, DC and activation-time error per method;
+* ``fig3_context.png`` - target accuracy against context size 1-5 (metaPNS vs PNS);
+* ``timing.md`` - one simulation, one surrogate generation, context embedding, BO personalisation;
+* ``activation_maps-<subject>.png`` - truth vs predictions on a target site of test subjects;
+* uncertainty: how often the truth falls inside metaPNS's 90% band from samples of c;
+* real-data emulation (when ``real_data.store`` is set): a geometry never seen in training, observed
+  through the epicardial sock with noise, 4 pacing sites, leave one out.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import zarr
+from torch import Tensor
+
+from shared.config import from_mapping, load_toml, to_mapping
+from shared.errors import ConfigError, InputError
+from shared.mesh import Mesh
+from shared.simulator import load_simulator
+from shared.units import MS_PER_TIME_UNIT
+
+from learner.baselines import FSBO, VAEBO, PersonalisationBaseline
+from learner.data.episodes import Episode, load_episode
+from learner.evaluate import EvalReport, EvalSpec, Method, NeuralMethod, evaluate_methods
+from learner.graph.hierarchy import MeshHierarchy
+from learner.metrics import METRIC_NAMES, activation_times, spatial_cc, temporal_cc, mse
+from learner.personalize import Observations
+from learner.plot import plot_activation_panels, plot_context_curves
+from learner.store_view import StoreView
+from learner.train.trainer import load_model
+
+__all__ = ["BaselineSpec", "RealDataSpec", "BenchmarkConfig", "load_benchmark_config", "BaselineMethod",
+           "run_benchmark"]  # fmt: skip
+
+
+@dataclass(frozen=True)
+class BaselineSpec:
+    """The BO baselines: which, on how many test subjects (paper: 11 of 16), with what budget."""
+
+    methods: tuple[str, ...] = ("fs-bo", "vae-bo")
+    subjects: int = 4
+    context_sets: int = 1
+    max_targets: int = 10
+    budget: int = 100
+    regions: int = 7
+
+
+@dataclass(frozen=True)
+class RealDataSpec:
+    """Real-data emulation: a store whose geometry training never saw, observed by the sock."""
+
+    store: str = ""  # empty: skipped
+    observe: str = "electrodes"
+    noise_std: float = 0.02
+    sites: int = 4
+
+
+@dataclass(frozen=True)
+class BenchmarkConfig:
+    """What ``learner benchmark`` runs (paths relative to the config file)."""
+
+    out: str = "report/benchmark"
+    store: str = ""
+    metapns: str = ""  # checkpoints (best.pt) of the two models
+    pns: str = ""
+    context: tuple[int, int] = (1, 5)
+    context_sets: int = 3
+    max_targets: int = 40
+    seed: int = 0
+    context_sizes: tuple[int, ...] = (1, 2, 3, 4, 5)
+    curve_sets: int = 2
+    curve_targets: int = 20
+    samples: int = 20  # draws of c for the predictive band
+    maps: int = 2  # test subjects drawn in the activation-map figure
+    baselines: BaselineSpec = field(default_factory=BaselineSpec)
+    real_data: RealDataSpec = field(default_factory=RealDataSpec)
+
+
+def load_benchmark_config(path: str | Path) -> BenchmarkConfig:
+    """Read a benchmark TOML; relative paths are resolved against its folder."""
+    path = Path(path)
+    cfg = from_mapping(BenchmarkConfig, load_toml(path))
+    base = path.parent
+
+    def rel(p: str) -> str:
+        return p if not p or "://" in p else str((base / p).resolve())
+
+    for name in ("store", "metapns", "pns"):
+        if not getattr(cfg, name):
+            raise ConfigError(f"{path}: `{name}` is required")
+    return replace(cfg, out=rel(cfg.out), store=rel(cfg.store), metapns=rel(cfg.metapns), pns=rel(cfg.pns),
+                   real_data=replace(cfg.real_data, store=rel(cfg.real_data.store)))  # fmt: skip
+
+
+class BaselineMethod(Method):
+    """A BO baseline behind the :class:`~learner.evaluate.Method` interface (simulates its predictions)."""
+
+    def __init__(self, baseline: PersonalisationBaseline, solver: dict, times: np.ndarray) -> None:
+        self.baseline, self.solver, self.times, self.name = baseline, solver, times, baseline.name
+
+    def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
+        obs = Observations(mesh, episode.context_sites.numpy(), episode.context_obs.numpy(),
+                           episode.observed.numpy(), self.times, episode.subject_id)  # fmt: skip
+        result = self.baseline.fit(obs, self.solver)
+        return {"fit_s": result.seconds, "calls": float(result.calls)}
+
+    def predict(self, sites: Tensor) -> np.ndarray:
+        return self.baseline.predict(sites.numpy())
+
+
+def _stats(report: EvalReport) -> dict:
+    return {"overall": report.overall, "by_context_size": report.by_context_size, "timing": report.timing}
+
+
+def table1(results: dict[str, dict], title: str) -> str:
+    """Markdown Table 1: context | target, mean ± std of each metric per method."""
+    cols = [m for m in METRIC_NAMES if m != "act_mismatch"]
+    head = "| method | " + " | ".join(f"context {m}" for m in cols) + " | " + " | ".join(f"target {m}" for m in cols)
+    lines = [f"### {title}\n", head + " |\n", "|---|" + "---|" * (2 * len(cols)) + "\n"]
+    for name, res in results.items():
+        cells = [_cell(res["overall"].get(role, {}).get(m)) for role in ("context", "target") for m in cols]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |\n")
+    return "".join(lines)
+
+
+def _cell(stat: dict | None) -> str:
+    if not stat or not np.isfinite(stat["mean"]):
+        return "-"
+    m, s = stat["mean"], stat["std"]
+    return f"{m:.2e} ± {s:.1e}" if abs(m) < 1e-2 else f"{m:.3f} ± {s:.3f}"
+
+
+def calibration(model, view: StoreView, subjects: list[str], cfg: BenchmarkConfig, observe: str, levels: int,
+                coarsest: int) -> dict:  # fmt: skip
+    """Fraction of target values inside the 5-95% band of predictions under samples of c ~ p(c | Y)."""
+    inside, width, n = 0.0, 0.0, 0
+    g = torch.Generator().manual_seed(cfg.seed)
+    for si, subject in enumerate(subjects):
+        mesh_id = view.mesh_of[subject]
+        hier = view.hierarchy(mesh_id, levels, coarsest)
+        rng = np.random.default_rng([cfg.seed, si, 99])
+        perm = rng.permutation(len(view.sites(mesh_id)))
+        ep = load_episode(view.store, subject, perm[:3], np.sort(perm[3:8]), observe)
+        with torch.no_grad():
+            post = model.embed(ep.context_obs, ep.observed, hier)
+            draws = torch.stack([model.generate(ep.target_sites, hier, post.sample(g)) for _ in range(cfg.samples)])
+        lo, hi = torch.quantile(draws, 0.05, dim=0), torch.quantile(draws, 0.95, dim=0)
+        truth = ep.target_u
+        inside += float(((truth >= lo) & (truth <= hi)).float().sum())
+        width += float((hi - lo).sum())
+        n += truth.numel()
+    return {"coverage_90": inside / max(n, 1), "mean_band_width": width / max(n, 1), "samples": cfg.samples,
+            "subjects": len(subjects)}  # fmt: skip
+
+
+def real_data(model, config, cfg: BenchmarkConfig) -> dict:
+    """Leave-one-out over 4 pacing sites on an unseen geometry, observed by the sock (+ noise).
+
+    Metrics compare the prediction with the noisy sock signals at the electrodes,
+    as the paper compares with in-vivo recordings.
+    """
+    spec = cfg.real_data
+    view = StoreView(spec.store)
+    if view.frames != model.frames:
+        raise InputError(f"{spec.store} has {view.frames} frames per simulation, the model expects {model.frames}")
+    rows = []
+    for si, subject in enumerate(view.subjects):
+        mesh_id = view.mesh_of[subject]
+        hier = view.hierarchy(mesh_id, config.model.levels, config.model.coarsest)
+        n_sites = min(spec.sites, len(view.sites(mesh_id)))
+        for left in range(n_sites):
+            rng = np.random.default_rng([cfg.seed, si, left])
+            ctx = [r for r in range(n_sites) if r != left]
+            ep = load_episode(view.store, subject, ctx, [left], spec.observe, spec.noise_std, rng)
+            noisy_target = ep.target_u[0].numpy() + rng.normal(0, spec.noise_std, ep.target_u[0].shape)
+            with torch.no_grad():
+                c = model.embed(ep.context_obs, ep.observed, hier).mu if model.conditioned else None
+                pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c).numpy()
+            obs_nodes = ep.observed.numpy()
+            for j, role in enumerate(["context"] * len(ctx) + ["target"]):
+                truth = ep.context_obs[j].numpy() if role == "context" else noisy_target
+                p, t = pred[j][:, obs_nodes], truth[:, obs_nodes]
+                rows.append({"subject": subject, "left_out": left, "role": role, "mse": mse(p, t),
+                             "cc_spatial": spatial_cc(p, t), "cc_temporal": temporal_cc(p, t)})  # fmt: skip
+    out = {}
+    for role in ("context", "target"):
+        sub = [r for r in rows if r["role"] == role]
+        out[role] = {m: {"mean": float(np.nanmean([r[m] for r in sub])), "std": float(np.nanstd([r[m] for r in sub]))}
+                     for m in ("mse", "cc_spatial", "cc_temporal")}  # fmt: skip
+    return {"subjects": view.subjects, "electrodes": int(ep.observed.sum()), "noise_std": spec.noise_std, **out}
+
+
+def _timing(view: StoreView, meta_report: EvalReport, pns_report: EvalReport, base_reports: dict) -> dict:
+    subject = view.subjects[0]
+    mesh = view.mesh(view.mesh_of[subject])
+    solver = dict(zarr.open_group(view.store, mode="r").attrs["spec"])["solver"]
+    from shared.reader import read_tissue
+
+    tissue, site = read_tissue(view.store, subject), view.sites(view.mesh_of[subject])[:1]
+    sim = load_simulator()
+    sim.simulate(mesh, tissue, site, solver)  # JIT warm-up
+    t0 = time.perf_counter()
+    sim.simulate(mesh, tissue, site, solver)
+    rows = {"AP simulation (one site, 1 thread)": {"seconds": time.perf_counter() - t0}}
+    rows["metaPNS generation (per simulation)"] = {"seconds": meta_report.timing["predict_s_per_sim"]}
+    rows["metaPNS context embedding (per set)"] = {"seconds": meta_report.timing["fit_s"]}
+    rows["PNS generation (per simulation)"] = {"seconds": pns_report.timing["predict_s_per_sim"]}
+    for name, rep in base_reports.items():
+        rows[f"{name} personalisation (per set)"] = {"seconds": rep.timing["fit_s"],
+                                                      "simulator calls": rep.timing["simulator_calls"]}  # fmt: skip
+        rows[f"{name} prediction (per simulation)"] = {"seconds": rep.timing["predict_s_per_sim"]}
+    return rows
+
+
+def _maps_per_mesh(view: StoreView, rows: list, subjects: list[str], path: Path) -> list[Path]:
+    """One figure per subject (``<stem>-<subject>.png``), drawn on that subject's own mesh."""
+    paths = []
+    for (title, cols), subject in zip(rows, subjects):
+        p = path.with_name(f"{path.stem}-{subject}{path.suffix}")
+        plot_activation_panels(view.mesh(view.mesh_of[subject]).points, [(title, cols)], p)
+        paths.append(p)
+    return paths
+
+
+def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
+    """Run everything of the module docstring; returns the numbers written to ``benchmark.json``."""
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta, meta_cfg, meta_ckpt = load_model(cfg.metapns)
+    pns, pns_cfg, _ = load_model(cfg.pns)
+    if not meta.conditioned or pns.conditioned:
+        raise InputError("`metapns` must be a metaPNS checkpoint and `pns` a PNS checkpoint")
+    view = StoreView(cfg.store, cache_dir=out / "hierarchies")
+    if view.frames != meta.frames:
+        raise InputError(f"{cfg.store} has {view.frames} frames per simulation, the models expect {meta.frames}")
+    levels, coarsest = meta_cfg.model.levels, meta_cfg.model.coarsest
+    observe, noise = meta_cfg.data.episodes.observe, meta_cfg.data.episodes.noise_std
+    test = list(meta_ckpt["splits"]["test"])
+    neural = [NeuralMethod(meta, "metaPNS"), NeuralMethod(pns, "PNS")]
+    spec = EvalSpec(subjects=tuple(test), context=cfg.context, context_sets=cfg.context_sets,
+                    max_targets=cfg.max_targets, seed=cfg.seed)  # fmt: skip
+    step = lambda what: (lambda i, n, s: progress(f"{what}: [{i}/{n}] {s}"))  # noqa: E731
+    results: dict[str, Any] = {"config": to_mapping(cfg), "test_subjects": test}
+
+    reports = evaluate_methods(neural, view, test, spec, observe, noise, levels, coarsest, step("Table 1"))
+    results["table1_all_test"] = {name: _stats(r) for name, r in reports.items()}
+
+    solver = dict(zarr.open_group(view.store, mode="r").attrs["spec"])["solver"]
+    b = cfg.baselines
+    make = {"fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),
+            "vae-bo": lambda: VAEBO(budget=b.budget, seed=cfg.seed)}  # fmt: skip
+    unknown = sorted(set(b.methods) - set(make))
+    if unknown:
+        raise ConfigError(f"unknown baseline(s) {unknown}; choose from {sorted(make)}")
+    base_methods = [BaselineMethod(make[name](), solver, view.times) for name in b.methods]
+    subset = test[: b.subjects]
+    bspec = replace(spec, subjects=tuple(subset), context_sets=b.context_sets, max_targets=b.max_targets)
+    base_reports = evaluate_methods(neural + base_methods, view, subset, bspec, observe, noise, levels, coarsest,
+                                    step("baselines"))  # fmt: skip
+    results["table1_baseline_subset"] = {name: _stats(r) for name, r in base_reports.items()}
+
+    curves: dict[str, dict] = {m.name: {} for m in neural}
+    for k in cfg.context_sizes:
+        kspec = replace(spec, context=(k, k), context_sets=cfg.curve_sets, max_targets=cfg.curve_targets)
+        for name, r in evaluate_methods(neural, view, test, kspec, observe, noise, levels, coarsest).items():
+            curves[name][str(k)] = r.overall["target"]
+        progress(f"context size {k}: done")
+    results["fig3"] = curves
+    plot_context_curves(curves, out / "fig3_context.png")
+
+    results["timing"] = _timing(view, reports["metaPNS"], reports["PNS"],
+                                {n: base_reports[n] for n in b.methods})  # fmt: skip
+    results["calibration"] = calibration(meta, view, test, cfg, observe, levels, coarsest)
+    results["maps"] = test[: cfg.maps]
+    _maps_per_mesh(view, [_map_row(view, neural + base_methods[:1], s, levels, coarsest, observe)
+                          for s in test[: cfg.maps]], test[: cfg.maps], out / "activation_maps.png")  # fmt: skip
+    if cfg.real_data.store:
+        results["real_data"] = real_data(meta, meta_cfg, cfg)
+    _write(results, out)
+    return results
+
+
+def _map_row(view: StoreView, methods: list[Method], subject: str, levels: int, coarsest: int, observe: str):
+    mesh_id = view.mesh_of[subject]
+    mesh, hier = view.mesh(mesh_id), view.hierarchy(mesh_id, levels, coarsest)
+    ep = load_episode(view.store, subject, [0, 1, 2], [3], observe)
+    cols = [("truth", activation_times(ep.target_u[0].numpy(), view.times) * MS_PER_TIME_UNIT)]
+    for m in methods:
+        m.fit(ep, mesh, hier)
+        cols.append((m.name, activation_times(m.predict(ep.target_sites)[0], view.times) * MS_PER_TIME_UNIT))
+    return (f"{subject}, site {int(ep.target_sites[0])}", cols)
+
+
+def _write(results: dict, out: Path) -> None:
+    maps = "".join(f"![activation maps](activation_maps-{s}.png)\n" for s in results["maps"])
+    md = ["# Benchmark\n\n", table1(results["table1_all_test"], f"Table 1: all {len(results['test_subjects'])} "
+                                    "test subjects (metaPNS, PNS)"), "\n",  # fmt: skip
+          table1(results["table1_baseline_subset"], "Table 1: the baseline subset, same context sets for every method"),
+          "\n![accuracy vs context size](fig3_context.png)\n\n### Timing (CPU)\n\n| step | seconds | simulator calls |\n"
+          "|---|---|---|\n"]  # fmt: skip
+    timing = [f"| {name} | {row['seconds']:.4g} | {row.get('simulator calls', '')} |\n"
+              for name, row in results["timing"].items()]  # fmt: skip
+    md += timing
+    (out / "timing.md").write_text("| step | seconds | simulator calls |\n|---|---|---|\n" + "".join(timing))
+    c = results["calibration"]
+    md.append(f"\n### Uncertainty\n\n{c['samples']} draws of c ~ p(c | Y): the truth lies inside the 5-95% band for "
+              f"{100 * c['coverage_90']:.1f}% of target values (ideal 90%); mean band width {c['mean_band_width']:.3f}.\n")
+    md.append(f"\n### Activation maps (truth vs predictions, one target site)\n\n{maps}")
+    if "real_data" in results:
+        r = results["real_data"]
+        md.append(f"\n### Real-data emulation\n\nUnseen geometry {', '.join(r['subjects'])}, {r['electrodes']} sock "
+                  f"electrodes, noise {r['noise_std']}, leave-one-out over 4 pacing sites: target CC spatial "
+                  f"{r['target']['cc_spatial']['mean']:.3f} ± {r['target']['cc_spatial']['std']:.3f}, temporal "
+                  f"{r['target']['cc_temporal']['mean']:.3f}; MSE {r['target']['mse']['mean']:.2e} "
+                  f"(context CC spatial {r['context']['cc_spatial']['mean']:.3f}).\n")  # fmt: skip
+    (out / "benchmark.md").write_text("".join(md))
+    (out / "table1.md").write_text(table1(results["table1_all_test"], "all test subjects") + "\n" +
+                                   table1(results["table1_baseline_subset"], "baseline subset"))  # fmt: skip
+    (out / "benchmark.json").write_text(json.dumps(results, indent=1, default=float))
