@@ -14,6 +14,7 @@ the unit cube and standardised outputs. The GP sees :math:`-\\log f` because
 the fitting error of a simulation spans orders of magnitude near its optimum.
 Exactly ``budget`` evaluations of ``f`` are made; all random choices come from
 ``seed``, so a run is reproducible (torch's global generator is left as it was).
+The GP work runs on one torch thread (:mod:`learner.baselines.threads`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from gpytorch.mlls import ExactMarginalLogLikelihood
 from numpy.typing import ArrayLike, NDArray
 
 from shared.errors import InputError
+
+from learner.baselines.threads import torch_threads
 
 __all__ = ["BOSettings", "BOTrace", "bayes_minimise"]
 
@@ -131,20 +134,24 @@ def bayes_minimise(
 
     with torch.random.fork_rng(), warnings.catch_warnings():
         torch.manual_seed(settings.seed)
-        # a deterministic simulator pins the GP noise at its floor; botorch says so at every fit
+        # L-BFGS often stops "ABNORMAL" on a flat acquisition surface; botorch then retries from
+        # new starting points itself and reports each retry as a warning, noise in a benchmark log
         warnings.simplefilter("ignore", OptimizationWarning)
+        warnings.filterwarnings("ignore", message="Optimization failed in `gen_candidates_scipy`")
         sobol = torch.quasirandom.SobolEngine(dim, scramble=True, seed=settings.seed)
         for u in sobol.draw(n_init, dtype=torch.float64).numpy():
             evaluate(u)
         while len(fs) < settings.budget:
-            train_x = torch.from_numpy(np.stack(xs))
-            train_y = -torch.log(torch.tensor(fs, dtype=torch.float64) + LOG_FLOOR).unsqueeze(-1)
-            model = SingleTaskGP(train_x, train_y, outcome_transform=Standardize(m=1))
-            fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
-            acq = LogExpectedImprovement(model, best_f=train_y.max())
-            cand, _ = optimize_acqf(
-                acq, bounds=unit, q=1, num_restarts=settings.restarts, raw_samples=settings.raw_samples
-            )
+            # per step: a numba simulator resets the OpenMP thread count that torch reads
+            with torch_threads(1):
+                train_x = torch.from_numpy(np.stack(xs))
+                train_y = -torch.log(torch.tensor(fs, dtype=torch.float64) + LOG_FLOOR).unsqueeze(-1)
+                model = SingleTaskGP(train_x, train_y, outcome_transform=Standardize(m=1))
+                fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
+                acq = LogExpectedImprovement(model, best_f=train_y.max())
+                cand, _ = optimize_acqf(
+                    acq, bounds=unit, q=1, num_restarts=settings.restarts, raw_samples=settings.raw_samples
+                )
             evaluate(cand.detach().squeeze(0).numpy())
     x = box[0] + np.stack(xs) * (box[1] - box[0])
     return BOTrace(x=x, f=np.asarray(fs, dtype=np.float64))

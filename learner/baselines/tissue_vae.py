@@ -25,6 +25,8 @@ from torch.nn import functional as F
 
 from shared.errors import InputError
 
+from learner.baselines.threads import torch_threads
+
 __all__ = ["TissueVAE", "train_tissue_vae"]
 
 _A_LOW, _A_HIGH = 0.15, 0.5
@@ -97,8 +99,8 @@ def train_tissue_vae(
 ) -> TissueVAE:
     """Train a :class:`TissueVAE` on excitability ``maps`` (M, N) with Adam; deterministic for a seed.
 
-    Values are clipped to [0.15, 0.5] before scaling. Torch's global generator
-    is left as it was.
+    Values are clipped to [0.15, 0.5] before scaling. Runs on one torch thread;
+    torch's global generator is left as it was.
     """
     a = np.asarray(maps, dtype=np.float32)
     if a.ndim != 2 or a.shape[0] < 2 or a.shape[1] < 1:
@@ -108,7 +110,7 @@ def train_tissue_vae(
     if epochs < 1 or batch_size < 1 or not lr > 0 or not beta >= 0:
         raise InputError(f"need epochs, batch_size >= 1, lr > 0, beta >= 0; got {epochs}, {batch_size}, {lr}, {beta}")
     m = torch.from_numpy((np.clip(a, _A_LOW, _A_HIGH) - _A_LOW) / (_A_HIGH - _A_LOW))
-    with torch.random.fork_rng():
+    with torch.random.fork_rng(), torch_threads(1):
         torch.manual_seed(seed)
         model = TissueVAE(a.shape[1], latent, hidden)
         opt = torch.optim.Adam(model.parameters(), lr=lr)

@@ -1,0 +1,53 @@
+"""`learner benchmark` end to end on the tiny store: every report file is written and parses."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from learner.cli import app
+from learner.train.trainer import train
+
+runner = CliRunner()
+
+
+def test_benchmark_writes_every_report_file(tiny_store, tiny_config, tmp_path):
+    train(tiny_config(tiny_store, tmp_path / "meta", epochs=1), progress=False)
+    train(tiny_config(tiny_store, tmp_path / "pns", kind="pns", epochs=1), progress=False)
+    cfg = tmp_path / "bench.toml"
+    cfg.write_text(f"""
+out = "report"
+store = "{tiny_store}"
+metapns = "meta/best.pt"
+pns = "pns/best.pt"
+context = [1, 2]
+context_sets = 1
+max_targets = 3
+context_sizes = [1, 2]
+curve_sets = 1
+curve_targets = 2
+samples = 4
+maps = 1
+[baselines]
+subjects = 1
+max_targets = 2
+budget = 8
+regions = 2
+[real_data]
+store = "{tiny_store}"
+observe = "electrodes"
+""")
+    result = runner.invoke(app, ["benchmark", str(cfg)])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "report"
+    data = json.loads((out / "benchmark.json").read_text())
+    assert set(data["table1_baseline_subset"]) == {"metaPNS", "PNS", "fs-bo", "vae-bo"}
+    assert data["table1_baseline_subset"]["fs-bo"]["timing"]["simulator_calls"] == 8
+    assert set(data["fig3"]["metaPNS"]) == {"1", "2"}
+    assert 0.0 <= data["calibration"]["coverage_90"] <= 1.0
+    assert data["real_data"]["electrodes"] == 40 and "cc_spatial" in data["real_data"]["target"]
+    md = (out / "benchmark.md").read_text()
+    assert "| fs-bo |" in md and "| vae-bo |" in md and "Real-data emulation" in md
+    for name in ("table1.md", "timing.md", "fig3_context.png", f"activation_maps-{data['maps'][0]}.png"):
+        assert (out / name).stat().st_size > 0, name
