@@ -85,6 +85,7 @@ class BenchmarkConfig:
     curve_sets: int = 2
     curve_targets: int = 20
     samples: int = 20  # draws of c for the predictive band
+    calibration_subjects: int = 4  # test subjects of the calibration check
     maps: int = 2  # test subjects drawn in the activation-map figure
     baselines: BaselineSpec = field(default_factory=BaselineSpec)
     real_data: RealDataSpec = field(default_factory=RealDataSpec)
@@ -284,7 +285,7 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
 
     results["timing"] = _timing(view, reports["metaPNS"], reports["PNS"],
                                 {n: base_reports[n] for n in b.methods})  # fmt: skip
-    results["calibration"] = calibration(meta, view, test, cfg, observe, levels, coarsest)
+    results["calibration"] = calibration(meta, view, test[: cfg.calibration_subjects], cfg, observe, levels, coarsest)
     results["maps"] = test[: cfg.maps]
     _maps_per_mesh(view, [_map_row(view, neural + base_methods[:1], s, levels, coarsest, observe)
                           for s in test[: cfg.maps]], test[: cfg.maps], out / "activation_maps.png")  # fmt: skip

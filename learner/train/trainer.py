@@ -167,7 +167,8 @@ class Trainer:
             self.scheduler.step()
             self.epoch += 1
             row["seconds"] = time.perf_counter() - t0
-            if self.epoch % cfg.validate_every == 0 or self.epoch == cfg.epochs:
+            stopped = cfg.max_minutes > 0 and time.perf_counter() - start > 60 * cfg.max_minutes
+            if self.epoch % cfg.validate_every == 0 or self.epoch == cfg.epochs or stopped:
                 row["val_target_mse"] = self.validate()
                 if row["val_target_mse"] < self.best:
                     self.best = row["val_target_mse"]
@@ -177,8 +178,7 @@ class Trainer:
             self._log(row)
             if on_epoch is not None:
                 on_epoch(row)
-            if cfg.max_minutes > 0 and time.perf_counter() - start > 60 * cfg.max_minutes:
-                stopped = True
+            if stopped:
                 break
         if not (self.out / "best.pt").exists():
             save_checkpoint(self.out / "best.pt", self.state())
