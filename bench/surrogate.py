@@ -4,6 +4,8 @@
   ``c`` (batch of 1, and per simulation in a batch of 16), against
   ``Simulator.run`` for the same site on the same mesh (one simulation);
 * context embedding: q(c | Y) for a set of 1 and of 5 observed sequences;
+* both with every ``SplineConv`` on the per-edge path, then on each layer's
+  default ("auto": block-sparse CSR on the narrow fine levels), side by side;
 * training: one episode (forward + backward + Adam) of the configured size,
   metaPNS and PNS, and the loader's episodes/s (it should outrun training >= 5x);
   the metaPNS episode again in a child process with glibc's default allocator
@@ -34,6 +36,7 @@ import torch
 from learner.config import ModelConfig, TrainConfig
 from learner.data.episodes import EpisodeDataset, EpisodeSpec, load_episode
 from learner.models.surrogate import MetaPNS, PNS
+from learner.nn.spline_conv import SplineConv
 from learner.runtime import tune_allocator
 from learner.store_view import StoreView
 from learner.train.loss import episode_loss
@@ -63,6 +66,13 @@ def small_store(folder: Path) -> Path:
     store = folder / "bench.zarr"
     build(spec, store, workers=2)
     return store
+
+
+def set_conv_method(model: torch.nn.Module, method: str | None) -> None:
+    """Every SplineConv of ``model`` on one evaluation method (None: each layer's "auto" choice)."""
+    for layer in model.modules():
+        if isinstance(layer, SplineConv):
+            layer.method = method or SplineConv.auto_method(layer.in_channels, layer.out_channels)
 
 
 def simulator_seconds(store: Path, subject: str, site: int) -> float:
@@ -141,11 +151,17 @@ def main(argv: list[str] | None = None) -> None:
     rows: dict[str, float] = {}
     with torch.no_grad():
         c = meta.embed(ep.context_obs, ep.observed, hier).mu
-        rows["generate_ms"] = 1e3 * best_of(lambda: meta.generate(ep.target_sites[:1], hier, c), args.repeat)
+        for suffix, method in (("_edges_only", "edges"), ("", None)):  # the per-edge path everywhere, then "auto"
+            set_conv_method(meta, method)
+            rows[f"generate_ms{suffix}"] = 1e3 * best_of(lambda: meta.generate(ep.target_sites[:1], hier, c),
+                                                         args.repeat)  # fmt: skip
+            rows[f"embed_ms{suffix}"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs, ep.observed, hier),
+                                                      args.repeat)  # fmt: skip
         rows["generate_batch16_ms_per_sim"] = 1e3 * best_of(
             lambda: meta.generate(ep.target_sites, hier, c), args.repeat) / 16  # fmt: skip
         rows["embed_1_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs[:1], ep.observed, hier), args.repeat)
-        rows["embed_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs, ep.observed, hier), args.repeat)
+    rows["speedup_sparse_conv_generate"] = rows["generate_ms_edges_only"] / rows["generate_ms"]
+    rows["speedup_sparse_conv_embed"] = rows["embed_ms_edges_only"] / rows["embed_ms"]
     rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
 
     train_rows, loader_eps = measure_training(view, subject, hier, meta, pns, args)

@@ -148,9 +148,14 @@ def _subjects(spec: EvalSpec, splits: dict, view: StoreView) -> list[str]:
 
 def evaluate_methods(
     methods: list[Method], view: StoreView, subjects: list[str], spec: EvalSpec, observe: str, noise: float,
-    levels: int, coarsest: int, progress=None,
+    levels: int, coarsest: int, progress=None, examples: dict[str, dict] | None = None,
 ) -> dict[str, EvalReport]:  # fmt: skip
-    """Every method on the same context sets and targets; one :class:`EvalReport` per method."""
+    """Every method on the same context sets and targets; one :class:`EvalReport` per method.
+
+    ``examples``, when given, receives per subject the first target of the
+    first context set: ``{"site", "truth", <method name>: prediction}`` (T, N)
+    arrays, for figures drawn without refitting any method.
+    """
     lo, hi = spec.context
     if lo < 1 or hi < lo:
         raise InputError(f"context sizes must satisfy 1 <= min <= max, got {spec.context}")
@@ -183,6 +188,8 @@ def evaluate_methods(
                 costs[m.name]["predict_s"].append(time.perf_counter() - t0)
                 costs[m.name]["fit_s"].append(cost["fit_s"])
                 costs[m.name]["calls"].append(cost.get("calls", 0.0))
+                if examples is not None and r == 0 and len(sites) > k:
+                    examples.setdefault(subject, {"site": int(sites[k]), "truth": truth[k]})[m.name] = pred[k]
                 for j in range(len(sites)):
                     metrics = sequence_metrics(pred[j], truth[j], true_act[j], times, dc_frame)
                     reports[m.name].rows.append({"subject": subject, "set": r, "context_size": k,

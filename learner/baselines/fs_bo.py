@@ -18,7 +18,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.simulator import SimulatorBackend
 from shared.tissue import TissueFields
 
 from learner.baselines.base import A_HEALTHY, A_SCAR, PersonalisationBaseline, fields_from_excitability
@@ -34,7 +33,7 @@ class FSBO(PersonalisationBaseline):
     ----------
     regions : number of mesh regions, one excitability each (the search dimension).
     a_bounds : search interval of each region's excitability.
-    budget, initial, seed, restarts, raw_samples, simulator :
+    **options : budget, initial, seed, restarts, raw_samples, simulator:
         as for :class:`~learner.baselines.base.PersonalisationBaseline`.
     """
 
@@ -44,13 +43,7 @@ class FSBO(PersonalisationBaseline):
         self,
         regions: int = DEFAULT_REGIONS,
         a_bounds: tuple[float, float] = (A_HEALTHY, A_SCAR),
-        *,
-        budget: int = 100,
-        initial: int | None = None,
-        seed: int = 0,
-        restarts: int = 8,
-        raw_samples: int = 256,
-        simulator: str | SimulatorBackend = "aliev-panfilov",
+        **options: Any,
     ) -> None:
         if isinstance(regions, bool) or not isinstance(regions, (int, np.integer)) or regions < 1:
             raise InputError(f"regions must be an integer >= 1, got {regions!r}")
@@ -59,8 +52,7 @@ class FSBO(PersonalisationBaseline):
             raise InputError(f"a_bounds must satisfy 0.05 <= low < high <= 0.5, got {a_bounds!r}")
         self.regions, self.a_bounds = int(regions), (lo, hi)
         self.labels: NDArray[np.int64] | None = None
-        super().__init__(budget=budget, initial=initial, seed=seed, restarts=restarts, raw_samples=raw_samples,
-                         simulator=simulator)  # fmt: skip
+        super().__init__(**options)
 
     @property
     def dim(self) -> int:

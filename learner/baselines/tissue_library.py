@@ -19,7 +19,7 @@ from scipy.sparse.csgraph import dijkstra
 from shared.errors import InputError
 from shared.mesh import Mesh
 
-from learner.graph.hierarchy import _adjacency, _undirected
+from learner.graph.geodesic import edge_length_graph
 
 __all__ = ["A_CORE", "A_BORDER", "geodesic_diameter", "geodesic_scar", "scar_library"]
 
@@ -30,7 +30,7 @@ _A_HEALTHY = 0.15
 
 def _graph(mesh: Mesh) -> csr_matrix:
     """Edge-length weighted adjacency of the mesh."""
-    return _adjacency(mesh.points, _undirected(mesh.edges().astype(np.int64), mesh.n_nodes))
+    return edge_length_graph(mesh.points, mesh.edges())
 
 
 def geodesic_diameter(mesh: Mesh) -> float:

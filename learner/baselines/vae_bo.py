@@ -19,7 +19,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.simulator import SimulatorBackend
 from shared.tissue import TissueFields
 
 from learner.baselines.base import PersonalisationBaseline, fields_from_excitability
@@ -38,7 +37,7 @@ class VAEBO(PersonalisationBaseline):
     library_size : maps in the training library (healthy + random scars).
     latent_box : the search box is ``[-latent_box, latent_box]^latent``.
     epochs, hidden : VAE training length and width.
-    budget, initial, seed, restarts, raw_samples, simulator :
+    **options : budget, initial, seed, restarts, raw_samples, simulator:
         as for :class:`~learner.baselines.base.PersonalisationBaseline`;
         ``seed`` also seeds the library and the VAE.
     """
@@ -52,13 +51,7 @@ class VAEBO(PersonalisationBaseline):
         latent_box: float = 3.0,
         epochs: int = 200,
         hidden: int = 128,
-        *,
-        budget: int = 100,
-        initial: int | None = None,
-        seed: int = 0,
-        restarts: int = 8,
-        raw_samples: int = 256,
-        simulator: str | SimulatorBackend = "aliev-panfilov",
+        **options: Any,
     ) -> None:
         if isinstance(latent, bool) or not isinstance(latent, (int, np.integer)) or latent < 1:
             raise InputError(f"latent must be an integer >= 1, got {latent!r}")
@@ -70,8 +63,7 @@ class VAEBO(PersonalisationBaseline):
         self.epochs, self.hidden = int(epochs), int(hidden)
         self.vae: TissueVAE | None = None
         self._vaes: dict[str, TissueVAE] = {}
-        super().__init__(budget=budget, initial=initial, seed=seed, restarts=restarts, raw_samples=raw_samples,
-                         simulator=simulator)  # fmt: skip
+        super().__init__(**options)
 
     @property
     def dim(self) -> int:

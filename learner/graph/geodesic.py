@@ -1,16 +1,23 @@
-"""Geodesic (edge-path) distances on a mesh graph: the stimulus embedding's distance channel."""
+"""Geodesic (edge-path) distances on a mesh graph: the stimulus embedding's distance channel and scar maps."""
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 import torch
+from numpy.typing import ArrayLike
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from torch import Tensor
 
-from learner.graph.hierarchy import Graph
+from learner.graph.hierarchy import Graph, _adjacency, _undirected
 
-__all__ = ["geodesic_distances"]
+__all__ = ["edge_length_graph", "geodesic_distances"]
+
+
+def edge_length_graph(points: ArrayLike, edges: ArrayLike) -> csr_matrix:
+    """Symmetric sparse matrix of Euclidean edge lengths for ``edges`` (E, 2) in either direction."""
+    points = np.asarray(points, dtype=np.float64)
+    return _adjacency(points, _undirected(np.asarray(edges), len(points)))
 
 
 def geodesic_distances(graph: Graph, sources: Tensor) -> Tensor:
@@ -20,9 +27,7 @@ def geodesic_distances(graph: Graph, sources: Tensor) -> Tensor:
     are about 0-1 on any mesh whatever its size in millimetres.
     """
     pos = graph.positions.detach().double().numpy()
-    src, dst = graph.edge_index.numpy()
-    lengths = np.linalg.norm(pos[src] - pos[dst], axis=1)
-    adjacency = sp.csr_matrix((lengths, (src, dst)), shape=(graph.num_nodes, graph.num_nodes))
-    d = dijkstra(adjacency, directed=False, indices=np.asarray(sources, np.int64).reshape(-1))
+    adjacency = edge_length_graph(pos, graph.edge_index.numpy().T)
+    d = dijkstra(adjacency, directed=True, indices=np.asarray(sources, np.int64).reshape(-1))
     scale = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0)))
     return torch.as_tensor(d / scale, dtype=torch.float32)

@@ -47,8 +47,11 @@ class GCNGRUCell(nn.Module):
         """``conv_x(x)``: the input half of every gate, ``(B, N, 3H)`` (independent of ``h``)."""
         return self.conv_x(x, graph)
 
-    def step(self, gx: Tensor, h: Tensor | None, graph: Graph) -> Tensor:
-        """The update from precomputed input gates ``gx`` (see :meth:`input_gates`)."""
+    def step(self, gx: Tensor, h: Tensor | None, graph: Graph, kernels: Tensor | None = None) -> Tensor:
+        """The update from precomputed input gates ``gx`` (see :meth:`input_gates`).
+
+        ``kernels``: ``conv_h.edge_kernels(graph)``, computed once per sequence by the caller.
+        """
         hs = self.hidden_size
         if h is None:
             # conv_h(0) is its bias alone; skip the convolution
@@ -57,7 +60,7 @@ class GCNGRUCell(nn.Module):
         else:
             if h.shape != (*gx.shape[:-1], hs):
                 raise InputError(f"hidden state must have shape {(*gx.shape[:-1], hs)}, got {tuple(h.shape)}")
-            gh = self.conv_h(h, graph)
+            gh = self.conv_h(h, graph, kernels)
         r, z = torch.sigmoid(gx[..., : 2 * hs] + gh[..., : 2 * hs]).chunk(2, dim=-1)
         n = torch.tanh(gx[..., 2 * hs :] + r * gh[..., 2 * hs :])
         return (1 - z) * n + z * h
@@ -73,7 +76,7 @@ class GCNGRU(nn.Module):
     """A :class:`GCNGRUCell` run over a sequence ``x (B, T, N, in) -> (B, T, N, H)`` (all hidden states).
 
     The input convolutions of all frames run as one batch; only the hidden
-    convolution is sequential.
+    convolution is sequential (its edge kernels are interpolated once).
     """
 
     def __init__(self, input_size: int, hidden_size: int, dim: int = 3, kernel_size: int = 3) -> None:
@@ -92,9 +95,10 @@ class GCNGRU(nn.Module):
             )
         b, t, n, c = x.shape
         gx = self.cell.input_gates(x.reshape(b * t, n, c), graph).view(b, t, n, -1)
+        kernels = self.cell.conv_h.edge_kernels(graph)  # the same weights at every step
         h, states = h0, []
         for k in range(t):
-            h = self.cell.step(gx[:, k], h, graph)
+            h = self.cell.step(gx[:, k], h, graph, kernels)
             states.append(h)
         return torch.stack(states, dim=1)
 

@@ -9,12 +9,30 @@ r"""Continuous B-spline kernel graph convolution (SplineCNN, Fey et al. 2018), d
 with :math:`u_{ji} \in [0,1]^D` the edge pseudo-coordinates and
 :math:`W(u)` the multilinear interpolation of ``kernel_size**D`` weight
 matrices on a regular grid of knots (open B-splines of degree 1).
+
+Two evaluations of the same map:
+
+* ``"edges"``: gather :math:`x_j` per edge, one small matmul per edge
+  (``bmm``), scatter-add to :math:`i`. Its ``(E, B, C)`` intermediates make it
+  memory-bound when channels are few and the batch is large.
+* ``"sparse"``: the layer as one block-sparse matrix :math:`L` of shape
+  ``(N out, N in)`` (block ``(i, j)`` = :math:`W(u_{ji})/|\mathcal N(i)|`, diagonal
+  blocks :math:`W_{root}`) times the features laid out ``(N in, B)``: a CSR
+  product with no per-edge intermediates (9x faster forward on a 2k-node mesh
+  with 8 channels and 55 frames). The backward pass multiplies by :math:`L^T`
+  for the input gradient and samples :math:`g x^T` on :math:`L`'s pattern
+  (SDDMM) for the kernels.
+
+``"auto"`` (the default) takes ``"sparse"`` when ``in * out <= 256`` (the fine
+levels of a hierarchy), ``"edges"`` otherwise (measured crossover).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 import weakref
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
@@ -25,9 +43,12 @@ from shared.errors import InputError
 __all__ = ["spline_basis", "interpolation_matrix", "SplineConv"]
 
 _AGGREGATIONS = ("mean", "add")
+_METHODS = ("auto", "edges", "sparse")
+_SPARSE_MAX_KERNEL = 256  # "auto" uses the block-sparse product up to in * out of this size
 
 # interpolation matrices per graph: the basis costs more than the kernel matmul, and graphs are reused
 _INTERPOLATION_CACHE: weakref.WeakKeyDictionary[Graph, dict[tuple, Tensor]] = weakref.WeakKeyDictionary()
+_PATTERN_CACHE: weakref.WeakKeyDictionary[Graph, dict[tuple, "_BlockPattern"]] = weakref.WeakKeyDictionary()
 
 
 def spline_basis(pseudo: Tensor, kernel_size: int = 3, degree: int = 1) -> tuple[Tensor, Tensor]:
@@ -91,6 +112,99 @@ def interpolation_matrix(graph: Graph, kernel_size: int = 3, dtype: torch.dtype 
     return interp
 
 
+# the CSR product warns once per process that sparse CSR support is "beta"; it is tested here
+warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta", category=UserWarning)
+
+
+@dataclass(frozen=True)
+class _BlockPattern:
+    """Structure of a layer's block-sparse matrix on one graph, for given channel counts.
+
+    Entry ``m`` is the ``(in, out)`` block from node ``src[m]`` to ``dst[m]``
+    (the graph's edges, then one self-loop per node when the layer has a root
+    weight); ``inverse`` maps each scalar of the stacked blocks to its CSR value
+    (blocks of repeated edges add up), ``order_t`` the CSR values to those of
+    the transpose.
+    """
+
+    nodes: int
+    cin: int
+    cout: int
+    src: Tensor
+    dst: Tensor
+    degree: Tensor
+    inverse: Tensor
+    crow: Tensor
+    col: Tensor
+    crow_t: Tensor
+    col_t: Tensor
+    order_t: Tensor
+
+
+def _block_pattern(graph: Graph, cin: int, cout: int, root: bool) -> _BlockPattern:
+    """The (cached) CSR structure of a layer with ``cin -> cout`` channels on ``graph``."""
+    key = (cin, cout, root)
+    cache = _PATTERN_CACHE.setdefault(graph, {})
+    if key in cache:
+        return cache[key]
+    n = graph.num_nodes
+    src, dst = graph.edge_index[0], graph.edge_index[1]
+    degree = torch.bincount(dst, minlength=n).clamp_(min=1)
+    if root:
+        loop = torch.arange(n)
+        src, dst = torch.cat([src, loop]), torch.cat([dst, loop])
+    c, o = torch.arange(cin).view(1, -1, 1), torch.arange(cout).view(1, 1, -1)
+    rows = (dst.view(-1, 1, 1) * cout + o).expand(-1, cin, cout).reshape(-1)
+    cols = (src.view(-1, 1, 1) * cin + c).expand(-1, cin, cout).reshape(-1)
+    keys, inverse = torch.unique(rows * (n * cin) + cols, sorted=True, return_inverse=True)
+    row, col = keys // (n * cin), keys % (n * cin)
+    order_t = torch.argsort(col * (n * cout) + row)
+    pattern = _BlockPattern(
+        n, cin, cout, src, dst, degree, inverse,
+        crow=_row_pointers(row, n * cout), col=col,
+        crow_t=_row_pointers(col, n * cin), col_t=row[order_t], order_t=order_t,
+    )
+    cache[key] = pattern
+    return pattern
+
+
+def _row_pointers(rows: Tensor, n_rows: int) -> Tensor:
+    """CSR row pointers of sorted row indices."""
+    return torch.cat([rows.new_zeros(1), torch.bincount(rows, minlength=n_rows).cumsum(0)])
+
+
+class _BlockSparseProduct(torch.autograd.Function):
+    """``y = L x`` for ``x`` laid out ``(N in, B)`` and ``L`` assembled from per-entry blocks ``(M, in, out)``."""
+
+    @staticmethod
+    def forward(ctx, x: Tensor, blocks: Tensor, pattern: _BlockPattern) -> Tensor:  # type: ignore[override]
+        values = blocks.new_zeros(len(pattern.col)).index_add_(0, pattern.inverse, blocks.reshape(-1))
+        shape = (pattern.nodes * pattern.cout, pattern.nodes * pattern.cin)
+        y = torch.sparse_csr_tensor(pattern.crow, pattern.col, values, shape, check_invariants=False) @ x
+        ctx.save_for_backward(x, values)
+        ctx.pattern = pattern
+        return y
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_y: Tensor) -> tuple[Tensor | None, Tensor | None, None]:  # type: ignore[override]
+        x, values = ctx.saved_tensors
+        p: _BlockPattern = ctx.pattern
+        grad_y = grad_y.contiguous()
+        grad_x = grad_blocks = None
+        if ctx.needs_input_grad[0]:
+            shape = (p.nodes * p.cin, p.nodes * p.cout)
+            transpose = torch.sparse_csr_tensor(p.crow_t, p.col_t, values[p.order_t], shape, check_invariants=False)
+            grad_x = transpose @ grad_y
+        if ctx.needs_input_grad[1]:
+            # d loss / d L is (grad_y x^T) sampled on L's pattern (SDDMM); every block sharing a value gets it
+            shape = (p.nodes * p.cout, p.nodes * p.cin)
+            pattern = torch.sparse_csr_tensor(p.crow, p.col, values, shape, check_invariants=False)
+            grad_values = torch.sparse.sampled_addmm(pattern, grad_y, x.t(), beta=0.0).values()
+            grad_blocks = grad_values[p.inverse].view(-1, p.cin, p.cout)
+        return grad_x, grad_blocks, None
+
+
 class SplineConv(nn.Module):
     """Spline-based graph convolution on batched node features ``(B, N, C)``.
 
@@ -103,6 +217,8 @@ class SplineConv(nn.Module):
     aggr : ``"mean"`` (over incoming edges) or ``"add"``.
     root_weight : add the node's own term :math:`x_i W_{root}`.
     bias : add a learnable bias.
+    method : ``"auto"``, ``"edges"`` or ``"sparse"`` (module docstring); every
+        method computes the same map with the same parameters.
     """
 
     def __init__(
@@ -115,12 +231,15 @@ class SplineConv(nn.Module):
         aggr: str = "mean",
         root_weight: bool = True,
         bias: bool = True,
+        method: str = "auto",
     ) -> None:
         super().__init__()
         if degree != 1:
             raise InputError(f"SplineConv supports degree=1 only, got degree={degree}")
         if aggr not in _AGGREGATIONS:
             raise InputError(f"aggr must be one of {_AGGREGATIONS}, got {aggr!r}")
+        if method not in _METHODS:
+            raise InputError(f"method must be one of {_METHODS}, got {method!r}")
         if min(in_channels, out_channels, dim) < 1 or kernel_size < 2:
             raise InputError(
                 f"need in/out channels >= 1, dim >= 1, kernel_size >= 2; got {in_channels}, {out_channels}, "
@@ -128,10 +247,17 @@ class SplineConv(nn.Module):
             )
         self.in_channels, self.out_channels = in_channels, out_channels
         self.dim, self.kernel_size, self.degree, self.aggr = dim, kernel_size, degree, aggr
+        self.method = self.auto_method(in_channels, out_channels) if method == "auto" else method
+        self._kernel_cache: weakref.WeakKeyDictionary[Graph, tuple[tuple, Tensor]] = weakref.WeakKeyDictionary()
         self.weight = nn.Parameter(torch.empty(kernel_size**dim, in_channels, out_channels))
         self.root = nn.Parameter(torch.empty(in_channels, out_channels)) if root_weight else None
         self.bias = nn.Parameter(torch.empty(out_channels)) if bias else None
         self.reset_parameters()
+
+    @staticmethod
+    def auto_method(in_channels: int, out_channels: int) -> str:
+        """The method ``"auto"`` picks: the block-sparse product for small kernels (measured crossover)."""
+        return "sparse" if in_channels * out_channels <= _SPARSE_MAX_KERNEL else "edges"
 
     def reset_parameters(self) -> None:
         """PyG initialisation: kernels U(+-1/sqrt(K^D in)), root U(+-1/sqrt(in)), bias 0."""
@@ -144,22 +270,48 @@ class SplineConv(nn.Module):
             nn.init.zeros_(self.bias)
 
     def edge_kernels(self, graph: Graph) -> Tensor:
-        """Interpolated kernel of every edge, ``(E, in, out)``."""
+        """Interpolated kernel of every edge, ``(E, in, out)``.
+
+        Without autograd (inference) the kernels are kept per graph until the
+        weights change (their version counter moves on every in-place update).
+        """
+        if torch.is_grad_enabled():
+            return self._interpolate_kernels(graph)
+        key = (self.weight._version, self.weight.data_ptr(), torch.is_inference_mode_enabled())
+        cached = self._kernel_cache.get(graph)
+        if cached is None or cached[0] != key:
+            cached = self._kernel_cache[graph] = (key, self._interpolate_kernels(graph))
+        return cached[1]
+
+    def _interpolate_kernels(self, graph: Graph) -> Tensor:
         n_knots = self.weight.shape[0]
         interp = interpolation_matrix(graph, self.kernel_size, self.weight.dtype)
         return (interp @ self.weight.view(n_knots, -1)).view(-1, self.in_channels, self.out_channels)
 
-    def forward(self, x: Tensor, graph: Graph) -> Tensor:
-        """``(B, N, in) -> (B, N, out)`` on ``graph`` (N nodes)."""
+    def forward(self, x: Tensor, graph: Graph, kernels: Tensor | None = None) -> Tensor:
+        """``(B, N, in) -> (B, N, out)`` on ``graph`` (N nodes).
+
+        ``kernels``: this layer's :meth:`edge_kernels` on ``graph``, computed once
+        by a caller that applies the layer many times with the same weights
+        (a recurrent cell over time steps).
+        """
         if x.dim() != 3 or x.shape[1] != graph.num_nodes or x.shape[2] != self.in_channels:
             raise InputError(
                 f"SplineConv expects x of shape (B, {graph.num_nodes}, {self.in_channels}), got {tuple(x.shape)}"
             )
         if graph.pseudo.shape[1] != self.dim:
             raise InputError(f"graph pseudo-coordinates have {graph.pseudo.shape[1]} dims, layer expects {self.dim}")
+        if kernels is None:
+            kernels = self.edge_kernels(graph)
+        out = self._edges(x, graph, kernels) if self.method == "edges" else self._sparse(x, graph, kernels)
+        if self.bias is not None:
+            out = out + self.bias
+        return out.contiguous()
+
+    def _edges(self, x: Tensor, graph: Graph, kernel: Tensor) -> Tensor:
+        """Gather, per-edge matmul, scatter-add."""
         batch, n, _ = x.shape
         src, dst = graph.edge_index[0], graph.edge_index[1]
-        kernel = self.edge_kernels(graph)
         # node-major (N, B, C): gathers and scatters move whole contiguous rows (measured fastest on CPU)
         xt = x.transpose(0, 1).contiguous()
         xj = xt.index_select(0, src)  # (E, B, in)
@@ -171,13 +323,23 @@ class SplineConv(nn.Module):
             out = out / degree.view(n, 1, 1)
         if self.root is not None:
             out = torch.addmm(out.view(n * batch, -1), xt.view(n * batch, -1), self.root).view(n, batch, -1)
-        if self.bias is not None:
-            out = out + self.bias
-        return out.transpose(0, 1).contiguous()
+        return out.transpose(0, 1)
+
+    def _sparse(self, x: Tensor, graph: Graph, blocks: Tensor) -> Tensor:
+        """One block-sparse CSR product ``(N out, N in) @ (N in, B)``."""
+        batch, n, cin = x.shape
+        pattern = _block_pattern(graph, cin, self.out_channels, self.root is not None)
+        if self.aggr == "mean":
+            blocks = blocks / pattern.degree[graph.edge_index[1]].to(blocks.dtype).view(-1, 1, 1)
+        if self.root is not None:
+            blocks = torch.cat([blocks, self.root.expand(n, cin, self.out_channels)])
+        cols = x.permute(1, 2, 0).reshape(n * cin, batch)
+        y = _BlockSparseProduct.apply(cols, blocks, pattern)
+        return y.view(n, self.out_channels, batch).permute(2, 0, 1)
 
     def extra_repr(self) -> str:
         return (
             f"{self.in_channels}, {self.out_channels}, dim={self.dim}, kernel_size={self.kernel_size}, "
             f"degree={self.degree}, aggr={self.aggr!r}, root_weight={self.root is not None}, "
-            f"bias={self.bias is not None}"
+            f"bias={self.bias is not None}, method={self.method!r}"
         )

@@ -93,13 +93,17 @@ def test_kernels_are_trilinear_interpolation_of_the_knot_weights(kernel_size):
     np.testing.assert_allclose(kernels.numpy(), reference, rtol=1e-5, atol=1e-5)  # pseudo is float32
 
 
+METHODS = ("edges", "sparse")
+
+
+@pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize(
     "aggr, root_weight, bias, cin, cout",
     [("mean", True, True, 3, 4), ("add", False, True, 1, 2), ("mean", True, False, 2, 1)],
 )
-def test_matches_direct_per_edge_formula(aggr, root_weight, bias, cin, cout):
+def test_matches_direct_per_edge_formula(aggr, root_weight, bias, cin, cout, method):
     graph = _random_graph(12, 30, seed=2, isolated=2)
-    conv = SplineConv(cin, cout, aggr=aggr, root_weight=root_weight, bias=bias).double()
+    conv = SplineConv(cin, cout, aggr=aggr, root_weight=root_weight, bias=bias, method=method).double()
     _randomise(conv)
     x = torch.randn(3, 12, cin, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
     out = conv(x, graph)
@@ -108,18 +112,20 @@ def test_matches_direct_per_edge_formula(aggr, root_weight, bias, cin, cout):
     torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-10)
 
 
-def test_float32_matches_float64_formula():
+@pytest.mark.parametrize("method", METHODS)
+def test_float32_matches_float64_formula(method):
     graph = _random_graph(15, 40, seed=4)
-    conv = SplineConv(4, 5)
+    conv = SplineConv(4, 5, method=method)
     _randomise(conv)
     x = torch.randn(2, 15, 4)
     ref = _direct_conv(x, graph, conv.weight, conv.root, conv.bias)
     torch.testing.assert_close(conv(x, graph).double(), ref, rtol=1e-4, atol=1e-4)
 
 
-def test_isolated_nodes_get_root_term_and_bias_only():
+@pytest.mark.parametrize("method", METHODS)
+def test_isolated_nodes_get_root_term_and_bias_only(method):
     graph = _random_graph(10, 20, seed=5, isolated=3)
-    conv = SplineConv(2, 3).double()
+    conv = SplineConv(2, 3, method=method).double()
     _randomise(conv)
     x = torch.randn(2, 10, 2, dtype=torch.float64)
     out = conv(x, graph)
@@ -148,9 +154,10 @@ def test_batch_items_are_independent():
         torch.testing.assert_close(out[b : b + 1], conv(x[b : b + 1], graph))
 
 
-def test_gradcheck():
+@pytest.mark.parametrize("method", METHODS)
+def test_gradcheck(method):
     graph = _random_graph(6, 9, seed=8)
-    conv = SplineConv(2, 3).double()
+    conv = SplineConv(2, 3, method=method).double()
     _randomise(conv)
     x = torch.randn(2, 6, 2, dtype=torch.float64, requires_grad=True)
 
@@ -172,16 +179,43 @@ def test_interpolation_matrix_is_cached_per_graph_and_dtype():
     torch.testing.assert_close(a.sum(1), torch.ones(graph.num_edges))
 
 
-def test_graph_without_edges():
+@pytest.mark.parametrize("method", METHODS)
+def test_graph_without_edges(method):
     graph = Graph.from_edges(np.random.default_rng(0).normal(size=(4, 3)), np.zeros((0, 2), dtype=int))
-    conv = SplineConv(2, 3)
+    conv = SplineConv(2, 3, method=method)
     x = torch.randn(2, 4, 2)
     torch.testing.assert_close(conv(x, graph), x @ conv.root + conv.bias)
 
 
+def test_methods_agree_in_values_and_gradients_with_repeated_edges():
+    base = _random_graph(20, 60, seed=10, isolated=2)
+    repeated = base.edge_index[:, :5]
+    graph = Graph(torch.cat([base.edge_index, repeated], 1), torch.cat([base.pseudo, base.pseudo[:5]]),
+                  base.num_nodes, base.positions)
+    x = torch.randn(4, 20, 3, dtype=torch.float64, requires_grad=True)
+    results = []
+    for method in METHODS:
+        conv = SplineConv(3, 2, method=method).double()
+        _randomise(conv)
+        out = conv(x, graph)
+        grads = torch.autograd.grad(out.sin().sum(), [x, *conv.parameters()])
+        results.append((out, grads))
+    (a, ga), (b, gb) = results
+    torch.testing.assert_close(a, b)
+    for u, v in zip(ga, gb):
+        torch.testing.assert_close(u, v)
+
+
+def test_auto_method_takes_the_sparse_product_for_small_kernels():
+    assert SplineConv(8, 8).method == "sparse" and SplineConv(2, 8).method == "sparse"
+    assert SplineConv(32, 16).method == "edges" and SplineConv(64, 32).method == "edges"
+
+
 def test_repr_and_parameter_shapes():
     conv = SplineConv(3, 5, kernel_size=4, aggr="add", bias=False)
-    assert repr(conv) == "SplineConv(3, 5, dim=3, kernel_size=4, degree=1, aggr='add', root_weight=True, bias=False)"
+    assert repr(conv) == (
+        "SplineConv(3, 5, dim=3, kernel_size=4, degree=1, aggr='add', root_weight=True, bias=False, method='sparse')"
+    )
     assert conv.weight.shape == (64, 3, 5) and conv.root.shape == (3, 5) and conv.bias is None
     assert sum(p.numel() for p in conv.parameters()) == 64 * 15 + 15
 
@@ -193,6 +227,8 @@ def test_bad_input_is_refused():
         spline_basis(torch.rand(3, 3), degree=3)
     with pytest.raises(InputError, match="aggr"):
         SplineConv(2, 2, aggr="max")
+    with pytest.raises(InputError, match="method"):
+        SplineConv(2, 2, method="dense")
     with pytest.raises(InputError, match=r"\[0, 1\]"):
         spline_basis(torch.tensor([[0.5, 1.2, 0.0]]))
     with pytest.raises(InputError, match=r"\(E, D\)"):
