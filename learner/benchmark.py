@@ -159,7 +159,8 @@ def calibration(model, view: StoreView, subjects: list[str], cfg: BenchmarkConfi
       observed values: the subject's own misfit, known without the targets.
       ``NOISE_DRAWS`` noise draws per ``c``.
     """
-    inside, inside_c, width, width_c, n = 0.0, 0.0, 0.0, 0.0, 0
+    tally = {"noise": np.zeros(2), "c": np.zeros(2)}  # values inside the band, summed band width
+    n = 0
     g = torch.Generator().manual_seed(cfg.seed)
     for si, subject in enumerate(subjects):
         mesh_id = view.mesh_of[subject]
@@ -178,17 +179,13 @@ def calibration(model, view: StoreView, subjects: list[str], cfg: BenchmarkConfi
         noisy = targets.unsqueeze(1) + noise_scale * torch.randn((cfg.samples, NOISE_DRAWS, *targets.shape[1:]),
                                                                  generator=g)  # fmt: skip
         truth = ep.target_u
-        for band, tally in ((targets, "c"), (noisy.flatten(0, 1), "noise")):
+        for name, band in (("c", targets), ("noise", noisy.flatten(0, 1))):
             lo, hi = torch.quantile(band, 0.05, dim=0), torch.quantile(band, 0.95, dim=0)
-            hits, span = float(((truth >= lo) & (truth <= hi)).float().sum()), float((hi - lo).sum())
-            if tally == "c":
-                inside_c, width_c = inside_c + hits, width_c + span
-            else:
-                inside, width = inside + hits, width + span
+            tally[name] += (float(((truth >= lo) & (truth <= hi)).sum()), float((hi - lo).sum()))
         n += truth.numel()
-    n = max(n, 1)
-    return {"coverage_90": inside / n, "mean_band_width": width / n, "coverage_90_c_only": inside_c / n,
-            "mean_band_width_c_only": width_c / n, "samples": cfg.samples, "subjects": len(subjects)}  # fmt: skip
+    (inside, width), (inside_c, width_c) = tally["noise"] / max(n, 1), tally["c"] / max(n, 1)
+    return {"coverage_90": float(inside), "mean_band_width": float(width), "coverage_90_c_only": float(inside_c),
+            "mean_band_width_c_only": float(width_c), "samples": cfg.samples, "subjects": len(subjects)}  # fmt: skip
 
 
 def real_data(model, config, cfg: BenchmarkConfig) -> dict:

@@ -18,13 +18,14 @@ Two evaluations of the same map:
 * ``"sparse"``: the layer as one block-sparse matrix :math:`L` of shape
   ``(N out, N in)`` (block ``(i, j)`` = :math:`W(u_{ji})/|\mathcal N(i)|`, diagonal
   blocks :math:`W_{root}`) times the features laid out ``(N in, B)``: a CSR
-  product with no per-edge intermediates (9x faster forward on a 2k-node mesh
-  with 8 channels and 55 frames). The backward pass multiplies by :math:`L^T`
+  product with no per-edge intermediates (9x faster forward on one thread for
+  8 channels x 55 frames on a 2k-node mesh). The backward pass multiplies by :math:`L^T`
   for the input gradient and samples :math:`g x^T` on :math:`L`'s pattern
   (SDDMM) for the kernels.
 
 ``"auto"`` (the default) takes ``"sparse"`` when ``in * out <= 256`` (the fine
-levels of a hierarchy), ``"edges"`` otherwise (measured crossover).
+levels of a hierarchy), ``"edges"`` otherwise (crossover measured on one thread;
+``bench/surrogate.py`` compares both on whole models).
 """
 
 from __future__ import annotations
@@ -120,18 +121,16 @@ warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta"
 class _BlockPattern:
     """Structure of a layer's block-sparse matrix on one graph, for given channel counts.
 
-    Entry ``m`` is the ``(in, out)`` block from node ``src[m]`` to ``dst[m]``
-    (the graph's edges, then one self-loop per node when the layer has a root
-    weight); ``inverse`` maps each scalar of the stacked blocks to its CSR value
-    (blocks of repeated edges add up), ``order_t`` the CSR values to those of
-    the transpose.
+    The blocks are the graph's edges, then one self-loop per node when the
+    layer has a root weight; ``inverse`` maps each scalar of the stacked
+    ``(M, in, out)`` blocks to its CSR value (blocks of repeated edges add up),
+    ``order_t`` the CSR values to those of the transpose; ``degree`` counts
+    each node's incoming edges (at least 1) for mean aggregation.
     """
 
     nodes: int
     cin: int
     cout: int
-    src: Tensor
-    dst: Tensor
     degree: Tensor
     inverse: Tensor
     crow: Tensor
@@ -160,7 +159,7 @@ def _block_pattern(graph: Graph, cin: int, cout: int, root: bool) -> _BlockPatte
     row, col = keys // (n * cin), keys % (n * cin)
     order_t = torch.argsort(col * (n * cout) + row)
     pattern = _BlockPattern(
-        n, cin, cout, src, dst, degree, inverse,
+        n, cin, cout, degree, inverse,
         crow=_row_pointers(row, n * cout), col=col,
         crow_t=_row_pointers(col, n * cin), col_t=row[order_t], order_t=order_t,
     )
