@@ -11,6 +11,7 @@ with :math:`S` the identity when the widths match and a bias-free 1x1
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor, nn
 from torch.nn.functional import elu
 
@@ -48,8 +49,25 @@ class ResidualGraphBlock(nn.Module):
             self.skip.reset_parameters()
 
     def forward(self, x: Tensor, graph: Graph) -> Tensor:
+        if not torch.is_grad_enabled() and self.conv1.method == self.conv2.method == "sparse":
+            return self._forward_columns(x, graph)
         y = self.conv2(elu(self.conv1(x, graph)), graph) + self.skip(x)
         return elu(y) if self.activation else y
+
+    def _forward_columns(self, x: Tensor, graph: Graph) -> Tensor:
+        """Inference with both convolutions on the ``(N C, B)`` layout: one transpose in, none out.
+
+        Returns a ``(B, N, out)`` view of the column-layout result, so a next
+        block on the same layout reads it without a copy.
+        """
+        b, n, cin = x.shape
+        cols = x.permute(1, 2, 0).reshape(n * cin, b)
+        h = elu(self.conv1.columns(cols, graph), inplace=True)
+        y = self.conv2.columns(h, graph).view(n, self.out_channels, b)
+        y += self.skip(x).permute(1, 2, 0)
+        if self.activation:
+            elu(y, inplace=True)
+        return y.permute(2, 0, 1)
 
     def extra_repr(self) -> str:
         return f"{self.in_channels}, {self.out_channels}, activation={self.activation}"

@@ -38,6 +38,21 @@ def test_matches_direct_formula(graph, cin, cout, activation):
     torch.testing.assert_close(out, expected)
 
 
+@pytest.mark.parametrize("cin, cout, activation", [(3, 5, True), (4, 4, True), (4, 2, False)])
+def test_inference_on_the_column_layout_matches_training_path(graph, cin, cout, activation):
+    block = ResidualGraphBlock(cin, cout, activation=activation).double()
+    _randomise(block)
+    assert block.conv1.method == block.conv2.method == "sparse"
+    x = torch.randn(3, 15, cin, dtype=torch.float64)
+    expected = block(x, graph)
+    with torch.no_grad():
+        out = block(x, graph)
+        chained = block(out, graph) if cin == cout else None  # reads the column-layout view it returned
+    torch.testing.assert_close(out, expected)
+    if chained is not None:
+        torch.testing.assert_close(chained, block(expected, graph).detach())
+
+
 def test_skip_is_identity_when_widths_match(graph):
     block = ResidualGraphBlock(4, 4).double()
     assert isinstance(block.skip, torch.nn.Identity)

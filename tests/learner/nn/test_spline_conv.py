@@ -206,6 +206,48 @@ def test_methods_agree_in_values_and_gradients_with_repeated_edges():
         torch.testing.assert_close(u, v)
 
 
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("cin, cout, batch", [(3, 3, 4), (3, 3, 40), (3, 2, 40)])  # CSR, block-CSR, CSR
+def test_inference_operator_matches_the_training_path(method, cin, cout, batch):
+    graph = _random_graph(20, 60, seed=11, isolated=2)
+    conv = SplineConv(cin, cout, method=method).double()
+    _randomise(conv)
+    x = torch.randn(batch, 20, cin, dtype=torch.float64)
+    expected = _direct_conv(x, graph, conv.weight, conv.root, conv.bias)
+    with torch.no_grad():
+        out = conv(x, graph)
+        cols = conv.columns(x.permute(1, 2, 0).reshape(20 * cin, batch), graph)
+        layout = conv.operator(graph, batch).layout
+    torch.testing.assert_close(out, expected)
+    torch.testing.assert_close(cols.view(20, cout, batch).permute(2, 0, 1), expected)
+    assert layout == (torch.sparse_bsr if cin == cout and batch >= 32 else torch.sparse_csr)
+
+
+def test_inference_caches_follow_the_weights():
+    graph = _random_graph(12, 30, seed=12)
+    conv = SplineConv(2, 2)
+    x = torch.randn(3, 12, 2)
+    opt = torch.optim.SGD(conv.parameters(), lr=0.5)
+    for _ in range(2):
+        with torch.no_grad():
+            before = conv(x, graph)
+            assert conv.operator(graph) is conv.operator(graph)  # kept while the weights stand still
+        conv(x, graph).square().sum().backward()  # with autograd: no cache, fresh kernels
+        opt.step()
+        opt.zero_grad()
+        with torch.no_grad():
+            after = conv(x, graph)
+        expected = _direct_conv(x, graph, conv.weight, conv.root, conv.bias).float()
+        torch.testing.assert_close(after, expected, rtol=1e-4, atol=1e-4)
+        assert not torch.allclose(after, before)
+    with torch.no_grad():
+        conv.root.mul_(2.0)  # the root block is part of the operator too
+        expected = _direct_conv(x, graph, conv.weight, conv.root, conv.bias).float()
+        torch.testing.assert_close(conv(x, graph), expected, rtol=1e-4, atol=1e-4)
+    with pytest.raises(RuntimeError, match="inference"):
+        conv.operator(graph)
+
+
 def test_auto_method_takes_the_sparse_product_for_small_kernels():
     assert SplineConv(8, 8).method == "sparse" and SplineConv(2, 8).method == "sparse"
     assert SplineConv(32, 16).method == "edges" and SplineConv(64, 32).method == "edges"
