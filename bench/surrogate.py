@@ -46,14 +46,32 @@ GOALS = {"generate_batch16_ms_per_sim": 50.0, "embed_ms_per_sequence": 30.0, "lo
 
 
 def best_of(fn, repeat: int) -> float:
-    """Fastest wall time of ``repeat`` calls (after one warm-up call)."""
+    """Fastest wall time of ``repeat`` calls (after one warm-up call), waiting for a GPU to finish."""
+    sync = torch.cuda.synchronize if torch.cuda.is_available() else (lambda: None)
     fn()
     times = []
     for _ in range(repeat):
+        sync()
         t0 = time.perf_counter()
         fn()
+        sync()
         times.append(time.perf_counter() - t0)
     return min(times)
+
+
+def measure_inference(meta: MetaPNS, hier, ep, repeat: int, device: str) -> dict[str, float]:
+    """Generation (1 and 16 sites) and embedding (sets of 5 and 1) times in ms on ``device``."""
+    meta, hier = meta.to(device), hier.to(device)
+    obs, observed, sites = ep.context_obs.to(device), ep.observed.to(device), ep.target_sites.to(device)
+    rows = {}
+    with torch.no_grad():
+        c = meta.embed(obs, observed, hier).mu
+        rows["generate_ms"] = 1e3 * best_of(lambda: meta.generate(sites[:1], hier, c), repeat)
+        rows["generate_batch16_ms_per_sim"] = 1e3 * best_of(lambda: meta.generate(sites, hier, c), repeat) / 16
+        rows["embed_ms"] = 1e3 * best_of(lambda: meta.embed(obs, observed, hier), repeat)
+        rows["embed_ms_per_sequence"] = rows["embed_ms"] / len(obs)
+        rows["embed_1_ms"] = 1e3 * best_of(lambda: meta.embed(obs[:1], observed, hier), repeat)
+    return rows
 
 
 def small_store(folder: Path) -> Path:
@@ -129,6 +147,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--out", type=Path)
     p.add_argument("--context-stride", type=int, default=3, help="model.context_stride of the timed metaPNS")
+    p.add_argument("--device", default="cpu", help="another torch device (cuda): inference times there only")
     p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--no-tune", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -149,6 +168,18 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(measure_training(view, subject, hier, meta, pns, args)[0]))
         return
     ep = load_episode(view.store, subject, [0, 1, 2, 3, 4], list(range(5, 5 + 16)), "surface")
+    if args.device != "cpu":
+        rows = measure_inference(meta, hier, ep, args.repeat, args.device)
+        name = torch.cuda.get_device_name() if args.device.startswith("cuda") else args.device
+        report = (f"# Surrogate inference on {name} (torch {torch.__version__})\n\nMesh `{view.mesh_of[subject]}` "
+                  f"({n_nodes} nodes), {frames} frames.\n\n| quantity | ms | goal |\n|---|---|---|\n"
+                  + "".join(f"| {k} | {v:.3g} | {'<= ' + str(GOALS[k]) if k in GOALS else ''} |\n"
+                            for k, v in rows.items()))  # fmt: skip
+        print(report)
+        if args.out:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / f"surrogate-{args.device.split(':')[0]}.md").write_text(report)
+        return
     rows: dict[str, float] = {}
     with torch.no_grad():
         c = meta.embed(ep.context_obs, ep.observed, hier).mu

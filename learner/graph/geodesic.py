@@ -26,8 +26,8 @@ def geodesic_distances(graph: Graph, sources: Tensor) -> Tensor:
     Distances are divided by the diagonal of the graph's bounding box, so they
     are about 0-1 on any mesh whatever its size in millimetres.
     """
-    pos = graph.positions.detach().double().numpy()
-    adjacency = edge_length_graph(pos, graph.edge_index.numpy().T)
-    d = dijkstra(adjacency, directed=True, indices=np.asarray(sources, np.int64).reshape(-1))
+    pos = graph.positions.detach().double().cpu().numpy()
+    adjacency = edge_length_graph(pos, graph.edge_index.cpu().numpy().T)
+    d = dijkstra(adjacency, directed=True, indices=np.asarray(torch.as_tensor(sources).cpu(), np.int64).reshape(-1))
     scale = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0)))
-    return torch.as_tensor(d / scale, dtype=torch.float32)
+    return torch.as_tensor(d / scale, dtype=torch.float32, device=graph.edge_index.device)

@@ -37,7 +37,7 @@ class Posterior:
 
     def sample(self, generator: torch.Generator | None = None) -> Tensor:
         """One reparameterised draw ``mu + eps * sigma``."""
-        eps = torch.randn(self.mu.shape, generator=generator, dtype=self.mu.dtype)
+        eps = torch.randn(self.mu.shape, generator=generator, dtype=self.mu.dtype).to(self.mu.device)
         return self.mu + eps * torch.exp(0.5 * self.logvar)
 
 
@@ -69,8 +69,9 @@ class PNS(nn.Module):
         through mean aggregation and pooling, and the generator learns slowly).
         """
         n = hierarchy.graphs[0].num_nodes
-        x = torch.zeros(len(sites), n, 1)
-        x[torch.arange(len(sites)), sites.long(), 0] = 1.0
+        device = hierarchy.graphs[0].edge_index.device
+        x = torch.zeros(len(sites), n, 1, device=device)
+        x[torch.arange(len(sites), device=device), sites.long().to(device), 0] = 1.0
         if self.config.stimulus_distance:
             x = torch.cat([x, geodesic_distances(hierarchy.graphs[0], sites).unsqueeze(-1)], dim=-1)
         e, levels = self.stimulus_encoder.forward_levels(x, hierarchy)

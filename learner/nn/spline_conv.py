@@ -153,9 +153,9 @@ def _block_pattern(graph: Graph, cin: int, cout: int, root: bool) -> _BlockPatte
     src, dst = graph.edge_index[0], graph.edge_index[1]
     degree = torch.bincount(dst, minlength=n).clamp_(min=1)
     if root:
-        loop = torch.arange(n)
+        loop = torch.arange(n, device=dst.device)
         src, dst = torch.cat([src, loop]), torch.cat([dst, loop])
-    c, o = torch.arange(cin).view(1, -1, 1), torch.arange(cout).view(1, 1, -1)
+    c, o = torch.arange(cin, device=dst.device).view(1, -1, 1), torch.arange(cout, device=dst.device).view(1, 1, -1)
     rows = (dst.view(-1, 1, 1) * cout + o).expand(-1, cin, cout).reshape(-1)
     cols = (src.view(-1, 1, 1) * cin + c).expand(-1, cin, cout).reshape(-1)
     keys, inverse = torch.unique(rows * (n * cin) + cols, sorted=True, return_inverse=True)
