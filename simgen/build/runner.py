@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from distributed import Client, LocalCluster, as_completed
 from shared.errors import InputError
 from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
-from simgen.build.manifest import make_plan, validate_plan
+from simgen.build.manifest import Task, make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
 from simgen.build.store import consolidate, create_layout, done_flags, pending_tasks, subject_ids
 from simgen.build.worker import run_task
@@ -113,6 +114,25 @@ def build(
     return report
 
 
+def subject_workers(tasks: list[Task], workers: list[str]) -> dict[str, list[str]]:
+    """A preferred worker per subject, balancing pending chunks (largest subjects first).
+
+    A worker builds a subject's simulator (operator, eigenvalue bound, mesh and
+    tissue reads) once and keeps it, so keeping a subject's chunks on one
+    worker saves the set-up on the others; the preference is loose, so idle
+    workers still steal. Empty with fewer than two workers.
+    """
+    if len(workers) < 2:
+        return {}
+    chunks = Counter(t.subject_id for t in tasks)
+    load = dict.fromkeys(workers, 0)
+    home = {}
+    for subject, n in sorted(chunks.items(), key=lambda kv: (-kv[1], kv[0])):
+        worker = min(load, key=load.__getitem__)
+        home[subject], load[worker] = [worker], load[worker] + n
+    return home
+
+
 def run_pending(
     store: str,
     solver: SolverConfig,
@@ -137,9 +157,11 @@ def run_pending(
             report.dashboard = client.dashboard_link
             if on_start:
                 on_start(len(todo), report.dashboard)
+            home = subject_workers(todo, list(client.scheduler_info()["workers"]))
             futures = {
                 client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver,
-                              key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False): t
+                              key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
+                              workers=home.get(t.subject_id), allow_other_workers=t.subject_id in home): t
                 for t in todo
             }  # fmt: skip
             for future in as_completed(futures):

@@ -16,7 +16,7 @@ from numba import njit, prange
 __all__ = ["run_blocks"]
 
 
-@njit(cache=True, error_model="numpy", boundscheck=False)
+@njit(cache=True, error_model="numpy", boundscheck=False, fastmath={"contract"})
 def _run_block(
     indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, frames, act
 ):  # pragma: no cover - compiled
@@ -40,6 +40,16 @@ def _run_block(
             # Neighbours four at a time: one read-modify-write of lap per four CSR entries.
             p = indptr[i]
             end = indptr[i + 1]
+            while p + 8 <= end:
+                w0, w1, w2, w3 = data[p], data[p + 1], data[p + 2], data[p + 3]
+                w4, w5, w6, w7 = data[p + 4], data[p + 5], data[p + 6], data[p + 7]
+                u0, u1, u2, u3 = u[indices[p]], u[indices[p + 1]], u[indices[p + 2]], u[indices[p + 3]]
+                u4, u5, u6, u7 = u[indices[p + 4]], u[indices[p + 5]], u[indices[p + 6]], u[indices[p + 7]]
+                for c in range(b):
+                    lap[c] += ((w0 * u0[c] + w1 * u1[c]) + (w2 * u2[c] + w3 * u3[c])) + (
+                        (w4 * u4[c] + w5 * u5[c]) + (w6 * u6[c] + w7 * u7[c])
+                    )
+                p += 8
             while p + 4 <= end:
                 w0, w1, w2, w3 = data[p], data[p + 1], data[p + 2], data[p + 3]
                 u0, u1, u2, u3 = u[indices[p]], u[indices[p + 1]], u[indices[p + 2]], u[indices[p + 3]]

@@ -137,3 +137,15 @@ def test_schema_version_mismatch_is_refused(reference_store, tmp_path, tiny_spec
         build(tiny_spec(), store)
     with pytest.raises(InputError, match="not a Zarr store"):
         check_store(tmp_path)
+
+
+def test_subject_workers_balance_pending_chunks_and_keep_each_subject_on_one_worker():
+    from simgen.build.manifest import Task
+    from simgen.build.runner import subject_workers
+
+    tasks = [Task(s, c, 10 * c, 10 * c + 10) for s, n in (("a", 4), ("b", 3), ("c", 2), ("d", 1)) for c in range(n)]
+    home = subject_workers(tasks, ["w1", "w2"])
+    assert set(home) == {"a", "b", "c", "d"} and all(len(w) == 1 for w in home.values())
+    load = {w: sum(1 for t in tasks if home[t.subject_id] == [w]) for w in ("w1", "w2")}
+    assert load == {"w1": 5, "w2": 5}  # a + d on one worker, b + c on the other
+    assert subject_workers(tasks, ["w1"]) == {}
