@@ -31,6 +31,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/conduction.py --out report/bench
 	$(BIN)/python bench/build.py --out report/bench
 	$(BIN)/python bench/surrogate.py --out report/bench
+	$(BIN)/python bench/scaling.py --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -54,7 +54,7 @@ from simgen.build.manifest import make_plan
 from simgen.build.runner import build, dask_client
 from simgen.build.spec import BuildSpec, load_spec, spec_from_mapping, spec_hash, spec_to_dict
 from simgen.build.store import create_layout, write_chunk
-from simgen.build.worker import _simulator
+from simgen.build.worker import Prepared, prepare
 from simgen.tissue.defaults import default_settings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -246,15 +246,16 @@ def bench_scaling(args, tmp: Path) -> list[dict]:
     return rows
 
 
-def _worker_steps(store: Path, subject: str, sim, sites, chunk: int) -> tuple[float, float]:
+def _worker_steps(store: Path, subject: str, prepared: Prepared, chunk: int) -> tuple[float, float]:
     """``run_task`` by hand for every chunk of ``subject``: seconds in ``Simulator.run`` and in ``write_chunk``."""
+    sim, sites, arrays = prepared
     run_s = write_s = 0.0
     for c in range(-(-len(sites) // chunk)):
         start, stop = c * chunk, min((c + 1) * chunk, len(sites))
         t0 = time.perf_counter()
         res = sim.run(sites[start:stop], threads=1)
         t1 = time.perf_counter()
-        write_chunk(store, subject, c, start, stop, res.u, res.activation)
+        write_chunk(store, subject, c, start, stop, res.u, res.activation, arrays)
         t2 = time.perf_counter()
         run_s, write_s = run_s + t1 - t0, write_s + t2 - t1
     return run_s, write_s
@@ -273,10 +274,11 @@ def bench_write(args, tmp: Path) -> list[dict]:
             create_layout(store, plan, spec_to_dict(spec), spec_hash(spec))
             if rep == 0:
                 t0 = time.perf_counter()
-                sim, sites = _simulator(str(store), subject, spec.solver)  # once per subject and process, cached
+                prepared = prepare(str(store), subject, spec.solver)  # once per subject and process, as a worker
+                sim, sites = prepared.sim, prepared.sites
                 setup_s = time.perf_counter() - t0
                 sim.run(sites[:1], threads=1)  # JIT load / warm-up, untimed
-            r, w = _worker_steps(store, subject, sim, sites, chunk)
+            r, w = _worker_steps(store, subject, prepared, chunk)
             run_s, write_s = min(run_s, r), min(write_s, w)
             g = store / "subjects" / subject
             stored = sum(disk_bytes(g / name)[0] for name in ("u", "activation"))

@@ -53,7 +53,7 @@ def child_build(nodes: int, sites: int) -> dict:
     from simgen.build.manifest import make_plan
     from simgen.build.spec import spec_hash, spec_to_dict
     from simgen.build.store import create_layout, write_chunk
-    from simgen.build.worker import _simulator
+    from simgen.build.worker import prepare
 
     from simgen.meshes.ellipsoid import lv_ellipsoid
     from simgen.solver.simulate import Simulator
@@ -68,11 +68,11 @@ def child_build(nodes: int, sites: int) -> dict:
         create_layout(store, plan, spec_to_dict(spec), spec_hash(spec))
         subject = plan.subjects[0].id
         t2 = time.perf_counter()
-        sim, site_ids = _simulator(str(store), subject, spec.solver)
+        sim, site_ids, arrays = prepare(str(store), subject, spec.solver)
         t3 = time.perf_counter()
         res = sim.run(site_ids, threads=1)
         t4 = time.perf_counter()
-        write_chunk(store, subject, 0, 0, len(site_ids), res.u, res.activation)
+        write_chunk(store, subject, 0, 0, len(site_ids), res.u, res.activation, arrays)
         t5 = time.perf_counter()
         mesh = plan.meshes[plan.subjects[0].mesh_id]
         return {
@@ -159,6 +159,7 @@ def slope(rows: list[dict], x: str, y: str) -> float:
 def plot(nodes: list[dict], sites: list[dict], train: list[dict], path: Path) -> None:
     """Log-log panels: build time and memory vs nodes and vs sites, training step vs nodes."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -177,6 +178,8 @@ def plot(nodes: list[dict], sites: list[dict], train: list[dict], path: Path) ->
     ax.loglog([r["nodes"] for r in train], [r["peak_rss_mb"] / 1e3 for r in train], "s--", label="peak RSS (GB)")
     ax.set(xlabel="mesh nodes", title="metaPNS training episode, 1 thread")
     for ax in axes:
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()

@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import warnings
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -321,7 +322,7 @@ class SplineConv(nn.Module):
             y.view(graph.num_nodes, self.out_channels, -1).add_(self.bias.view(1, -1, 1))
         return y
 
-    def _cached(self, graph: Graph, name: str, build) -> Tensor:
+    def _cached(self, graph: Graph, name: str, build: Callable[[], Tensor]) -> Tensor:
         """``build()``, kept per graph and ``name`` until a weight changes.
 
         The key is each weight's version counter (it moves on every in-place

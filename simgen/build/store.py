@@ -178,14 +178,31 @@ def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) 
             arr[...] = np.asarray(idx, np.int32)
 
 
-def write_chunk(
-    path: str | Path, subject_id: str, chunk: int, start: int, stop: int, u: NDArray, activation: NDArray
-) -> None:
-    """Worker: write one chunk of sites, then (only then) its completion flag."""
+def result_arrays(path: str | Path, subject_id: str) -> tuple[zarr.Array, zarr.Array, zarr.Array]:
+    """A subject's ``u``, ``activation`` and ``done`` arrays, opened for writing (a worker keeps them)."""
     g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r+")
-    g["u"][start:stop] = u
-    g["activation"][start:stop] = activation
-    g["done"][chunk] = 1
+    return g["u"], g["activation"], g["done"]
+
+
+def write_chunk(
+    path: str | Path,
+    subject_id: str,
+    chunk: int,
+    start: int,
+    stop: int,
+    u: NDArray,
+    activation: NDArray,
+    arrays: tuple[zarr.Array, zarr.Array, zarr.Array] | None = None,
+) -> None:
+    """Worker: write one chunk of sites, then (only then) its completion flag.
+
+    ``arrays``: :func:`result_arrays` of the subject, opened once by a caller
+    that writes many chunks (saves four metadata reads per chunk).
+    """
+    u_array, activation_array, done = arrays or result_arrays(path, subject_id)
+    u_array[start:stop] = u
+    activation_array[start:stop] = activation
+    done[chunk] = 1
 
 
 def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
