@@ -159,7 +159,7 @@ class Simulator:
         n, s = mask.shape
         n_blocks = max(min(int(threads), s), -(-s // block_size))
         width = -(-s // n_blocks)
-        if width >= 8 * LANES:  # padding wastes at most 1/8 here
+        if width >= 8 * LANES:  # padding adds at most 7 columns to 64 or more
             width = -(-width // LANES) * LANES
         padded = np.zeros((n, n_blocks * width), bool)
         padded[:, :s] = mask
