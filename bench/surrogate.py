@@ -6,6 +6,8 @@
 * context embedding: q(c | Y) for a set of 1 and of 5 observed sequences;
 * both with every ``SplineConv`` on the per-edge path, then on each layer's
   default ("auto": block-sparse CSR on the narrow fine levels), side by side;
+* ``--device cuda``: generation, embedding and training on that device (the
+  loader stays on the CPU; no simulator or per-edge rows);
 * training: one episode (forward + backward + Adam) of the configured size,
   metaPNS and PNS, and the loader's episodes/s (it should outrun training >= 5x);
   the metaPNS episode again in a child process with glibc's default allocator
@@ -161,7 +163,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--out", type=Path)
     p.add_argument("--context-stride", type=int, default=3, help="model.context_stride of the timed metaPNS")
-    p.add_argument("--device", default="cpu", help="another torch device (cuda): generation, embedding and training there")
+    p.add_argument("--device", default="cpu",
+                   help="another torch device (cuda): generation, embedding and training there")
     p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--no-tune", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -182,63 +185,51 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(measure_training(view, subject, hier, meta, pns, args)[0]))
         return
     ep = load_episode(view.store, subject, [0, 1, 2, 3, 4], list(range(5, 5 + 16)), "surface")
-    if args.device != "cpu":
-        rows = measure_inference(meta, hier, ep, args.repeat, args.device)
-        train_rows, loader_eps = measure_training(view, subject, hier, meta, pns, args, args.device)
-        rows.update(train_rows, loader_episodes_per_s_cpu=loader_eps,
-                    loader_over_training=loader_eps * train_rows["train_metapns_s_per_episode"])
-        name = torch.cuda.get_device_name() if args.device.startswith("cuda") else args.device
-        report = (f"# Surrogate speed on {name} (torch {torch.__version__})\n\nMesh `{view.mesh_of[subject]}` "
-                  f"({n_nodes} nodes), {frames} frames; the loader runs on this machine's CPU.\n\n"
-                  f"| quantity | value | goal |\n|---|---|---|\n"
-                  + "".join(f"| {k} | {v:.3g} | {goal_text(k)} |\n" for k, v in rows.items()))
-        print(report)
-        if args.out:
-            args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / f"surrogate-{args.device.split(':')[0]}.md").write_text(report)
-        return
+    on_cpu = args.device == "cpu"
     rows: dict[str, float] = {}
-    with torch.no_grad():
-        c = meta.embed(ep.context_obs, ep.observed, hier).mu
-        for suffix, method in (("_edges_only", "edges"), ("", None)):  # the per-edge path everywhere, then "auto"
-            set_conv_method(meta, method)
-            rows[f"generate_ms{suffix}"] = 1e3 * best_of(lambda: meta.generate(ep.target_sites[:1], hier, c),
-                                                         args.repeat)  # fmt: skip
-            rows[f"embed_ms{suffix}"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs, ep.observed, hier),
-                                                      args.repeat)  # fmt: skip
-        rows["generate_batch16_ms_per_sim"] = 1e3 * best_of(
-            lambda: meta.generate(ep.target_sites, hier, c), args.repeat) / 16  # fmt: skip
-        rows["embed_ms_per_sequence"] = rows["embed_ms"] / len(ep.context_obs)
-        rows["embed_1_ms"] = 1e3 * best_of(lambda: meta.embed(ep.context_obs[:1], ep.observed, hier), args.repeat)
-    rows["speedup_sparse_conv_generate"] = rows["generate_ms_edges_only"] / rows["generate_ms"]
-    rows["speedup_sparse_conv_embed"] = rows["embed_ms_edges_only"] / rows["embed_ms"]
-    rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
+    if on_cpu:  # every SplineConv on the per-edge path first, for the block-sparse path's gain
+        set_conv_method(meta, "edges")
+        rows.update({f"{k}_edges_only": v for k, v in measure_inference(meta, hier, ep, args.repeat, "cpu").items()})
+        set_conv_method(meta, None)
+    rows.update(measure_inference(meta, hier, ep, args.repeat, args.device))
+    if on_cpu:
+        rows["speedup_sparse_conv_generate"] = rows["generate_ms_edges_only"] / rows["generate_ms"]
+        rows["speedup_sparse_conv_embed"] = rows["embed_ms_edges_only"] / rows["embed_ms"]
+        rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
 
-    train_rows, loader_eps = measure_training(view, subject, hier, meta, pns, args)
+    train_rows, loader_eps = measure_training(view, subject, hier, meta, pns, args, args.device)
     rows.update(train_rows)
-    child = subprocess.run([sys.executable, __file__, "--store", str(args.store), "--subject", subject,
-                            "--mesh", args.mesh, "--targets", str(args.targets), "--loss-frames", str(args.loss_frames),
-                            "--posterior-targets", str(args.posterior_targets),
-                            "--context-stride", str(args.context_stride), "--train-only", "--no-tune"],
-                           capture_output=True, text=True, check=True)  # fmt: skip
-    rows["train_metapns_s_per_episode_default_malloc"] = json.loads(child.stdout)["train_metapns_s_per_episode"]
-    rows["loader_episodes_per_s"] = loader_eps
+    if on_cpu:
+        child = subprocess.run([sys.executable, __file__, "--store", str(args.store), "--subject", subject,
+                                "--mesh", args.mesh, "--targets", str(args.targets),
+                                "--loss-frames", str(args.loss_frames),
+                                "--posterior-targets", str(args.posterior_targets),
+                                "--context-stride", str(args.context_stride), "--train-only", "--no-tune"],
+                               capture_output=True, text=True, check=True)  # fmt: skip
+        rows["train_metapns_s_per_episode_default_malloc"] = json.loads(child.stdout)["train_metapns_s_per_episode"]
+    rows["loader_episodes_per_s"] = loader_eps  # always on the CPU
     rows["loader_over_training"] = loader_eps * rows["train_metapns_s_per_episode"]
-    rows["speedup_generate_vs_simulate"] = rows["simulate_ms"] / rows["generate_ms"]
+    if on_cpu:
+        rows["speedup_generate_vs_simulate"] = rows["simulate_ms"] / rows["generate_ms"]
 
-    head = (f"# Surrogate speed (CPU: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-            f"torch {torch.__version__}, {torch.get_num_threads()} threads)\n\n"
+    if on_cpu:
+        cpu = platform.processor() or platform.machine()
+        where = f"CPU: {cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} threads"
+    else:
+        device = torch.cuda.get_device_name(args.device) if args.device.startswith("cuda") else args.device
+        where = f"{device}; the loader on the host CPU"
+    head = (f"# Surrogate speed ({where}, torch {torch.__version__})\n\n"
             f"Mesh `{view.mesh_of[subject]}` ({n_nodes} nodes, hierarchy {hier.sizes}), {frames} frames; "
             f"reference-size model ({sum(p.numel() for p in meta.parameters()):,} parameters).\n\n")  # fmt: skip
     table = "| quantity | value | goal |\n|---|---|---|\n" + "".join(
-        f"| {k} | {v:.3g} | {goal_text(k)} |\n"
-        for k, v in rows.items())  # fmt: skip
+        f"| {k} | {v:.3g} | {goal_text(k)} |\n" for k, v in rows.items())  # fmt: skip
     print(head + table)
     if args.out:
+        name = "surrogate" if on_cpu else f"surrogate-{args.device.split(':')[0]}"
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "surrogate.md").write_text(head + table)
-        (args.out / "surrogate.json").write_text(json.dumps({"rows": rows, "nodes": n_nodes, "frames": frames,
-                                                             "targets": args.targets}, indent=2))  # fmt: skip
+        (args.out / f"{name}.md").write_text(head + table)
+        summary = {"rows": rows, "nodes": n_nodes, "frames": frames, "targets": args.targets, "device": args.device}
+        (args.out / f"{name}.json").write_text(json.dumps(summary, indent=2))
     if tmp is not None:
         tmp.cleanup()
 
