@@ -10,10 +10,11 @@ Each point runs in a fresh child process (its peak RSS is the memory column):
   ``write_chunk`` - one Dask task's work, without the cluster;
 * **build vs sites**: the ~2k LV with 16 to 512 sites in one chunk;
 * **training step vs nodes**: the mesh hierarchy (5 levels down to ~40 nodes)
-  and one metaPNS training episode (forward + backward + Adam) of the default
-  model and loss (3 context and 10 target sequences of 55 frames, 12 decoded
-  frames, 3 posterior targets) on random sequences (timings do not depend on
-  the values), fastest of 2 after a warm-up.
+  and one metaPNS training episode (forward + backward + Adam) of the model
+  and loss of ``specs/train-default.toml`` (3 context sequences of 55 frames
+  and the config's targets, decoded frames, posterior targets and context
+  stride) on random sequences (timings do not depend on the values), fastest
+  of 2 after a warm-up.
 
 The time step shrinks with the mesh spacing (explicit stability), so a
 simulation costs about ``nodes^(5/3)`` on these meshes; a training episode
@@ -86,7 +87,7 @@ def child_train(nodes: int, device: str = "cpu") -> dict:
     """Hierarchy build and one metaPNS training episode on an LV of ``nodes`` (random sequences) on ``device``."""
     import torch
 
-    from learner.config import ModelConfig, TrainConfig
+    from learner.config import load_config
     from learner.data.episodes import Episode
     from learner.graph.hierarchy import hierarchy_for_mesh
     from learner.models.surrogate import MetaPNS
@@ -97,13 +98,14 @@ def child_train(nodes: int, device: str = "cpu") -> dict:
     tune_allocator()
     torch.set_num_threads(1)  # the documented training set-up: one core per model
     mesh = lv_ellipsoid(nodes, "tetra")
-    cfg, train = ModelConfig(context_stride=3), TrainConfig(loss_frames=12, posterior_targets=3)
+    config = load_config(Path(__file__).resolve().parent.parent / "specs" / "train-default.toml")
+    cfg, train = config.model, config.train
     t0 = time.perf_counter()
     hier = hierarchy_for_mesh(mesh, cfg.levels, cfg.coarsest)
     hier_s = time.perf_counter() - t0
     n = hier.graphs[0].num_nodes
     gen = torch.Generator().manual_seed(0)
-    k, m = 3, 10
+    k, m = 3, config.data.episodes.targets
     observed = torch.rand(n, generator=gen) < 0.3
     u = torch.rand(k + m, FRAMES, n, generator=gen)
     sites = torch.randperm(n, generator=gen)[: k + m]

@@ -49,7 +49,7 @@ class ResidualGraphBlock(nn.Module):
             self.skip.reset_parameters()
 
     def forward(self, x: Tensor, graph: Graph) -> Tensor:
-        if not torch.is_grad_enabled() and self.conv1.method == self.conv2.method == "sparse":
+        if not torch.is_grad_enabled() and self.conv1.inference_method == self.conv2.inference_method == "sparse":
             return self._forward_columns(x, graph)
         y = self.conv2(elu(self.conv1(x, graph)), graph) + self.skip(x)
         return elu(y) if self.activation else y

@@ -25,9 +25,10 @@ Two evaluations of the same map:
   :math:`L` per graph until the weights change, and :meth:`SplineConv.columns`
   applies it to features already in the ``(N in, B)`` layout.
 
-``"auto"`` (the default) takes ``"sparse"`` when ``in * out <= 256`` (the fine
-levels of a hierarchy), ``"edges"`` otherwise (crossover measured on one thread;
-``bench/surrogate.py`` compares both on whole models).
+``"auto"`` (the default) takes ``"sparse"`` when ``in * out <= 256`` in training
+(forward + backward) and when ``in * out <= 128`` at inference, where the
+per-edge kernels are kept and ``bmm`` wins from 16 x 16 channels on (crossovers
+measured on one thread; ``bench/surrogate.py`` compares both on whole models).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ __all__ = ["spline_basis", "interpolation_matrix", "SplineConv"]
 
 _AGGREGATIONS = ("mean", "add")
 _METHODS = ("auto", "edges", "sparse")
-_SPARSE_MAX_KERNEL = 256  # "auto" uses the block-sparse product up to in * out of this size
+_SPARSE_MAX_KERNEL = {"train": 256, "inference": 128}  # "auto": the block-sparse product up to in * out
 _BSR_MIN_BATCH = 32  # inference on square blocks: block-CSR from this many columns on
 
 # interpolation matrices per graph: the basis costs more than the kernel matmul, and graphs are reused
@@ -157,6 +158,8 @@ def _block_pattern(graph: Graph, cin: int, cout: int, root: bool) -> _BlockPatte
         loop = torch.arange(n, device=dst.device)
         src, dst = torch.cat([src, loop]), torch.cat([dst, loop])
     c, o = torch.arange(cin, device=dst.device).view(1, -1, 1), torch.arange(cout, device=dst.device).view(1, 1, -1)
+    # MKL and cuSPARSE take 32-bit indices: int64 ones are converted on every product
+    index = torch.int32 if len(src) * cin * cout < 2**31 and n * max(cin, cout) < 2**31 else torch.int64
     rows = (dst.view(-1, 1, 1) * cout + o).expand(-1, cin, cout).reshape(-1)
     cols = (src.view(-1, 1, 1) * cin + c).expand(-1, cin, cout).reshape(-1)
     keys, inverse = torch.unique(rows * (n * cin) + cols, sorted=True, return_inverse=True)
@@ -164,8 +167,8 @@ def _block_pattern(graph: Graph, cin: int, cout: int, root: bool) -> _BlockPatte
     order_t = torch.argsort(col * (n * cout) + row)
     pattern = _BlockPattern(
         n, cin, cout, degree, inverse,
-        crow=_row_pointers(row, n * cout), col=col,
-        crow_t=_row_pointers(col, n * cin), col_t=row[order_t], order_t=order_t,
+        crow=_row_pointers(row, n * cout).to(index), col=col.to(index),
+        crow_t=_row_pointers(col, n * cin).to(index), col_t=row[order_t].to(index), order_t=order_t,
     )
     cache[key] = pattern
     return pattern
@@ -228,7 +231,9 @@ class SplineConv(nn.Module):
     root_weight : add the node's own term :math:`x_i W_{root}`.
     bias : add a learnable bias.
     method : ``"auto"``, ``"edges"`` or ``"sparse"`` (module docstring); every
-        method computes the same map with the same parameters.
+        method computes the same map with the same parameters. ``"auto"`` may
+        choose differently for training and inference (:attr:`method`,
+        :attr:`inference_method`).
     """
 
     def __init__(
@@ -258,6 +263,7 @@ class SplineConv(nn.Module):
         self.in_channels, self.out_channels = in_channels, out_channels
         self.dim, self.kernel_size, self.degree, self.aggr = dim, kernel_size, degree, aggr
         self.method = self.auto_method(in_channels, out_channels) if method == "auto" else method
+        self.inference_method = self.auto_method(in_channels, out_channels, True) if method == "auto" else method
         self._inference_cache: weakref.WeakKeyDictionary[Graph, dict[str, tuple]] = weakref.WeakKeyDictionary()
         self.weight = nn.Parameter(torch.empty(kernel_size**dim, in_channels, out_channels))
         self.root = nn.Parameter(torch.empty(in_channels, out_channels)) if root_weight else None
@@ -265,9 +271,14 @@ class SplineConv(nn.Module):
         self.reset_parameters()
 
     @staticmethod
-    def auto_method(in_channels: int, out_channels: int) -> str:
-        """The method ``"auto"`` picks: the block-sparse product for small kernels (measured crossover)."""
-        return "sparse" if in_channels * out_channels <= _SPARSE_MAX_KERNEL else "edges"
+    def auto_method(in_channels: int, out_channels: int, inference: bool = False) -> str:
+        """The method ``"auto"`` picks: the block-sparse product for small kernels (measured crossovers)."""
+        limit = _SPARSE_MAX_KERNEL["inference" if inference else "train"]
+        return "sparse" if in_channels * out_channels <= limit else "edges"
+
+    def active_method(self) -> str:
+        """The method of the next call: :attr:`method` with autograd on, :attr:`inference_method` without."""
+        return self.method if torch.is_grad_enabled() else self.inference_method
 
     def reset_parameters(self) -> None:
         """PyG initialisation: kernels U(+-1/sqrt(K^D in)), root U(+-1/sqrt(in)), bias 0."""
@@ -354,7 +365,7 @@ class SplineConv(nn.Module):
             )
         if graph.pseudo.shape[1] != self.dim:
             raise InputError(f"graph pseudo-coordinates have {graph.pseudo.shape[1]} dims, layer expects {self.dim}")
-        if self.method == "edges":
+        if self.active_method() == "edges":
             out = self._edges(x, graph, self.edge_kernels(graph) if kernels is None else kernels)
         else:
             out = self._sparse(x, graph, kernels)

@@ -42,7 +42,7 @@ def test_matches_direct_formula(graph, cin, cout, activation):
 def test_inference_on_the_column_layout_matches_training_path(graph, cin, cout, activation):
     block = ResidualGraphBlock(cin, cout, activation=activation).double()
     _randomise(block)
-    assert block.conv1.method == block.conv2.method == "sparse"
+    assert block.conv1.inference_method == block.conv2.inference_method == "sparse"
     x = torch.randn(3, 15, cin, dtype=torch.float64)
     expected = block(x, graph)
     with torch.no_grad():

@@ -250,7 +250,32 @@ def test_inference_caches_follow_the_weights():
 
 def test_auto_method_takes_the_sparse_product_for_small_kernels():
     assert SplineConv(8, 8).method == "sparse" and SplineConv(2, 8).method == "sparse"
+    assert SplineConv(16, 16).method == "sparse"  # training: no per-edge intermediates to keep for backward
     assert SplineConv(32, 16).method == "edges" and SplineConv(64, 32).method == "edges"
+    assert SplineConv(8, 16).inference_method == "sparse" and SplineConv(16, 16).inference_method == "edges"
+    assert SplineConv(16, 16, method="sparse").inference_method == "sparse"  # an explicit method holds for both
+
+
+def test_inference_runs_the_inference_method(monkeypatch):
+    graph = _random_graph(20, 60, seed=5)
+    conv = SplineConv(16, 16)
+    x = torch.randn(3, 20, 16)
+    calls = []
+    monkeypatch.setattr(conv, "_edges", lambda *a: calls.append("edges") or torch.zeros(3, 20, 16))
+    monkeypatch.setattr(conv, "_sparse", lambda *a: calls.append("sparse") or torch.zeros(3, 20, 16))
+    conv(x, graph)
+    with torch.no_grad():
+        conv(x, graph)
+    assert calls == ["sparse", "edges"]
+
+
+def test_block_pattern_has_32_bit_indices():
+    """MKL / cuSPARSE multiply with 32-bit indices; int64 ones would be converted on every product."""
+    graph = _random_graph(20, 60, seed=3)
+    conv = SplineConv(4, 4)
+    with torch.no_grad():
+        op = conv.operator(graph)
+    assert op.crow_indices().dtype == op.col_indices().dtype == torch.int32
 
 
 def test_repr_and_parameter_shapes():
