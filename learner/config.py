@@ -89,6 +89,7 @@ class TrainConfig:
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
     validate_every: int = 5  # epochs between validation passes (best checkpoint kept)
+    init: str = ""  # warm start: a checkpoint of the same splits whose matching parameters start this run
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.lr <= 0 or self.lr_halve_every < 1:
@@ -112,13 +113,15 @@ class LearnerConfig:
 
 
 def config_from_mapping(data: dict, base: Path | None = None) -> LearnerConfig:
-    """Validate a mapping; relative ``out`` and ``data.store`` are resolved against ``base``."""
+    """Validate a mapping; relative ``out``, ``data.store`` and ``train.init`` are resolved against ``base``."""
     cfg = from_mapping(LearnerConfig, data)
     if not cfg.data.store:
         raise ConfigError("data.store is required: the dataset store built by `simgen build`")
     if base is not None:
         store = str((base / cfg.data.store).resolve()) if "://" not in cfg.data.store else cfg.data.store
-        cfg = replace(cfg, out=str((base / cfg.out).resolve()), data=replace(cfg.data, store=store))
+        init = str((base / cfg.train.init).resolve()) if cfg.train.init else ""
+        cfg = replace(cfg, out=str((base / cfg.out).resolve()), data=replace(cfg.data, store=store),
+                      train=replace(cfg.train, init=init))  # fmt: skip
     return cfg
 
 

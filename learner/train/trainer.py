@@ -66,6 +66,7 @@ class Trainer:
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, config.train.lr_halve_every, gamma=0.5)
         self.generator = torch.Generator().manual_seed(config.train.seed)
         self.epoch, self.history, self.best = 0, [], math.inf
+        self.warm_start = self._warm_start(Path(config.train.init)) if config.train.init else None
 
     # -- checkpoints -------------------------------------------------------
     def state(self) -> dict:
@@ -83,6 +84,21 @@ class Trainer:
             "history": self.history,
             "best_validation": self.best,
         }
+
+    def _warm_start(self, path: Path) -> dict[str, list[str]]:
+        """Copy the parameters of matching name and shape from a trained checkpoint (fine-tuning).
+
+        The checkpoint must come from the same subject splits, or its test
+        subjects could be in this run's training set. Returns the names
+        copied and those left at their fresh initialisation.
+        """
+        ckpt = load_checkpoint(path, kind="model")
+        if ckpt["splits"] != self.splits:
+            raise InputError(f"train.init {path} was trained on other subject splits (data.split must match)")
+        own = self.model.state_dict()
+        taken = {k: v for k, v in ckpt["model"].items() if k in own and own[k].shape == v.shape}
+        self.model.load_state_dict(taken, strict=False)
+        return {"copied": sorted(taken), "fresh": sorted(set(own) - set(taken))}
 
     def resume(self, path: Path) -> None:
         """Continue from a checkpoint of the same configuration."""
@@ -160,6 +176,8 @@ class Trainer:
         set_threads(cfg.threads)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "config.json").write_text(json.dumps(self.config.to_dict(), indent=2))
+        if self.warm_start is not None and self.epoch == 0:
+            (self.out / "warm_start.json").write_text(json.dumps({"init": self.config.train.init, **self.warm_start}))
         start, stopped = time.perf_counter(), False
         while self.epoch < cfg.epochs:
             t0 = time.perf_counter()

@@ -92,3 +92,23 @@ def test_bad_configs_are_refused(tiny_store, tiny_config, tmp_path):
         config_from_mapping({"data": {"store": "x"}, "model": {"levels": 3}})
     with pytest.raises(InputError):
         Trainer(tiny_config(tmp_path / "missing.zarr", tmp_path / "o"), progress=False)
+
+
+def test_warm_start_copies_matching_parameters_and_refuses_other_splits(tiny_store, tiny_config, tmp_path):
+    train(tiny_config(tiny_store, tmp_path / "pre", epochs=1), progress=False)
+    pre = load_checkpoint(tmp_path / "pre" / "last.pt")["model"]
+    cfg = tiny_config(tiny_store, tmp_path / "fine", epochs=1, init=str(tmp_path / "pre" / "last.pt"))
+    cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, context_stride=3))  # 4 of 12 frames encoded
+    trainer = Trainer(cfg, progress=False)
+    own = trainer.model.state_dict()
+    assert trainer.warm_start["fresh"] == ["context_encoder.compress_time.weight"]  # (1, 4) here, (1, 12) before
+    assert all(torch.equal(own[k], pre[k]) for k in trainer.warm_start["copied"])
+    assert len(trainer.warm_start["copied"]) == len(own) - 1
+    trainer.fit()
+    assert (tmp_path / "fine" / "warm_start.json").exists()
+
+    other = tiny_config(tiny_store, tmp_path / "other", init=str(tmp_path / "pre" / "last.pt"))
+    other = dataclasses.replace(other, data=dataclasses.replace(other.data, split=dataclasses.replace(
+        other.data.split, seed=1)))  # fmt: skip
+    with pytest.raises(InputError, match="other subject splits"):
+        Trainer(other, progress=False)
