@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 
@@ -28,14 +29,17 @@ def check_sites(mesh: Mesh, sites: NDArray[np.integer]) -> NDArray[np.int64]:
     return arr.astype(np.int64)
 
 
-def patch_mask(mesh: Mesh, sites: NDArray[np.integer], radius: float) -> NDArray[np.bool_]:
+def patch_mask(
+    mesh: Mesh, sites: NDArray[np.integer], radius: float, graph: sp.csr_matrix | None = None
+) -> NDArray[np.bool_]:
     """Boolean (N, S) mask of nodes within geodesic (edge-path) distance ``radius`` mm of each site.
 
     The site itself is always included, so ``radius = 0`` excites one node.
+    ``graph``: ``edge_graph(mesh)`` if the caller keeps it (built otherwise).
     """
     sites = check_sites(mesh, sites)
     if not np.isfinite(radius) or radius < 0:
         raise StimulusError(f"stimulus radius must be >= 0 mm, got {radius}")
     unique, inverse = np.unique(sites, return_inverse=True)
-    dist = dijkstra(edge_graph(mesh), directed=False, indices=unique, limit=radius * (1 + 1e-9))
+    dist = dijkstra(edge_graph(mesh) if graph is None else graph, directed=False, indices=unique, limit=radius * (1 + 1e-9))
     return (dist <= radius * (1 + 1e-9)).T[:, inverse]
