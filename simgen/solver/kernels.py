@@ -16,50 +16,88 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from simgen.solver.simd import LANES, vfma, vload, vmul, vsplat, vstore
+from simgen.solver.simd import LANES, vany, vfma, vload, vmul, vsplat, vstore
 
 __all__ = ["run_blocks"]
 
 
-@njit(inline="always", error_model="numpy", boundscheck=False, fastmath={"contract"})
-def _laplacian_row(indptr, indices, data, diag, u, i, lap):  # pragma: no cover - compiled
-    """``lap[:] = diag[i] u[i] + sum_p data[p] u[indices[p]]`` over row ``i`` of the CSR part.
+_FAST = dict(error_model="numpy", boundscheck=False, fastmath={"contract"})
 
-    Columns go 32 at a time (four vector accumulators kept in registers across
-    the row), then 8 at a time, then one at a time; every column sums in the
-    same order with one fused multiply-add per neighbour, so a column's result
-    does not depend on which of the three paths it took (or on the block width).
+
+@njit(inline="always", **_FAST)
+def _reaction(u, v, lap, params):  # pragma: no cover - compiled
+    """Explicit-Euler update ``(u, v) -> (u', v')`` from the diffusion term ``lap``.
+
+    ``params = (a, k, 1, eps0, mu1, mu2, dt)``; all values float32 or all
+    :data:`~simgen.solver.simd.float32x8` (same operations, same rounding).
+    The constant-eps variant passes ``eps0 = eps, mu1 = 0``.
+    """
+    a, k, one, eps0, mu1, mu2, dt = params
+    du = lap + k * u * (one - u) * (u - a) - u * v
+    eps = eps0 + mu1 * v / (u + mu2)
+    dv = eps * (-v - k * u * (u - a - one))
+    return u + dt * du, v + dt * dv
+
+
+@njit(inline="always", **_FAST)
+def _update_lanes(u, v, un, offset, lap, thr, params):  # pragma: no cover - compiled
+    """Update the 8 columns at flat ``offset`` from their diffusion term; True if one crossed ``thr`` upwards."""
+    ui, vi = vload(u, offset), vload(v, offset)
+    unew, vnew = _reaction(ui, vi, lap, params)
+    vstore(un, offset, unew)
+    vstore(v, offset, vnew)
+    return vany((ui < thr) & (unew >= thr))
+
+
+@njit(inline="always", **_FAST)
+def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma: no cover - compiled
+    """One time step of node ``i`` in every column: ``un[i]`` and ``v[i]`` from ``u`` and ``v``.
+
+    The diffusion term ``diag[i] u[i] + sum_p data[p] u[indices[p]]`` (CSR row
+    ``i``) is summed 32 columns at a time (four vector accumulators kept in
+    registers across the row), then 8, then one at a time, and fed to the
+    reaction in registers. Every column sums in the same order with one fused
+    multiply-add per neighbour, so its result does not depend on the path it
+    took (or on the block width). Returns True if any column crossed ``thr``.
     """
     b = u.shape[1]
     b32 = b - b % (4 * LANES)
     b8 = b - b % LANES
-    d = vsplat(diag[i])
     start, end = indptr[i], indptr[i + 1]
     row = i * b
+    d, vthr = vsplat(diag[i]), vsplat(thr)
+    a, k, one, eps0, mu1, mu2, dt = params
+    vparams = (vsplat(a), vsplat(k), vsplat(one), vsplat(eps0), vsplat(mu1), vsplat(mu2), vsplat(dt))
+    crossed = False
     for c in range(0, b32, 4 * LANES):
-        a0, a1 = vmul(d, vload(u, row + c)), vmul(d, vload(u, row + c + 8))
-        a2, a3 = vmul(d, vload(u, row + c + 16)), vmul(d, vload(u, row + c + 24))
+        c0, c1, c2, c3 = row + c, row + c + 8, row + c + 16, row + c + 24
+        a0, a1 = vmul(d, vload(u, c0)), vmul(d, vload(u, c1))
+        a2, a3 = vmul(d, vload(u, c2)), vmul(d, vload(u, c3))
         for p in range(start, end):
             w, q = vsplat(data[p]), indices[p] * b + c
             a0, a1 = vfma(w, vload(u, q), a0), vfma(w, vload(u, q + 8), a1)
             a2, a3 = vfma(w, vload(u, q + 16), a2), vfma(w, vload(u, q + 24), a3)
-        vstore(lap, c, a0)
-        vstore(lap, c + 8, a1)
-        vstore(lap, c + 16, a2)
-        vstore(lap, c + 24, a3)
+        crossed |= _update_lanes(u, v, un, c0, a0, vthr, vparams)
+        crossed |= _update_lanes(u, v, un, c1, a1, vthr, vparams)
+        crossed |= _update_lanes(u, v, un, c2, a2, vthr, vparams)
+        crossed |= _update_lanes(u, v, un, c3, a3, vthr, vparams)
     for c in range(b32, b8, LANES):
         a0 = vmul(d, vload(u, row + c))
         for p in range(start, end):
             a0 = vfma(vsplat(data[p]), vload(u, indices[p] * b + c), a0)
-        vstore(lap, c, a0)
+        crossed |= _update_lanes(u, v, un, row + c, a0, vthr, vparams)
     for c in range(b8, b):
-        acc = diag[i] * u[i, c]
+        ui = u[i, c]
+        lap = diag[i] * ui
         for p in range(start, end):
-            acc += data[p] * u[indices[p], c]
-        lap[c] = acc
+            lap += data[p] * u[indices[p], c]
+        unew, v[i, c] = _reaction(ui, v[i, c], lap, params)
+        un[i, c] = unew
+        crossed |= (ui < thr) & (unew >= thr)
+    return crossed
 
 
-@njit(cache=True, error_model="numpy", boundscheck=False, fastmath={"contract"})
+@njit(cache=True, **_FAST)
 def _run_block(
     indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, frames, act
 ):  # pragma: no cover - compiled
@@ -67,7 +105,6 @@ def _run_block(
     u = u_init.copy()
     un = np.empty_like(u)
     v = np.zeros_like(u)
-    lap = np.empty(b, dtype=np.float32)
     one = np.float32(1.0)
     zero = np.float32(0.0)
     frame = 0
@@ -75,32 +112,16 @@ def _run_block(
         t0 = np.float32(step) * dt
         stimulating = step < stim_steps
         for i in range(n):
-            # Row views; indexing [i, c] directly defeats LLVM's vectoriser here.
-            u_i, v_i, un_i, act_i, stim_i = u[i], v[i], un[i], act[i], stim[i]
-            _laplacian_row(indptr, indices, data, diag, u, i, lap)
-            ai = a[i]
-            crossed = False
-            for c in range(b):
-                ui = u_i[c]
-                vi = v_i[c]
-                du = lap[c] + k * ui * (one - ui) * (ui - ai) - ui * vi
-                # the constant-eps variant is passed as eps0 = eps, mu1 = 0
-                eps = eps0 + mu1 * vi / (ui + mu2)
-                dv = eps * (-vi - k * ui * (ui - ai - one))
-                unew = ui + dt * du
-                un_i[c] = unew
-                v_i[c] = vi + dt * dv
-                crossed |= (ui < thr) & (unew >= thr)
+            crossed = _step_row(indptr, indices, data, diag, u, v, un, i, thr, (a[i], k, one, eps0, mu1, mu2, dt))
             if stimulating:  # stimulated nodes are held at u = 1 (their activation time is 0)
                 for c in range(b):
-                    if stim_i[c]:
-                        un_i[c] = one
-            if crossed:  # rare: record interpolated first-crossing times outside the vector loop
+                    if stim[i, c]:
+                        un[i, c] = one
+            if crossed:  # rare: record interpolated first-crossing times outside the vector loops
                 for c in range(b):
-                    ui = u_i[c]
-                    unew = un_i[c]
-                    if ui < thr <= unew and act_i[c] < zero:
-                        act_i[c] = t0 + dt * (thr - ui) / (unew - ui)
+                    ui, unew = u[i, c], un[i, c]
+                    if ui < thr <= unew and act[i, c] < zero:
+                        act[i, c] = t0 + dt * (thr - ui) / (unew - ui)
         u, un = un, u
         if (step + 1) % out_every == 0:
             frames[frame] = u
