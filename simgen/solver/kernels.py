@@ -99,7 +99,8 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
 
 @njit(cache=True, **_FAST)
 def _run_block(
-    indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, frames, act
+    indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, perm,
+    frames, act,
 ):  # pragma: no cover - compiled
     n, b = u_init.shape
     u = u_init.copy()
@@ -123,14 +124,19 @@ def _run_block(
                     if ui < thr <= unew and act[i, c] < zero:
                         act[i, c] = t0 + dt * (thr - ui) / (unew - ui)
         u, un = un, u
-        if (step + 1) % out_every == 0:
-            frames[frame] = u
+        if (step + 1) % out_every == 0:  # straight into the result's (site, frame, node) layout, mesh order
+            for c0 in range(0, b, 16):  # 16 columns (a cache line of a row) at a time: 16 output rows in flight
+                for i in range(n):
+                    j = perm[i]
+                    for c in range(c0, min(c0 + 16, b)):
+                        frames[c, frame, j] = u[i, c]
             frame += 1
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def run_blocks(
-    indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, frames, act
+    indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, perm,
+    frames, act,
 ):  # pragma: no cover - compiled
     """Integrate ``n_steps`` steps for every block of sites.
 
@@ -144,11 +150,12 @@ def run_blocks(
         ``u = 1`` for the first ``stim_steps`` steps.
     eps0, mu1, mu2 : recovery-rate constants; the constant-eps variant passes
         ``eps0 = eps``, ``mu1 = 0``.
-    frames : (n_blocks, F, N, B) float32 output, written every ``out_every`` steps.
+    perm : (N,) mesh node of each kernel row (the rows are renumbered for locality).
+    frames : (n_blocks, B, F, N) float32 output, written every ``out_every`` steps, nodes in mesh order.
     act : (n_blocks, N, B) float32 activation times, initialised to -1 (never).
     """
     for blk in prange(u_init.shape[0]):
         _run_block(
             indptr, indices, data, diag, a, u_init[blk], stim[blk], stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2,
-            thr, frames[blk], act[blk],
+            thr, perm, frames[blk], act[blk],
         )

@@ -166,7 +166,7 @@ class Simulator:
         stim = np.ascontiguousarray(padded.reshape(n, n_blocks, width).transpose(1, 0, 2))
         u0 = stim.astype(np.float32)
         stim_steps = int(round(cfg.stimulus_duration / self.dt))
-        frames = np.empty((n_blocks, cfg.frames, n, width), np.float32)
+        frames = np.empty((n_blocks, width, cfg.frames, n), np.float32)
         act = np.where(stim, np.float32(0.0), np.float32(-1.0))  # stimulated nodes activate at t = 0
         m = cfg.model
         f32 = np.float32
@@ -175,16 +175,16 @@ class Simulator:
         run_blocks(
             self._indptr, self._indices, self._data, self._diag, self._a, u0, stim, stim_steps,
             cfg.frames * self.steps_per_frame, self.steps_per_frame, f32(self.dt), f32(m.k), f32(eps0),
-            f32(mu1), f32(m.mu2), f32(cfg.activation_threshold), frames, act,
+            f32(mu1), f32(m.mu2), f32(cfg.activation_threshold), self.perm, frames, act,
         )  # fmt: skip
-        u = frames.transpose(0, 3, 1, 2).reshape(n_blocks * width, cfg.frames, n)[:s][..., self.inverse_perm]
+        u = frames.reshape(n_blocks * width, cfg.frames, n)[:s]  # a view: no copy of the largest array
         activation = act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s][:, self.inverse_perm]
         activation[activation < 0] = np.nan
         if not np.all(np.isfinite(u[:, -1])):
             raise InputError("simulation diverged (non-finite u); reduce dt or check the tissue fields")
         times = cfg.output_interval * np.arange(1, cfg.frames + 1)
         sites = np.full(s, -1, np.int64) if sites is None else sites
-        return SimulationResult(sites, times, np.ascontiguousarray(u), activation, self.dt)
+        return SimulationResult(sites, times, u, activation, self.dt)
 
 
 def simulate(
