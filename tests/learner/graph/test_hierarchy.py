@@ -132,6 +132,20 @@ def test_pool_and_unpool_equal_their_sparse_matrices(hier, level):
     torch.testing.assert_close(hier.pool(hier.unpool(y, level), level), y)
 
 
+@pytest.mark.parametrize("level", [0, LEVELS - 2])
+def test_pool_and_unpool_of_column_layout_views_match(hier, level):
+    """(B, N, C) views of an (N, C, B) tensor (what inference blocks return) take the row-copy path: same values."""
+    gen = torch.Generator().manual_seed(level)
+    x = torch.randn(5, hier.sizes[level], 3, generator=gen)
+    y = torch.randn(5, hier.sizes[level + 1], 3, generator=gen)
+    x_cols, y_cols = (t.permute(1, 2, 0).contiguous().permute(2, 0, 1) for t in (x, y))
+    assert not x_cols.is_contiguous() and x_cols.permute(1, 2, 0).is_contiguous()
+    torch.testing.assert_close(hier.pool(x_cols, level), hier.pool(x, level), rtol=0, atol=0)
+    unpooled = hier.unpool(y_cols, level)
+    torch.testing.assert_close(unpooled, hier.unpool(y, level), rtol=0, atol=0)
+    assert unpooled.permute(1, 2, 0).is_contiguous()  # the layout carries on to the next block
+
+
 def test_pool_gradient_is_the_transposed_matrix(hier):
     x = torch.randn(2, hier.sizes[0], 3, dtype=torch.float64, requires_grad=True)
     w = torch.randn(2, hier.sizes[1], 3, dtype=torch.float64)

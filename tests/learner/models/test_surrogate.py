@@ -93,3 +93,17 @@ def test_context_stride_encodes_every_kth_frame(setup):
     assert torch.equal(model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
     changed[:, 3] += 1.0  # frame 3 is encoded
     assert not torch.equal(model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
+
+
+def test_inference_layout_gives_the_training_paths_result(setup):
+    """Under no_grad the blocks, pooling and output layer run on the (N, C, B) layout: same sequences."""
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = MetaPNS(CONFIG, view.frames).eval()
+    c = model.embed(ep.context_obs, ep.observed, hier).mu.detach()
+    with torch.no_grad():
+        fast = model.generate(ep.target_sites, hier, c)
+        fast_c = model.embed(ep.context_obs, ep.observed, hier).mu
+    slow = model.generate(ep.target_sites, hier, c).detach()
+    torch.testing.assert_close(fast, slow, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(fast_c, c, rtol=1e-5, atol=1e-5)
