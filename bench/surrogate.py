@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.utils.data import DataLoader
 
 from learner.config import LearnerConfig, load_config
 from learner.data.episodes import EpisodeDataset, load_episode
@@ -118,18 +119,39 @@ def simulator_seconds(store: Path, subject: str, site: int) -> float:
     return best_of(lambda: sim.run(np.array([site]), threads=1), 2)
 
 
+def loader_rate(view: StoreView, subjects: list[str], spec, workers: int) -> float:
+    """Episodes per second the loader delivers, 3 epochs of 8 episodes per subject: in this process,
+    or from ``workers`` processes (a persistent ``DataLoader``, as ``data.workers`` feeds a GPU)."""
+    ds = EpisodeDataset(view.store, subjects, spec, seed=0, episodes_per_subject=8)
+    if workers == 0:
+        passes = (ds for _ in range(3))
+    else:
+        loader = DataLoader(ds, batch_size=None, num_workers=workers, persistent_workers=True)
+        next(iter(loader))  # start the workers outside the timing
+        passes = (loader for _ in range(3))
+    t0 = time.perf_counter()
+    n_loaded = 0
+    for epoch, source in enumerate(passes, start=1):
+        ds.set_epoch(epoch)  # persistent workers keep their epoch: the same work, other episodes unneeded here
+        n_loaded += sum(1 for _ in source)
+    return n_loaded / (time.perf_counter() - t0)
+
+
 def measure_training(
-    view: StoreView, hier, meta: MetaPNS, pns: PNS, config: LearnerConfig, mesh: str, device: str = "cpu"
+    view: StoreView,
+    hier,
+    meta: MetaPNS,
+    pns: PNS,
+    config: LearnerConfig,
+    mesh: str,
+    device: str = "cpu",
+    loader_workers: int = 0,
 ) -> tuple[dict, float]:
     """Seconds per training episode (metaPNS, PNS) on ``device`` and the loader's episodes/s (CPU)."""
     train = config.train
-    ds = EpisodeDataset(view.store, [s for s in view.subjects if view.mesh_of[s] == mesh], config.data.episodes, seed=0)
-    episodes = list(ds)
-    t0 = time.perf_counter()
-    for epoch in range(1, 4):
-        ds.set_epoch(epoch)
-        n_loaded = sum(1 for _ in ds)
-    loader_eps = 3 * n_loaded / (time.perf_counter() - t0)
+    subjects = [s for s in view.subjects if view.mesh_of[s] == mesh]
+    episodes = list(EpisodeDataset(view.store, subjects, config.data.episodes, seed=0))
+    loader_eps = loader_rate(view, subjects, config.data.episodes, loader_workers)
     episodes = [dataclasses.replace(ep, **{f.name: getattr(ep, f.name).to(device) for f in dataclasses.fields(ep)
                                            if isinstance(getattr(ep, f.name), torch.Tensor)})
                 for ep in episodes[:2]]  # fmt: skip
@@ -165,6 +187,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", type=Path)
     p.add_argument("--device", default="cpu",
                    help="another torch device (cuda): generation, embedding and training there")
+    p.add_argument("--loader-workers", type=int, default=0,
+                   help="loader processes for the loader rate (default 0: in this process)")
     p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--no-tune", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -198,13 +222,15 @@ def main(argv: list[str] | None = None) -> None:
         rows["speedup_sparse_conv_embed"] = rows["embed_5_ms_edges_only"] / rows["embed_5_ms"]
         rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
 
-    train_rows, loader_eps = measure_training(view, hier, meta, pns, config, args.mesh, args.device)
+    train_rows, loader_eps = measure_training(view, hier, meta, pns, config, args.mesh, args.device,
+                                              args.loader_workers)
     rows.update(train_rows)
     if on_cpu:
         child = subprocess.run([sys.executable, __file__, "--store", str(args.store), "--subject", subject,
                                 "--mesh", args.mesh, "--config", str(args.config), "--train-only", "--no-tune"],
                                capture_output=True, text=True, check=True)  # fmt: skip
         rows["train_metapns_s_per_episode_default_malloc"] = json.loads(child.stdout)["train_metapns_s_per_episode"]
+    rows["loader_workers"] = args.loader_workers
     rows["loader_episodes_per_s"] = loader_eps  # always on the CPU
     rows["loader_over_training"] = loader_eps * rows["train_metapns_s_per_episode"]
     if on_cpu:
