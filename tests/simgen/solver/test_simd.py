@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from simgen.solver.simd import LANES, vfma, vload, vmul, vsplat, vstore
+from simgen.solver.simd import LANES, vany, vfma, vload, vmul, vsplat, vstore
 
 
 @njit
@@ -58,3 +58,18 @@ def test_rejects_arrays_it_cannot_address():
         load(np.zeros(8))  # float64
     with pytest.raises(TypeError, match="C-contiguous float32"):
         load(np.zeros((8, 2), np.float32)[:, 0])  # strided view
+
+
+def test_operators_masks_and_vany_match_numpy():
+    @njit(fastmath={"contract"})
+    def combine(x, y, out):
+        a, b = vload(x, 0), vload(y, 0)
+        vstore(out, 0, -a * b + a / b - (a - b))
+        return vany((a < b) & (a >= b)), vany((a < b) & (b >= a))
+
+    x = np.array([1, 2, 3, 4, 5, 6, 7, 8], np.float32)
+    y = np.full(8, 3, np.float32)
+    out = np.zeros(8, np.float32)
+    never, some = combine(x, y, out)
+    np.testing.assert_allclose(out, -x * y + x / y - (x - y), rtol=1e-6)
+    assert not never and some
