@@ -41,5 +41,6 @@ def patch_mask(
     if not np.isfinite(radius) or radius < 0:
         raise StimulusError(f"stimulus radius must be >= 0 mm, got {radius}")
     unique, inverse = np.unique(sites, return_inverse=True)
-    dist = dijkstra(edge_graph(mesh) if graph is None else graph, directed=False, indices=unique, limit=radius * (1 + 1e-9))
+    graph = edge_graph(mesh) if graph is None else graph
+    dist = dijkstra(graph, directed=False, indices=unique, limit=radius * (1 + 1e-9))
     return (dist <= radius * (1 + 1e-9)).T[:, inverse]
