@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from simgen.solver.simd import LANES, vany, vfma, vload, vmul, vsplat, vstore
+from simgen.solver.simd import LANES, vany, vfma, vload, vsplat, vstore
 
 __all__ = ["run_blocks"]
 
@@ -71,8 +71,8 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
     crossed = False
     for c in range(0, b32, 4 * LANES):
         c0, c1, c2, c3 = row + c, row + c + 8, row + c + 16, row + c + 24
-        a0, a1 = vmul(d, vload(u, c0)), vmul(d, vload(u, c1))
-        a2, a3 = vmul(d, vload(u, c2)), vmul(d, vload(u, c3))
+        a0, a1 = d * vload(u, c0), d * vload(u, c1)
+        a2, a3 = d * vload(u, c2), d * vload(u, c3)
         for p in range(start, end):
             w, q = vsplat(data[p]), indices[p] * b + c
             a0, a1 = vfma(w, vload(u, q), a0), vfma(w, vload(u, q + 8), a1)
@@ -82,7 +82,7 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
         crossed |= _update_lanes(u, v, un, c2, a2, vthr, vparams)
         crossed |= _update_lanes(u, v, un, c3, a3, vthr, vparams)
     for c in range(b32, b8, LANES):
-        a0 = vmul(d, vload(u, row + c))
+        a0 = d * vload(u, row + c)
         for p in range(start, end):
             a0 = vfma(vsplat(data[p]), vload(u, indices[p] * b + c), a0)
         crossed |= _update_lanes(u, v, un, row + c, a0, vthr, vparams)

@@ -6,7 +6,7 @@ neighbours, with one scalar weight broadcast to all lanes; written as loops
 over columns it pays runtime alias checks and loop set-up for every row and
 group of neighbours. These intrinsics let a kernel say it directly::
 
-    acc = vmul(vsplat(d), vload(u, row + c))      # 8 columns of row i
+    acc = vsplat(d) * vload(u, row + c)           # 8 columns of row i
     acc = vfma(vsplat(w), vload(u, j * b + c), acc)
     vstore(lap, c, acc)
 
@@ -32,7 +32,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, models, overload, register_model
 
-__all__ = ["LANES", "float32x8", "mask8", "vload", "vstore", "vsplat", "vmul", "vfma", "vany"]
+__all__ = ["LANES", "float32x8", "mask8", "vload", "vstore", "vsplat", "vfma", "vany"]
 
 #: float32 lanes of one vector
 LANES = 8
@@ -115,16 +115,6 @@ def vsplat(typingctx, x):
         return builder.shuffle_vector(lane0, ir.Constant(_VECTOR, ir.Undefined), zeros)
 
     return float32x8(types.float32), codegen
-
-
-@intrinsic
-def vmul(typingctx, a, b):
-    """Lane-wise ``a * b``."""
-
-    def codegen(context, builder, sig, args):
-        return builder.fmul(*args, flags=_CONTRACT)
-
-    return float32x8(float32x8, float32x8), codegen
 
 
 @intrinsic

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from simgen.solver.simd import LANES, vany, vfma, vload, vmul, vsplat, vstore
+from simgen.solver.simd import LANES, vany, vfma, vload, vsplat, vstore
 
 
 @njit
@@ -19,7 +19,7 @@ def _axpy_rows(x, y, w, out):
 
 @njit
 def _scale(x, d, out):
-    vstore(out, 0, vmul(vsplat(d), vload(x, 0)))
+    vstore(out, 0, vsplat(d) * vload(x, 0))
 
 
 def test_load_fma_store_match_numpy_and_touch_only_their_lanes():
