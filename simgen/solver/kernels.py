@@ -50,15 +50,44 @@ def _update_lanes(u, v, un, offset, lap, thr, params):  # pragma: no cover - com
 
 
 @njit(inline="always", **_FAST)
+def _sweep(indices, data, u, v, un, row, b, start, end, offsets, n_vec, d, thr, params):  # pragma: no cover
+    """The first ``n_vec`` (1-4) of four 8-column vectors at ``offsets`` in one row, in one pass over its neighbours.
+
+    The four accumulators stay in registers across the row. With fewer than
+    four vectors left the caller repeats the last offset: the spare
+    accumulators redo that vector (loads that hit L1, multiply-adds that run
+    in parallel) and are not stored, so one pass still serves the whole rest
+    of the row instead of one latency-bound pass per vector. Returns True if
+    any column crossed ``thr``.
+    """
+    o0, o1, o2, o3 = offsets
+    a0, a1 = d * vload(u, row + o0), d * vload(u, row + o1)
+    a2, a3 = d * vload(u, row + o2), d * vload(u, row + o3)
+    for p in range(start, end):
+        w, q = vsplat(data[p]), indices[p] * b
+        a0, a1 = vfma(w, vload(u, q + o0), a0), vfma(w, vload(u, q + o1), a1)
+        a2, a3 = vfma(w, vload(u, q + o2), a2), vfma(w, vload(u, q + o3), a3)
+    crossed = _update_lanes(u, v, un, row + o0, a0, thr, params)
+    if n_vec > 1:
+        crossed |= _update_lanes(u, v, un, row + o1, a1, thr, params)
+    if n_vec > 2:
+        crossed |= _update_lanes(u, v, un, row + o2, a2, thr, params)
+    if n_vec > 3:
+        crossed |= _update_lanes(u, v, un, row + o3, a3, thr, params)
+    return crossed
+
+
+@njit(inline="always", **_FAST)
 def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma: no cover - compiled
     """One time step of node ``i`` in every column: ``un[i]`` and ``v[i]`` from ``u`` and ``v``.
 
     The diffusion term ``diag[i] u[i] + sum_p data[p] u[indices[p]]`` (CSR row
-    ``i``) is summed 32 columns at a time (four vector accumulators kept in
-    registers across the row), then 8, then one at a time, and fed to the
-    reaction in registers. Every column sums in the same order with one fused
-    multiply-add per neighbour, so its result does not depend on the path it
-    took (or on the block width). Returns True if any column crossed ``thr``.
+    ``i``) is summed 32 columns per pass of the row (:func:`_sweep`), the
+    last 8-24 vector columns in one more pass, the last ``b % 8`` one at a
+    time, and fed to the reaction in registers. Every column sums in the same
+    order with one fused multiply-add per neighbour, so its result does not
+    depend on the path it took (or on the block width). Returns True if any
+    column crossed ``thr``.
     """
     b = u.shape[1]
     b32 = b - b % (4 * LANES)
@@ -69,23 +98,13 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
     a, k, one, eps0, mu1, mu2, dt = params
     vparams = (vsplat(a), vsplat(k), vsplat(one), vsplat(eps0), vsplat(mu1), vsplat(mu2), vsplat(dt))
     crossed = False
-    for c in range(0, b32, 4 * LANES):
-        c0, c1, c2, c3 = row + c, row + c + 8, row + c + 16, row + c + 24
-        a0, a1 = d * vload(u, c0), d * vload(u, c1)
-        a2, a3 = d * vload(u, c2), d * vload(u, c3)
-        for p in range(start, end):
-            w, q = vsplat(data[p]), indices[p] * b + c
-            a0, a1 = vfma(w, vload(u, q), a0), vfma(w, vload(u, q + 8), a1)
-            a2, a3 = vfma(w, vload(u, q + 16), a2), vfma(w, vload(u, q + 24), a3)
-        crossed |= _update_lanes(u, v, un, c0, a0, vthr, vparams)
-        crossed |= _update_lanes(u, v, un, c1, a1, vthr, vparams)
-        crossed |= _update_lanes(u, v, un, c2, a2, vthr, vparams)
-        crossed |= _update_lanes(u, v, un, c3, a3, vthr, vparams)
-    for c in range(b32, b8, LANES):
-        a0 = d * vload(u, row + c)
-        for p in range(start, end):
-            a0 = vfma(vsplat(data[p]), vload(u, indices[p] * b + c), a0)
-        crossed |= _update_lanes(u, v, un, row + c, a0, vthr, vparams)
+    for c in range(0, b32, 4 * LANES):  # offsets c + constants: one address per neighbour (4 runtime ones cost 2x)
+        offsets = (c, c + LANES, c + 2 * LANES, c + 3 * LANES)
+        crossed |= _sweep(indices, data, u, v, un, row, b, start, end, offsets, 4, d, vthr, vparams)
+    if b8 > b32:
+        top = b8 - LANES
+        offsets = (b32, min(b32 + LANES, top), min(b32 + 2 * LANES, top), top)
+        crossed |= _sweep(indices, data, u, v, un, row, b, start, end, offsets, (b8 - b32) // LANES, d, vthr, vparams)
     for c in range(b8, b):
         ui = u[i, c]
         lap = diag[i] * ui
