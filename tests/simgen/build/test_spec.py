@@ -58,7 +58,7 @@ def test_default_spec() -> None:
         ("lv-small", "lv", 1500),
     ]
     assert len(spec.settings()) == 16 and spec.settings()[0].name == "healthy"
-    assert spec.sites.count == 200 and spec.output.chunk_sites == 25
+    assert spec.sites.count == 200 and spec.output.chunk_sites == 64
 
 
 def test_defaults() -> None:
