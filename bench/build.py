@@ -301,7 +301,7 @@ def bench_paper(args, tmp: Path) -> list[dict]:
     raw = raw_bytes(spec, make_plan(spec))
     rows = []
     for i, workers in enumerate(args.paper_workers):
-        keep = args.paper_store and i == len(args.paper_workers) - 1  # --paper-store keeps the last build
+        keep = args.paper_store is not None and i == len(args.paper_workers) - 1  # --paper-store: the last build
         store = args.paper_store if keep else tmp / f"paper-{workers}.zarr"
         if store.exists():
             raise SystemExit(f"{store} exists; give a new --paper-store path")

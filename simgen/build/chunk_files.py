@@ -2,13 +2,13 @@
 
 Zarr's :class:`~zarr.storage.LocalStore` hands a whole encoded chunk to one
 ``write()`` call. On the Linux VMs this project is measured on (kernel 6.18,
-ext4), one ``write()`` of 2 MiB or more into a new file runs at ~350 MB/s, while the same bytes in 1 MiB pieces run at
-~3.7 GB/s: over a sequence of 12 worker tasks, a 64-site chunk of the
-default 2,000-node LV (29 MB before blosc) took 100-140 ms to write in one
-call, 45-55 ms in pieces. The files, their names and the atomic write (a ``*.partial``
-temporary renamed into place, which
-:func:`simgen.build.location.remove_partials` cleans up after a kill) are the
-same as Zarr's, so any reader opens the store as usual.
+ext4), one ``write()`` of 2 MiB or more into a new file runs at ~350 MB/s,
+while the same bytes in 1 MiB pieces run at ~3.7 GB/s: over a sequence of 12
+worker tasks, a 64-site chunk of the default 2,000-node LV (29 MB before
+blosc) took 100-140 ms to write in one call, 45-55 ms in pieces. The files,
+their names and the atomic write (a ``*.partial`` temporary renamed into
+place, which :func:`simgen.build.location.remove_partials` cleans up after a
+kill) are the same as Zarr's, so any reader opens the store as usual.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from zarr.storage import LocalStore
 
 from simgen.build.location import is_url
 
-__all__ = ["PIECE_BYTES", "PiecewiseLocalStore", "writable_store"]
+__all__ = ["PIECE_BYTES", "PiecewiseLocalStore", "writable_store", "write_in_pieces"]
 
 #: Bytes per ``write()`` call (2 MiB pieces are as slow as one call on the measured machine).
 PIECE_BYTES = 1 << 20
