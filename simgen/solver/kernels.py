@@ -2,8 +2,8 @@
 
 One pass per time step reads each node's CSR row once, forms the diffusion
 term for a block of simulations (one column per stimulation site) with
-explicit 8-lane vectors (:mod:`simgen.solver.simd`: 32 columns per sweep of
-the row, accumulators in registers), updates ``u`` and ``v`` in place and
+explicit vectors (:mod:`simgen.solver.simd`: ``4 * LANES`` columns per sweep
+of the row, 32 or 64, accumulators in registers), updates ``u`` and ``v`` in place and
 records activation times. Threads split the batch of sites into independent
 blocks that never synchronise, so a Dask worker can run the kernel
 single-threaded without stalls.
@@ -29,7 +29,7 @@ def _reaction(u, v, lap, params):  # pragma: no cover - compiled
     """Explicit-Euler update ``(u, v) -> (u', v')`` from the diffusion term ``lap``.
 
     ``params = (a, k, 1, eps0, mu1, mu2, dt)``; all values float32 or all
-    :data:`~simgen.solver.simd.float32x8` (same operations, same rounding).
+    :data:`~simgen.solver.simd.float32_vector` (same operations, same rounding).
     The constant-eps variant passes ``eps0 = eps, mu1 = 0``.
     """
     a, k, one, eps0, mu1, mu2, dt = params
@@ -41,7 +41,7 @@ def _reaction(u, v, lap, params):  # pragma: no cover - compiled
 
 @njit(inline="always", **_FAST)
 def _update_lanes(u, v, un, offset, lap, thr, params):  # pragma: no cover - compiled
-    """Update the 8 columns at flat ``offset`` from their diffusion term; True if one crossed ``thr`` upwards."""
+    """Update the columns of the vector at flat ``offset`` from their diffusion term; True if one crossed ``thr``."""
     ui, vi = vload(u, offset), vload(v, offset)
     unew, vnew = _reaction(ui, vi, lap, params)
     vstore(un, offset, unew)
@@ -51,7 +51,7 @@ def _update_lanes(u, v, un, offset, lap, thr, params):  # pragma: no cover - com
 
 @njit(inline="always", **_FAST)
 def _sweep(indices, data, u, v, un, row, b, start, end, offsets, n_vec, d, thr, params):  # pragma: no cover
-    """The first ``n_vec`` (1-4) of four 8-column vectors at ``offsets`` in one row, in one pass over its neighbours.
+    """The first ``n_vec`` (1-4) of four column vectors at ``offsets`` in one row, in one pass over its neighbours.
 
     The four accumulators stay in registers across the row. With fewer than
     four vectors left the caller repeats the last offset: the spare
@@ -82,30 +82,31 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
     """One time step of node ``i`` in every column: ``un[i]`` and ``v[i]`` from ``u`` and ``v``.
 
     The diffusion term ``diag[i] u[i] + sum_p data[p] u[indices[p]]`` (CSR row
-    ``i``) is summed 32 columns per pass of the row (:func:`_sweep`), the
-    last 8-24 vector columns in one more pass, the last ``b % 8`` one at a
-    time, and fed to the reaction in registers. Every column sums in the same
+    ``i``) is summed ``4 * LANES`` columns per pass of the row (:func:`_sweep`),
+    the last one to three vectors in one more pass, the last ``b % LANES`` one
+    at a time, and fed to the reaction in registers. Every column sums in the same
     order with one fused multiply-add per neighbour, so its result does not
     depend on the path it took (or on the block width). Returns True if any
     column crossed ``thr``.
     """
     b = u.shape[1]
-    b32 = b - b % (4 * LANES)
-    b8 = b - b % LANES
+    b_full = b - b % (4 * LANES)  # columns in passes of four vectors
+    b_vec = b - b % LANES  # columns in vectors
     start, end = indptr[i], indptr[i + 1]
     row = i * b
     d, vthr = vsplat(diag[i]), vsplat(thr)
     a, k, one, eps0, mu1, mu2, dt = params
     vparams = (vsplat(a), vsplat(k), vsplat(one), vsplat(eps0), vsplat(mu1), vsplat(mu2), vsplat(dt))
     crossed = False
-    for c in range(0, b32, 4 * LANES):  # offsets c + constants: one address per neighbour (4 runtime ones cost 2x)
+    for c in range(0, b_full, 4 * LANES):  # offsets c + constants: one address per neighbour (4 runtime ones cost 2x)
         offsets = (c, c + LANES, c + 2 * LANES, c + 3 * LANES)
         crossed |= _sweep(indices, data, u, v, un, row, b, start, end, offsets, 4, d, vthr, vparams)
-    if b8 > b32:
-        top = b8 - LANES
-        offsets = (b32, min(b32 + LANES, top), min(b32 + 2 * LANES, top), top)
-        crossed |= _sweep(indices, data, u, v, un, row, b, start, end, offsets, (b8 - b32) // LANES, d, vthr, vparams)
-    for c in range(b8, b):
+    if b_vec > b_full:
+        top = b_vec - LANES
+        offsets = (b_full, min(b_full + LANES, top), min(b_full + 2 * LANES, top), top)
+        n_vec = (b_vec - b_full) // LANES
+        crossed |= _sweep(indices, data, u, v, un, row, b, start, end, offsets, n_vec, d, vthr, vparams)
+    for c in range(b_vec, b):
         ui = u[i, c]
         lap = diag[i] * ui
         for p in range(start, end):
