@@ -17,7 +17,9 @@ Three measurements, each printed as a Markdown table:
 2. **Zarr write share.** Without Dask, in this process: for each output
    setting (blosc level 3 and 1, zstd level 3 and 1, none at 64 sites per
    chunk; blosc 3 at chunk_sites 25 and 32) a fresh store layout is created
-   and the worker's steps are run by hand for every chunk of one subject -
+   and the worker's steps are run by hand for every chunk of one subject
+   (default 768 sites: 12 chunks of 64 in a row, so that file writes are
+   measured sustained, as in a build, not only the first few) -
    ``Simulator.run(sites, threads=1)`` then
    :func:`simgen.build.store.write_chunk` - timing each part. Reported: the
    write share of task time (goal <= 5%), bytes written (u + activation
@@ -415,7 +417,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts; the first is the base")
     p.add_argument("--repeat", type=int, default=2, help="rounds per worker count, fastest kept (default 2)")
     p.add_argument("--ceiling-sites", type=int, default=192, help="sites per process of the no-Dask ceiling")
-    p.add_argument("--write-sites", type=int, default=192, help="sites simulated per write-share row (default 192)")
+    p.add_argument("--write-sites", type=int, default=768, help="sites simulated per write-share row (default 768)")
     p.add_argument("--paper", action="store_true", help="also build the paper-scale spec (minutes)")
     p.add_argument("--paper-only", action="store_true", help="only the paper-scale build")
     p.add_argument("--paper-spec", type=Path, default=PAPER_SPEC, help="spec of --paper (default specs/default.toml)")

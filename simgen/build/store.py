@@ -182,11 +182,14 @@ def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) 
 def result_arrays(path: str | Path, subject_id: str) -> tuple[zarr.Array, zarr.Array, zarr.Array]:
     """A subject's ``u``, ``activation`` and ``done`` arrays, opened for writing (a worker keeps them).
 
-    A local store is opened through :class:`~simgen.build.chunk_files.PiecewiseLocalStore`
-    (same files, written in 1 MiB pieces: 2x faster chunk writes on the measured machine).
+    A local store is opened through :class:`~simgen.build.chunk_files.DirectLocalStore`
+    (Zarr's files, written with direct I/O: a 29 MB chunk in ~20 ms instead of 75-80 ms
+    through the page cache on the measured VM).
     """
     g = zarr.open_group(writable_store(str(path)), path=subject_path(subject_id), mode="r+")
-    return g["u"], g["activation"], g["done"]
+    # a chunk of results is never all fill value (NaN): skip Zarr's full scan for one before each write
+    whole = {"write_empty_chunks": True}
+    return g["u"].with_config(whole), g["activation"].with_config(whole), g["done"]
 
 
 def write_chunk(

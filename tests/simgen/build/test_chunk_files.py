@@ -1,6 +1,9 @@
-"""Workers' local store: files written in pieces, read back by plain Zarr, atomic and exclusive as Zarr's."""
+"""Workers' local store: Zarr's own files, written with direct I/O or buffered, atomic and exclusive as Zarr's."""
 
 from __future__ import annotations
+
+import errno
+import os
 
 import numpy as np
 import pytest
@@ -9,25 +12,58 @@ from zarr.core.buffer import default_buffer_prototype
 from zarr.core.sync import sync
 
 import simgen.build.chunk_files as chunk_files
-from simgen.build.chunk_files import PiecewiseLocalStore, writable_store, write_in_pieces
+from simgen.build.chunk_files import DirectLocalStore, writable_store, write_in_pieces
 
 
 def _buffer(data: bytes):
     return default_buffer_prototype().buffer.from_bytes(data)
 
 
-def test_multi_piece_chunks_read_back_bitwise_by_plain_zarr(tmp_path, monkeypatch):
-    monkeypatch.setattr(chunk_files, "PIECE_BYTES", 4096)  # every chunk below is ~28 pieces
+@pytest.fixture(params=["direct", "buffered"])
+def io_mode(request, monkeypatch):
+    """Run a test through direct I/O (where this file system takes it) and through the page cache."""
+    if request.param == "buffered":
+        monkeypatch.setattr(chunk_files, "_O_DIRECT", 0)
+    return request.param
+
+
+def test_multi_piece_chunks_are_zarrs_own_files_and_read_back_bitwise(tmp_path, monkeypatch, io_mode):
+    monkeypatch.setattr(chunk_files, "PIECE_BYTES", 4096)  # every chunk below is ~28 pieces, the last one partial
     u = np.random.default_rng(0).random((3, 7, 4_000), dtype=np.float32)
-    zarr.create_array(str(tmp_path / "a.zarr"), shape=u.shape, chunks=(1, 7, 4_000), dtype="f4", compressors=None)
-    written = zarr.open_array(PiecewiseLocalStore(tmp_path / "a.zarr"), mode="r+")
-    written[...] = u
-    assert np.array_equal(zarr.open_array(str(tmp_path / "a.zarr"), mode="r")[...], u)
+    for name in ("plain.zarr", "ours.zarr"):
+        zarr.create_array(str(tmp_path / name), shape=u.shape, chunks=(1, 7, 4_000), dtype="f4", compressors=None)
+    zarr.open_array(str(tmp_path / "plain.zarr"), mode="r+")[...] = u
+    zarr.open_array(DirectLocalStore(tmp_path / "ours.zarr"), mode="r+")[...] = u
+    assert np.array_equal(zarr.open_array(str(tmp_path / "ours.zarr"), mode="r")[...], u)
+    chunks = sorted(p.relative_to(tmp_path / "plain.zarr") for p in (tmp_path / "plain.zarr" / "c").rglob("*"))
+    assert len([c for c in chunks if (tmp_path / "plain.zarr" / c).is_file()]) == 3
+    for c in chunks:  # same names, same lengths (the padded direct writes are cut back), same bytes
+        ours, plain = tmp_path / "ours.zarr" / c, tmp_path / "plain.zarr" / c
+        assert ours.is_file() == plain.is_file()
+        if plain.is_file():
+            assert ours.read_bytes() == plain.read_bytes()
     assert not list(tmp_path.rglob("*.partial"))
 
 
-def test_exclusive_write_refuses_an_existing_file(tmp_path):
-    store = PiecewiseLocalStore(tmp_path)
+def test_direct_io_is_tried_first_and_a_refusal_falls_back_to_the_page_cache(tmp_path, monkeypatch):
+    if not chunk_files._O_DIRECT:
+        pytest.skip("no O_DIRECT on this platform")
+    real_open, modes = os.open, []
+
+    def refusing_open(path, flags, mode=0o777):
+        modes.append(bool(flags & chunk_files._O_DIRECT))
+        if flags & chunk_files._O_DIRECT:
+            raise OSError(errno.EINVAL, "Invalid argument")  # what tmpfs and some network file systems answer
+        return real_open(path, flags, mode)
+
+    monkeypatch.setattr(chunk_files.os, "open", refusing_open)
+    write_in_pieces(tmp_path / "k", _buffer(b"x" * 10_000))
+    assert modes == [True, False]
+    assert (tmp_path / "k").read_bytes() == b"x" * 10_000
+
+
+def test_exclusive_write_refuses_an_existing_file(tmp_path, io_mode):
+    store = DirectLocalStore(tmp_path)
     sync(store.set("k", _buffer(b"first")))
     sync(store.set_if_not_exists("k", _buffer(b"second")))  # Zarr's contract: a no-op, not an overwrite
     assert (tmp_path / "k").read_bytes() == b"first"
@@ -36,36 +72,27 @@ def test_exclusive_write_refuses_an_existing_file(tmp_path):
     assert (tmp_path / "k").read_bytes() == b"first"
 
 
-def test_a_write_that_fails_midway_keeps_the_old_file_and_leaves_no_partial(tmp_path, monkeypatch):
+def test_a_write_that_fails_midway_keeps_the_old_file_and_leaves_no_partial(tmp_path, monkeypatch, io_mode):
     target = tmp_path / "c" / "0"
     write_in_pieces(target, _buffer(b"old"))
-    monkeypatch.setattr(chunk_files, "PIECE_BYTES", 4)
+    monkeypatch.setattr(chunk_files, "PIECE_BYTES", 4096)
     calls = {"n": 0}
-    real_open = open
+    real_write_all = chunk_files._write_all
 
-    class Failing:
-        def __init__(self, f):
-            self.f = f
+    def failing_write_all(fd, data):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_write_all(fd, data)
 
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.f.close()
-
-        def write(self, data):
-            calls["n"] += 1
-            if calls["n"] == 2:
-                raise OSError("disk full")
-            return self.f.write(data)
-
-    monkeypatch.setattr(chunk_files, "open", lambda p, mode: Failing(real_open(p, mode)), raising=False)
-    with pytest.raises(OSError, match="disk full"):
-        write_in_pieces(target, _buffer(b"new bytes, several pieces"))
+    monkeypatch.setattr(chunk_files, "_write_all", failing_write_all)
+    with pytest.raises(OSError, match="No space left"):
+        write_in_pieces(target, _buffer(b"new bytes, several pieces" * 1_000))
+    assert calls["n"] == 2
     assert target.read_bytes() == b"old"
     assert not list(tmp_path.rglob("*.partial"))
 
 
 def test_urls_stay_urls():
     assert writable_store("s3://bucket/name.zarr") == "s3://bucket/name.zarr"
-    assert isinstance(writable_store("/data/name.zarr"), PiecewiseLocalStore)
+    assert isinstance(writable_store("/data/name.zarr"), DirectLocalStore)
