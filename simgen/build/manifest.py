@@ -31,7 +31,7 @@ from shared.tissue import TissueSpec
 from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection
 from simgen.meshes.catalog import get_mesh
 from simgen.observe.sock import Sock, farthest_point_sampling
-from simgen.solver.simulate import Simulator
+from simgen.solver.simulate import assemble
 from simgen.tissue.fields import tissue_fields
 
 __all__ = ["Subject", "Task", "Plan", "make_plan", "validate_plan", "select_sites", "sock_electrodes"]
@@ -170,10 +170,10 @@ def make_plan(spec: BuildSpec) -> Plan:
 def validate_plan(plan: Plan) -> None:
     """Check every subject before anything is written.
 
-    Builds the tissue fields (:class:`~shared.errors.TissueError`) and the
-    :class:`Simulator` (operator and largest eigenvalue:
-    :class:`~shared.errors.TimeStepError` for an unstable ``dt``) of every
-    subject, and checks that sites and electrodes are node ids of their mesh
+    Builds the tissue fields (:class:`~shared.errors.TissueError`) and
+    assembles the operator of every subject (largest eigenvalue:
+    :class:`~shared.errors.TimeStepError` for an unstable ``dt``), and
+    checks that sites and electrodes are node ids of their mesh
     (:class:`StimulusError`). Messages name the subject and mesh.
     """
     for mesh_id, mesh in plan.meshes.items():
@@ -187,6 +187,6 @@ def validate_plan(plan: Plan) -> None:
         mesh = plan.meshes[subject.mesh_id]
         try:
             fields = tissue_fields(mesh, subject.tissue)
-            Simulator(mesh, fields, plan.spec.solver)
+            assemble(mesh, fields, plan.spec.solver)
         except InputError as exc:
             raise type(exc)(f"subject {subject.id!r} (mesh {subject.mesh_id!r}): {exc}") from exc

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +58,9 @@ __all__ = [
     "check_store",
     "StoreMismatch",
 ]
+
+#: Subject groups laid out at once: their files are small, so the layout waits on round trips, not on the CPU.
+LAYOUT_THREADS = 8
 
 
 class StoreMismatch(InputError):
@@ -107,9 +111,9 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
     root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False})
     for mesh_id, mesh in plan.meshes.items():
         write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
-    for subject in plan.subjects:
-        write_subject_group(root, subject, plan.meshes[subject.mesh_id], len(plan.sites[subject.mesh_id]),
-                            plan.spec.output, plan.spec.solver)  # fmt: skip
+    with ThreadPoolExecutor(LAYOUT_THREADS) as pool:  # each group is a few dozen small files: overlap their latency
+        list(pool.map(lambda s: write_subject_group(root, s, plan.meshes[s.mesh_id], len(plan.sites[s.mesh_id]),
+                                                    plan.spec.output, plan.spec.solver), plan.subjects))  # fmt: skip
     return True
 
 

@@ -14,10 +14,13 @@ from numpy.typing import NDArray
 from shared.errors import MeshError
 from shared.mesh import Mesh
 
-__all__ = ["element_gradients", "stiffness_matrix", "lumped_mass", "diffusion_operator"]
+__all__ = ["Geometry", "element_gradients", "stiffness_matrix", "lumped_mass", "diffusion_operator"]
+
+#: ``element_gradients``' result; pass it on to assemble several matrices of one mesh from one pass over its cells.
+Geometry = tuple[NDArray[np.float64], NDArray[np.float64]]
 
 
-def element_gradients(points: NDArray[np.float64], cells: NDArray[np.integer]) -> tuple[NDArray, NDArray]:
+def element_gradients(points: NDArray[np.float64], cells: NDArray[np.integer]) -> Geometry:
     """Gradients of the P1 basis functions and the cell measures.
 
     Returns ``grads`` of shape (M, k, 3) (k = 3 or 4 nodes per cell) and the
@@ -46,9 +49,11 @@ def element_gradients(points: NDArray[np.float64], cells: NDArray[np.integer]) -
     return np.concatenate([g0, g123], axis=1), np.abs(det) / 6.0
 
 
-def stiffness_matrix(mesh: Mesh, node_diffusivity: NDArray[np.float64]) -> sp.csr_matrix:
+def stiffness_matrix(
+    mesh: Mesh, node_diffusivity: NDArray[np.float64], geometry: Geometry | None = None
+) -> sp.csr_matrix:
     """Symmetric stiffness matrix ``K_ij = sum_e D_e |e| grad(phi_i) . grad(phi_j)``."""
-    grads, measure = element_gradients(mesh.points, mesh.cells)
+    grads, measure = geometry or element_gradients(mesh.points, mesh.cells)
     d_cell = np.asarray(node_diffusivity, float)[mesh.cells].mean(axis=1)
     local = np.einsum("mid,mjd->mij", grads, grads) * (d_cell * measure)[:, None, None]
     k = mesh.cells.shape[1]
@@ -58,17 +63,20 @@ def stiffness_matrix(mesh: Mesh, node_diffusivity: NDArray[np.float64]) -> sp.cs
     return sp.csr_matrix((local.ravel(), (rows, cols)), shape=(n, n))
 
 
-def lumped_mass(mesh: Mesh) -> NDArray[np.float64]:
+def lumped_mass(mesh: Mesh, geometry: Geometry | None = None) -> NDArray[np.float64]:
     """Row-sum lumped mass: each cell gives measure / k to each of its k nodes."""
-    _, measure = element_gradients(mesh.points, mesh.cells)
+    _, measure = geometry or element_gradients(mesh.points, mesh.cells)
     k = mesh.cells.shape[1]
     return np.bincount(mesh.cells.ravel(), weights=np.repeat(measure / k, k), minlength=mesh.n_nodes)
 
 
-def diffusion_operator(mesh: Mesh, node_diffusivity: NDArray[np.float64]) -> sp.csr_matrix:
+def diffusion_operator(
+    mesh: Mesh, node_diffusivity: NDArray[np.float64], geometry: Geometry | None = None
+) -> sp.csr_matrix:
     """``A = -M^{-1} K`` so that the diffusion step reads ``du/dt = A u``."""
-    K = stiffness_matrix(mesh, node_diffusivity)
-    m = lumped_mass(mesh)
+    geometry = geometry or element_gradients(mesh.points, mesh.cells)
+    K = stiffness_matrix(mesh, node_diffusivity, geometry)
+    m = lumped_mass(mesh, geometry)
     A = -(sp.diags(1.0 / m) @ K).tocsr()
     A.sum_duplicates()
     A.sort_indices()

@@ -9,6 +9,7 @@ stable time step, and runs any number of stimulation sites together as an
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -21,13 +22,13 @@ from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
 from simgen.solver.aliev_panfilov import APParams
-from simgen.solver.fem import diffusion_operator, lumped_mass
+from simgen.solver.fem import diffusion_operator, element_gradients, lumped_mass
 from simgen.solver.kernels import run_blocks
 from simgen.solver.simd import LANES
 from simgen.solver.stimulus import patch_mask
 from simgen.solver.timestep import choose_time_step, largest_eigenvalue
 
-__all__ = ["SolverConfig", "SimulationResult", "Simulator", "simulate", "healthy_fields"]
+__all__ = ["SolverConfig", "SimulationResult", "Assembly", "assemble", "Simulator", "simulate", "healthy_fields"]
 
 #: Sites integrated together per block (see bench/solver.py --block-size). 200 sites on 2 threads at
 #: 10k nodes, alternated in one session: 2 blocks of 104 ran 0.91 ns per node-step and site, 4 of 56
@@ -99,6 +100,30 @@ def healthy_fields(n_nodes: int, a: float = 0.15) -> TissueFields:
     return TissueFields(a=np.full(n_nodes, a), D=np.ones(n_nodes), label=np.zeros(n_nodes, np.int8))
 
 
+class Assembly(NamedTuple):
+    """The diffusion operator of one mesh + tissue, its largest eigenvalue and the stable time step."""
+
+    A: sp.csr_matrix
+    lambda_max: float
+    dt: float
+    steps_per_frame: int
+
+
+def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig) -> Assembly:
+    """What checking a subject needs before anything is simulated (a :class:`Simulator` does more).
+
+    Raises :class:`~shared.errors.TissueError` if the fields do not match the
+    mesh and :class:`~shared.errors.TimeStepError` for an unstable ``config.dt``.
+    """
+    if len(tissue.a) != mesh.n_nodes:
+        raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
+    geometry = element_gradients(mesh.points, mesh.cells)
+    A = diffusion_operator(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
+    lambda_max = largest_eigenvalue(A, lumped_mass(mesh, geometry))
+    dt, steps_per_frame = choose_time_step(lambda_max, config.model.k, config.dt, config.output_interval)
+    return Assembly(A, lambda_max, dt, steps_per_frame)
+
+
 class Simulator:
     """Operator, time step and node ordering of one mesh + tissue, reusable across runs."""
 
@@ -106,15 +131,7 @@ class Simulator:
         self.mesh = mesh
         self.config = config or SolverConfig()
         self.tissue = tissue if tissue is not None else healthy_fields(mesh.n_nodes)
-        if len(self.tissue.a) != mesh.n_nodes:
-            raise TissueError(
-                f"tissue fields have {len(self.tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}"
-            )
-        A = diffusion_operator(mesh, self.config.diffusivity * np.asarray(self.tissue.D, float))
-        self.lambda_max = largest_eigenvalue(A, lumped_mass(mesh))
-        self.dt, self.steps_per_frame = choose_time_step(
-            self.lambda_max, self.config.model.k, self.config.dt, self.config.output_interval
-        )
+        A, self.lambda_max, self.dt, self.steps_per_frame = assemble(mesh, self.tissue, self.config)
         pattern = (abs(A) + abs(A).T).tocsr()
         self.perm = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
         self.inverse_perm = np.argsort(self.perm)
