@@ -31,8 +31,8 @@ from simgen.solver.timestep import choose_time_step, largest_eigenvalue
 __all__ = ["SolverConfig", "SimulationResult", "Assembly", "assemble", "Simulator", "simulate", "healthy_fields"]
 
 #: Sites integrated together per block (see bench/solver.py --block-size). 200 sites on 2 threads at
-#: 10k nodes, alternated in one session: 2 blocks of 104 ran 0.91 ns per node-step and site, 4 of 56
-#: 0.84-0.95 (no better since the kernel's one-pass tail; 1.20-1.25 before it), 7 of 32 (no tail) 0.85-0.98.
+#: 10k nodes, alternated in one session (AMD VM, 8 lanes): 2 blocks of 104 ran 0.91 ns per node-step and
+#: site, 4 of 56 0.84-0.95, 7 of 32 0.85-0.98. With 16 lanes (AVX-512) the 2 blocks are 112 columns wide.
 BLOCK_SIZE = 128
 
 
