@@ -85,11 +85,12 @@ def write_in_pieces(path: Path, value: Buffer, exclusive: bool = False) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     view = memoryview(value.as_buffer_like()).cast("B")
     partial = path.with_suffix(f".{uuid.uuid4().hex}.partial")
+    direct = bool(_O_DIRECT)
     try:
         try:
-            _write_file(partial, view, direct=bool(_O_DIRECT))
+            _write_file(partial, view, direct)
         except OSError as e:  # direct I/O refused by this file system: the page cache it is
-            if e.errno != errno.EINVAL:
+            if not (direct and e.errno == errno.EINVAL):
                 raise
             _write_file(partial, view, direct=False)
         if exclusive:
