@@ -26,7 +26,7 @@ from simgen.build.lock import StoreLock
 from simgen.build.manifest import Task, make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
 from simgen.build.store import consolidate, create_layout, done_flags, pending_tasks, subject_ids
-from simgen.build.worker import run_task
+from simgen.build.worker import flush_writes, run_task
 from simgen.solver.simulate import SolverConfig
 
 __all__ = ["BuildFailed", "BuildReport", "build", "run_pending", "dask_client", "single_thread_env", "SINGLE_THREAD_ENV"]
@@ -133,6 +133,37 @@ def subject_workers(tasks: list[Task], workers: list[str]) -> dict[str, list[str
     return home
 
 
+def _run_round(
+    client: Client,
+    store: str,
+    solver: SolverConfig,
+    tasks: list[Task],
+    retries: int,
+    on_done: Callable[[str], None] | None,
+) -> tuple[dict[str, str], dict[str, str]]:
+    """Run ``tasks`` on the cluster, then wait for every worker's last write.
+
+    Returns what failed, by task key: the tasks that raised (after Dask's
+    ``retries``), and the chunk writes that failed once their task had returned.
+    """
+    home = subject_workers(tasks, list(client.scheduler_info()["workers"]))
+    futures = {
+        client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver, True,
+                      key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
+                      workers=home.get(t.subject_id), allow_other_workers=t.subject_id in home): t
+        for t in tasks
+    }  # fmt: skip
+    errors = {}
+    for future in as_completed(futures):
+        task = futures[future]
+        if future.status == "error":
+            errors[task.key] = repr(future.exception())
+        elif on_done:
+            on_done(task.key)
+    write_errors = {key: why for failed in client.run(flush_writes).values() for key, why in failed}
+    return errors, write_errors
+
+
 def run_pending(
     store: str,
     solver: SolverConfig,
@@ -157,19 +188,14 @@ def run_pending(
             report.dashboard = client.dashboard_link
             if on_start:
                 on_start(len(todo), report.dashboard)
-            home = subject_workers(todo, list(client.scheduler_info()["workers"]))
-            futures = {
-                client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver,
-                              key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
-                              workers=home.get(t.subject_id), allow_other_workers=t.subject_id in home): t
-                for t in todo
-            }  # fmt: skip
-            for future in as_completed(futures):
-                task = futures[future]
-                if future.status == "error":
-                    report.failed.append(f"{task.key}: {future.exception()!r}")
-                elif on_done:
-                    on_done(task.key)
+            errors, _ = _run_round(client, store, solver, todo, retries, on_done)
+            # a chunk whose write failed after its task returned, or whose worker died first, is still pending
+            redo = [t for t in pending_tasks(store, subjects) if t.key not in errors]
+            if redo:
+                again, write_errors = _run_round(client, store, solver, redo, retries, None)
+                left = {t.key for t in pending_tasks(store, subjects)} - errors.keys() - again.keys()
+                errors |= again | {key: write_errors.get(key, "simulated twice, never written") for key in left}
+            report.failed = [f"{key}: {why}" for key, why in errors.items()]
     if report.failed:
         raise BuildFailed(
             f"{len(report.failed)} task(s) failed after {retries} retries; finished chunks are kept, "

@@ -3,12 +3,17 @@
 Everything a task needs is read from the store the driver laid out (mesh,
 sites, tissue fields), so workers on other hosts need only the store path.
 The assembled :class:`Simulator` and the opened result arrays of recent
-subjects are kept per process (:func:`prepare`).
+subjects are kept per process (:func:`prepare`). In a build, a task hands its
+chunk to the process's :class:`BackgroundWriter` and returns: the chunk goes
+to disk while the next one simulates, and the driver calls
+:func:`flush_writes` on every worker before it reads the ``done`` flags.
 """
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
@@ -19,7 +24,7 @@ from shared.schema import subject_path
 from simgen.build.store import read_mesh, read_sites, read_tissue, result_arrays, write_chunk
 from simgen.solver.simulate import Simulator, SolverConfig
 
-__all__ = ["Prepared", "prepare", "run_task"]
+__all__ = ["Prepared", "prepare", "run_task", "BackgroundWriter", "flush_writes"]
 
 _CACHE: OrderedDict[tuple, "Prepared"] = OrderedDict()
 _CACHE_SIZE = 4
@@ -47,9 +52,65 @@ def prepare(store: str, subject_id: str, solver: SolverConfig) -> Prepared:
     return _CACHE[key]
 
 
-def run_task(store: str | Path, subject_id: str, chunk: int, start: int, stop: int, solver: SolverConfig) -> str:
-    """Simulate sites ``[start, stop)`` of ``subject_id`` single-threaded and write chunk ``chunk``."""
+class BackgroundWriter:
+    """One chunk write at a time on a thread of its own, so that the next chunk simulates meanwhile.
+
+    :meth:`submit` first waits for the write before it (at most two chunks in
+    memory). A write that fails is recorded with its chunk (its ``done`` flag
+    stays unset, so the chunk is still pending in the store) and reported by
+    :meth:`flush`; it does not fail the task that happens to come next.
+    """
+
+    def __init__(self) -> None:
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="simgen-writer")
+        self._pending: tuple[str, Future] | None = None
+        self._failed: list[tuple[str, str]] = []
+        self._lock = threading.Lock()
+
+    def submit(self, key: str, write, *args) -> None:
+        """Run ``write(*args)`` (the write of chunk ``key``) once the previous write is done."""
+        with self._lock:
+            self._wait()
+            self._pending = key, self._pool.submit(write, *args)
+
+    def flush(self) -> list[tuple[str, str]]:
+        """Wait for the write in flight; return (and forget) ``(key, error)`` of every failed write."""
+        with self._lock:
+            self._wait()
+            failed, self._failed = self._failed, []
+            return failed
+
+    def _wait(self) -> None:
+        if self._pending is not None:
+            (key, future), self._pending = self._pending, None
+            if future.exception() is not None:
+                self._failed.append((key, repr(future.exception())))
+
+
+_WRITER = BackgroundWriter()
+
+
+def flush_writes() -> list[tuple[str, str]]:
+    """Wait for this process's chunk write in flight; the writes that failed since the last flush."""
+    return _WRITER.flush()
+
+
+def run_task(
+    store: str | Path, subject_id: str, chunk: int, start: int, stop: int, solver: SolverConfig,
+    background: bool = False,
+) -> str:  # fmt: skip
+    """Simulate sites ``[start, stop)`` of ``subject_id`` single-threaded and write chunk ``chunk``.
+
+    ``background``: hand the write to this process's :class:`BackgroundWriter`
+    and return (the caller must :func:`flush_writes` before relying on the
+    chunk); else write it before returning.
+    """
     sim, sites, arrays = prepare(str(store), subject_id, solver)
     result = sim.run(sites[start:stop], threads=1)
-    write_chunk(store, subject_id, chunk, start, stop, result.u, result.activation, arrays)
-    return f"{subject_id}/{chunk}"
+    key = f"{subject_id}/{chunk}"
+    args = store, subject_id, chunk, start, stop, result.u, result.activation, arrays
+    if background:
+        _WRITER.submit(key, write_chunk, *args)
+    else:
+        write_chunk(*args)
+    return key

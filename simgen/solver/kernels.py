@@ -153,7 +153,7 @@ def _run_block(
             frame += 1
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def run_blocks(
     indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, perm,
     frames, act,

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
+from numpy.typing import DTypeLike, NDArray
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from shared.errors import InputError, TissueError
@@ -184,7 +184,7 @@ class Simulator:
         stim = np.ascontiguousarray(padded.reshape(n, n_blocks, width).transpose(1, 0, 2))
         u0 = stim.astype(np.float32)
         stim_steps = int(round(cfg.stimulus_duration / self.dt))
-        frames = np.empty((n_blocks, width, cfg.frames, n), np.float32)
+        frames = page_aligned_empty((n_blocks, width, cfg.frames, n), np.float32)
         act = np.where(stim, np.float32(0.0), np.float32(-1.0))  # stimulated nodes activate at t = 0
         m = cfg.model
         f32 = np.float32
@@ -203,6 +203,16 @@ class Simulator:
         times = cfg.output_interval * np.arange(1, cfg.frames + 1)
         sites = np.full(s, -1, np.int64) if sites is None else sites
         return SimulationResult(sites, times, u, activation, self.dt)
+
+
+def page_aligned_empty(shape: tuple[int, ...], dtype: DTypeLike) -> NDArray:
+    """``np.empty`` whose data starts on a 4096-byte page: a dataset build writes its chunk files
+    straight from such memory with direct I/O (:func:`simgen.build.chunk_files.write_checksummed`)."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    raw = np.empty(nbytes + 4096, np.uint8)
+    offset = -raw.ctypes.data % 4096
+    return raw[offset : offset + nbytes].view(dtype).reshape(shape)
 
 
 def simulate(

@@ -1,18 +1,22 @@
-"""Workers' local store: Zarr's own files, written with direct I/O or buffered, atomic and exclusive as Zarr's."""
+"""Workers' local store: Zarr's own files, written with direct I/O or buffered, atomic and exclusive as Zarr's;
+checksummed chunk files written without Zarr, byte for byte the same."""
 
 from __future__ import annotations
 
 import errno
 import os
 
+import google_crc32c
 import numpy as np
 import pytest
 import zarr
+from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.core.buffer import default_buffer_prototype
 from zarr.core.sync import sync
 
 import simgen.build.chunk_files as chunk_files
-from simgen.build.chunk_files import DirectLocalStore, writable_store, write_in_pieces
+from simgen.build.chunk_files import DirectLocalStore, chunk_file, writable_store, write_checksummed, write_in_pieces
+from simgen.solver.simulate import page_aligned_empty
 
 
 def _buffer(data: bytes):
@@ -57,9 +61,9 @@ def test_direct_io_is_tried_first_and_a_refusal_falls_back_to_the_page_cache(tmp
         return real_open(path, flags, mode)
 
     monkeypatch.setattr(chunk_files.os, "open", refusing_open)
-    write_in_pieces(tmp_path / "k", _buffer(b"x" * 10_000))
+    write_in_pieces(tmp_path / "k", _buffer(b"x" * 100_000))
     assert modes == [True, False]
-    assert (tmp_path / "k").read_bytes() == b"x" * 10_000
+    assert (tmp_path / "k").read_bytes() == b"x" * 100_000
 
 
 def test_exclusive_write_refuses_an_existing_file(tmp_path, io_mode):
@@ -96,3 +100,56 @@ def test_a_write_that_fails_midway_keeps_the_old_file_and_leaves_no_partial(tmp_
 def test_urls_stay_urls():
     assert writable_store("s3://bucket/name.zarr") == "s3://bucket/name.zarr"
     assert isinstance(writable_store("/data/name.zarr"), DirectLocalStore)
+
+
+@pytest.mark.parametrize("aligned", [True, False], ids=["page-aligned", "unaligned"])
+@pytest.mark.parametrize("sites", [4, 3], ids=["whole-chunk", "last-chunk"])
+def test_checksummed_chunk_files_are_byte_for_byte_zarrs(tmp_path, monkeypatch, io_mode, aligned, sites):
+    monkeypatch.setattr(chunk_files, "PIECE_BYTES", 3 * 4096)  # several pieces, straight from memory and staged
+    shape = (4 + sites, 4, 1_101)  # chunks of 4 sites, 70,464 bytes: not a whole number of blocks; chunk 1 written
+    values = page_aligned_empty((sites + 1, *shape[1:]), np.float32)
+    values[...] = np.random.default_rng(1).random(values.shape, dtype=np.float32)
+    values = values[:sites] if aligned else values[1:]
+    assert (values.ctypes.data % chunk_files.ALIGN == 0) is aligned
+    for name in ("plain.zarr", "ours.zarr"):
+        zarr.create_array(str(tmp_path / name), shape=shape, chunks=(4, *shape[1:]), dtype="f4", fill_value=np.nan,
+                          compressors=(Crc32cCodec(),))  # fmt: skip
+    zarr.open_array(str(tmp_path / "plain.zarr"), mode="r+")[4 : 4 + sites] = values
+    ours = zarr.open_array(DirectLocalStore(tmp_path / "ours.zarr"), mode="r+")
+    file = chunk_file(ours, (1, 0, 0))
+    assert file == tmp_path / "ours.zarr" / "c" / "1" / "0" / "0"
+    fill = None
+    if sites < 4:  # page-aligned too: it must still follow the staged end of values
+        fill = page_aligned_empty((4 - sites, *shape[1:]), np.float32)
+        fill[...] = np.nan
+    write_checksummed(file, values, fill)
+    assert file.read_bytes() == (tmp_path / "plain.zarr" / "c" / "1" / "0" / "0").read_bytes()
+    assert np.array_equal(zarr.open_array(str(tmp_path / "ours.zarr"), mode="r")[4 : 4 + sites], values)
+    assert not list(tmp_path.rglob("*.partial"))
+
+
+def test_only_uncompressed_checksummed_arrays_in_a_direct_store_get_chunk_files(tmp_path):
+    def array(name, store=None, dtype="f4", **kw):
+        return zarr.create_array(store or DirectLocalStore(tmp_path / name), shape=(4, 8), chunks=(2, 8),
+                                 dtype=dtype, **kw)  # fmt: skip
+
+    assert chunk_file(array("flags.zarr", dtype="u1", compressors=(Crc32cCodec(),)), (1, 0)) is not None
+    assert chunk_file(array("f4.zarr", compressors=(Crc32cCodec(),)), (1, 0)) == tmp_path / "f4.zarr/c/1/0"
+    assert chunk_file(array("blosc.zarr", compressors=(BloscCodec(cname="lz4"), Crc32cCodec())), (1, 0)) is None
+    assert chunk_file(array("plain.zarr", compressors=None), (1, 0)) is None  # no checksum
+    assert chunk_file(array("s", str(tmp_path / "zarrs-own.zarr"), compressors=(Crc32cCodec(),)), (1, 0)) is None
+    sharded = array("sharded.zarr", shards=(4, 8), compressors=(Crc32cCodec(),))
+    assert chunk_file(sharded, (0, 0)) is None
+
+
+def test_small_files_go_through_the_page_cache(tmp_path, monkeypatch):
+    real_open, direct = os.open, []
+
+    def recording_open(path, flags, mode=0o777):
+        direct.append(bool(flags & chunk_files._O_DIRECT))
+        return real_open(path, flags, mode)
+
+    monkeypatch.setattr(chunk_files.os, "open", recording_open)
+    write_checksummed(tmp_path / "done", np.ones(1, np.uint8))  # a done flag: 5 bytes
+    assert direct == [False]
+    assert (tmp_path / "done").read_bytes() == b"\x01" + np.array([google_crc32c.value(b"\x01")], "<u4").tobytes()

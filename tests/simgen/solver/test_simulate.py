@@ -47,6 +47,10 @@ def test_deterministic_bitwise_across_runs_threads_and_blocks(lv):
     assert np.array_equal(first.activation, again.activation, equal_nan=True)
 
 
+def test_output_starts_on_a_page_so_builds_write_it_without_a_copy(lv):
+    assert Simulator(lv, config=SHORT).run(np.arange(5), threads=1).u.ctypes.data % 4096 == 0
+
+
 def test_wide_blocks_padded_to_whole_vectors_give_the_same_result(lv):
     """65 sites in one block run 72 columns wide (7 unstimulated padding columns): same as narrow blocks."""
     sim = Simulator(lv, config=SHORT)
