@@ -27,10 +27,12 @@ from numpy.typing import NDArray
 
 from shared.errors import InputError, StimulusError
 from shared.mesh import Mesh
-from shared.tissue import TissueSpec
+from shared.tissue import TissueFields, TissueSpec
 from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection
 from simgen.meshes.catalog import get_mesh
+from simgen.meshes.topology import edge_graph
 from simgen.observe.sock import Sock, farthest_point_sampling
+from simgen.solver.fem import element_gradients
 from simgen.solver.simulate import assemble
 from simgen.tissue.fields import tissue_fields
 
@@ -167,8 +169,8 @@ def make_plan(spec: BuildSpec) -> Plan:
     return Plan(spec, meshes, sites, electrodes, subjects, tasks)
 
 
-def validate_plan(plan: Plan) -> None:
-    """Check every subject before anything is written.
+def validate_plan(plan: Plan) -> dict[str, TissueFields]:
+    """Check every subject before anything is written; its tissue fields, by subject id.
 
     Builds the tissue fields (:class:`~shared.errors.TissueError`) and
     assembles the operator of every subject (largest eigenvalue:
@@ -183,10 +185,16 @@ def validate_plan(plan: Plan) -> None:
                 raise StimulusError(
                     f"{what} {int(bad[0])} is out of range for mesh {mesh_id!r} ({mesh.n_nodes} nodes)"
                 )
+    per_mesh = {}  # what every subject of a mesh shares: element gradients, edge graph
+    fields = {}
     for subject in plan.subjects:
         mesh = plan.meshes[subject.mesh_id]
+        if subject.mesh_id not in per_mesh:
+            per_mesh[subject.mesh_id] = element_gradients(mesh.points, mesh.cells), edge_graph(mesh)
+        geometry, graph = per_mesh[subject.mesh_id]
         try:
-            fields = tissue_fields(mesh, subject.tissue)
-            assemble(mesh, fields, plan.spec.solver)
+            fields[subject.id] = tissue_fields(mesh, subject.tissue, graph=graph)
+            assemble(mesh, fields[subject.id], plan.spec.solver, geometry)
         except InputError as exc:
             raise type(exc)(f"subject {subject.id!r} (mesh {subject.mesh_id!r}): {exc}") from exc
+    return fields

@@ -105,10 +105,10 @@ def build(
     """
     start = time.perf_counter()
     plan = make_plan(spec)
-    validate_plan(plan)  # every error that can be found before writing
+    fields = validate_plan(plan)  # every error that can be found before writing
     store = store_location(store, for_workers=True)
     with StoreLock(store):
-        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force)
+        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force, fields=fields)
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done)
     report.seconds = time.perf_counter() - start
     return report

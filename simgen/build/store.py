@@ -24,6 +24,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 from shared.config import to_mapping
 from shared.errors import InputError
 from shared.mesh import Mesh
+from shared.tissue import TissueFields
 from shared.schema import (
     MESH_ARRAYS,
     MESH_INDEX_SETS,
@@ -84,14 +85,18 @@ def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...
     )
 
 
-def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force: bool = False) -> bool:
+def create_layout(
+    path: str | Path, plan, spec_dict: dict, spec_hash: str, force: bool = False, fields: dict | None = None
+) -> bool:
     """Create the store for ``plan`` unless it exists with the same spec hash.
 
     ``path`` is a folder or an fsspec URL (:mod:`simgen.build.location`).
     Returns ``True`` when a new layout was written, ``False`` when an existing
     store of the same spec is reused (resume). A store from another spec is
     refused with :class:`StoreMismatch` unless ``force`` (then everything in it
-    but the lock is deleted and the store written anew).
+    but the lock is deleted and the store written anew). ``fields``: the
+    subjects' tissue fields by id, as :func:`~simgen.build.manifest.validate_plan`
+    returns them (else computed here).
     """
     path = location.store_location(path)
     if location.exists(path, "zarr.json"):
@@ -115,7 +120,8 @@ def create_layout(path: str | Path, plan, spec_dict: dict, spec_hash: str, force
     root.require_group("subjects")  # the common parent exists before the threads write below it
     with ThreadPoolExecutor(LAYOUT_THREADS) as pool:
         list(pool.map(lambda s: write_subject_group(root, s, plan.meshes[s.mesh_id], len(plan.sites[s.mesh_id]),
-                                                    plan.spec.output, plan.spec.solver), plan.subjects))  # fmt: skip
+                                                    plan.spec.output, plan.spec.solver, (fields or {}).get(s.id)),
+                      plan.subjects))  # fmt: skip
     return True
 
 
@@ -136,21 +142,27 @@ def write_mesh_group(root: zarr.Group, mesh_id: str, mesh: Mesh, sites: NDArray,
 
 
 def write_subject_group(
-    root: zarr.Group, subject: Subject, mesh: Mesh, n_sites: int, output: OutputSpec, solver: SolverConfig
+    root: zarr.Group,
+    subject: Subject,
+    mesh: Mesh,
+    n_sites: int,
+    output: OutputSpec,
+    solver: SolverConfig,
+    fields: TissueFields | None = None,
 ) -> zarr.Group:
     """Write group ``subjects/<subject.id>``: attributes, tissue fields and the empty result arrays.
 
     ``u`` and ``activation`` are chunked by ``output.chunk_sites`` sites (NaN until simulated) and
-    ``done`` holds one flag per chunk, all 0. The one code path for subject
-    groups, used by :func:`create_layout` and by
-    :func:`simgen.build.edit.add_subject`.
+    ``done`` holds one flag per chunk, all 0. ``fields``: the subject's tissue
+    fields if already computed. The one code path for subject groups, used by
+    :func:`create_layout` and by :func:`simgen.build.edit.add_subject`.
     """
     compressors = _compressors(output.compressor, output.level)
     n_frames, n_nodes = solver.frames, mesh.n_nodes
     g = root.require_group(subject_path(subject.id))
     g.attrs.update({"mesh_id": subject.mesh_id, "tissue": spec_dict_of(subject.tissue),
                     "chunk_sites": output.chunk_sites})  # fmt: skip
-    fields = tissue_fields(mesh, subject.tissue)
+    fields = fields if fields is not None else tissue_fields(mesh, subject.tissue)
     for name, values in (("a", fields.a), ("D", fields.D), ("label", fields.label)):
         _array(g, name, SUBJECT_ARRAYS, (n_nodes,))[...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
     chunk = min(output.chunk_sites, n_sites)

@@ -22,7 +22,7 @@ from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
 from simgen.solver.aliev_panfilov import APParams
-from simgen.solver.fem import diffusion_operator, element_gradients, lumped_mass
+from simgen.solver.fem import Geometry, diffusion_operator, element_gradients, lumped_mass
 from simgen.solver.kernels import run_blocks
 from simgen.solver.simd import LANES
 from simgen.solver.stimulus import patch_mask
@@ -109,15 +109,18 @@ class Assembly(NamedTuple):
     steps_per_frame: int
 
 
-def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig) -> Assembly:
+def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: Geometry | None = None) -> Assembly:
     """What checking a subject needs before anything is simulated (a :class:`Simulator` does more).
 
-    Raises :class:`~shared.errors.TissueError` if the fields do not match the
-    mesh and :class:`~shared.errors.TimeStepError` for an unstable ``config.dt``.
+    ``geometry``: :func:`~simgen.solver.fem.element_gradients` of the mesh, when
+    the caller assembles many tissues on one mesh. Raises
+    :class:`~shared.errors.TissueError` if the fields do not match the mesh and
+    :class:`~shared.errors.TimeStepError` for an unstable ``config.dt``.
     """
     if len(tissue.a) != mesh.n_nodes:
         raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
-    geometry = element_gradients(mesh.points, mesh.cells)
+    if geometry is None:
+        geometry = element_gradients(mesh.points, mesh.cells)
     A = diffusion_operator(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
     lambda_max = largest_eigenvalue(A, lumped_mass(mesh, geometry))
     dt, steps_per_frame = choose_time_step(lambda_max, config.model.k, config.dt, config.output_interval)

@@ -12,6 +12,7 @@ material with the higher ``a`` wins (ties: the lower ``D``).
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 
@@ -54,17 +55,19 @@ def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | N
 
 
 def scar_regions(
-    mesh: Mesh, spec: TissueSpec
+    mesh: Mesh, spec: TissueSpec, graph: sp.csr_matrix | None = None
 ) -> list[tuple[NDArray[np.bool_], NDArray[np.bool_]]]:
     """``(core, border)`` boolean node masks of every scar, before overlap rules.
 
-    Raises :class:`TissueError` naming the scar for an empty region or an
-    out-of-range sphere node.
+    ``graph``: the mesh's :func:`~simgen.meshes.topology.edge_graph`, when the
+    caller has it. Raises :class:`TissueError` naming the scar for an empty
+    region or an out-of-range sphere node.
     """
     segments = None
     if any(s.region == "segments" for s in spec.scars):
         segments = aha_segments(mesh)
-    graph = edge_graph(mesh) if any(s.border_width > 0 for s in spec.scars) else None
+    if graph is None and any(s.border_width > 0 for s in spec.scars):
+        graph = edge_graph(mesh)
     regions = []
     for i, scar in enumerate(spec.scars):
         core = _core(mesh, scar, i, segments)
@@ -78,7 +81,9 @@ def scar_regions(
     return regions
 
 
-def tissue_fields(mesh: Mesh, spec: TissueSpec, max_scar_fraction: float = 0.5) -> TissueFields:
+def tissue_fields(
+    mesh: Mesh, spec: TissueSpec, max_scar_fraction: float = 0.5, graph: sp.csr_matrix | None = None
+) -> TissueFields:
     """Per-node tissue fields of ``spec`` on ``mesh``.
 
     Parameters
@@ -87,6 +92,8 @@ def tissue_fields(mesh: Mesh, spec: TissueSpec, max_scar_fraction: float = 0.5) 
     spec : healthy material plus scars.
     max_scar_fraction : refuse settings whose scars (cores and borders, alone
         or together) cover more than this fraction of the nodes.
+    graph : the mesh's :func:`~simgen.meshes.topology.edge_graph` (border zones),
+        computed here if not given.
 
     Returns
     -------
@@ -105,7 +112,7 @@ def tissue_fields(mesh: Mesh, spec: TissueSpec, max_scar_fraction: float = 0.5) 
     a = np.full(n, spec.healthy.a, dtype=np.float64)
     D = np.full(n, spec.healthy.D, dtype=np.float64)
     label = np.full(n, LABEL_HEALTHY, dtype=np.int8)
-    regions = scar_regions(mesh, spec)
+    regions = scar_regions(mesh, spec, graph)
 
     limit = max_scar_fraction * n
     for i, (core, border) in enumerate(regions):
