@@ -102,15 +102,20 @@ class CpuMeter:
             self.others_cores = max(0.0, busy - own) / t
 
 
-def small_spec(nodes: int, settings: int, sites: int, chunk: int, compressor="blosc", level=3) -> BuildSpec:
-    """One procedural LV under ``settings`` tissue settings (healthy first), built in code."""
+def small_spec(nodes: int, settings: int, sites: int, chunk: int, compressor: str | None = None,
+               level: int | None = None) -> BuildSpec:  # fmt: skip
+    """One procedural LV under ``settings`` tissue settings (healthy first), built in code.
+
+    ``compressor`` / ``level``: the ``[output]`` defaults unless given.
+    """
     names = [s.name for s in default_settings()]
     tissue = [n for n in TISSUE if n in names] + [n for n in names if n not in TISSUE]
+    output = {"chunk_sites": chunk, "compressor": compressor, "level": level}
     return spec_from_mapping({
         "name": "bench-build", "seed": 0, "tissue": tissue[:settings],
         "meshes": [{"id": "lv", "source": "lv", "nodes": nodes}],
         "sites": {"count": sites},
-        "output": {"chunk_sites": chunk, "compressor": compressor, "level": level},
+        "output": {k: v for k, v in output.items() if v is not None},
     })  # fmt: skip
 
 
@@ -388,15 +393,16 @@ def _write_md(write: list[dict], args) -> list[str]:
     for r in write:
         out.append(f"| {r['compressor']} | {r['chunk_sites']} | {r['chunks']} | {r['run_s']:.2f} | {r['write_s']:.3f} "
                    f"| {r['write_ms_per_chunk']:.0f} | {100 * r['task_write_share']:.1f}% | {r['blocked_s']:.3f} "
-                   f"| {r['flush_s']:.3f} | {r['write_cpu_s']:.3f} | {r['write_cpu_ms_per_chunk']:.1f} | **{100 * r['write_share']:.1f}%** "
+                   f"| {r['flush_s']:.3f} | {r['write_cpu_s']:.3f} | {r['write_cpu_ms_per_chunk']:.1f} "
+                   f"| **{100 * r['write_share']:.1f}%** "
                    f"| {r['stored_bytes'] / 1e6:.1f} | {r['raw_bytes'] / 1e6:.1f} | {r['ratio']:.3f} |")  # fmt: skip
     out += ["", "In the task: `write_chunk` after `Simulator.run`, share = write_chunk / (run + write_chunk). "
             "Background (what a build's tasks do, `simgen.build.worker.BackgroundWriter`): the chunk is written on "
             "a thread of its own while the next one simulates; write share = (task blocked + write CPU) / "
             "(run + task blocked + write CPU), the write CPU counted in full as if no core were spare (a 2-worker "
             "build on 2 cores); the disk wait it hides costs nothing. Last write = the wait for the last chunk's "
-            "write, once per worker and build (the driver's flush), not in the share. Simulator assembly (once per subject and "
-            f"process, {write[0]['setup_s']:.2f} s here) excluded; stored = u + activation chunk files; "
+            "write, once per worker and build (the driver's flush), not in the share. Simulator assembly (once "
+            f"per subject and process, {write[0]['setup_s']:.2f} s here) excluded; stored = u + activation chunk files; "
             "blosc = lz4 inside blosc with bitshuffle."]  # fmt: skip
     return out
 

@@ -140,6 +140,14 @@ def test_only_uncompressed_checksummed_arrays_in_a_direct_store_get_chunk_files(
     assert chunk_file(array("s", str(tmp_path / "zarrs-own.zarr"), compressors=(Crc32cCodec(),)), (1, 0)) is None
     sharded = array("sharded.zarr", shards=(4, 8), compressors=(Crc32cCodec(),))
     assert chunk_file(sharded, (0, 0)) is None
+    read_only = zarr.open_array(DirectLocalStore(tmp_path / "f4.zarr", read_only=True), mode="r")
+    assert chunk_file(read_only, (1, 0)) is None  # Zarr refuses the write
+
+
+def test_big_endian_values_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="little-endian"):
+        write_checksummed(tmp_path / "c", np.zeros(4, ">f4"))
+    assert not list(tmp_path.iterdir())
 
 
 def test_small_files_go_through_the_page_cache(tmp_path, monkeypatch):
