@@ -24,7 +24,6 @@ from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 from shared.config import to_mapping
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.tissue import TissueFields
 from shared.schema import (
     MESH_ARRAYS,
     MESH_INDEX_SETS,
@@ -35,6 +34,7 @@ from shared.schema import (
     subject_path,
 )
 from shared.reader import check_store, done_flags, read_mesh, read_sites, read_tissue, subject_ids
+from shared.tissue import TissueFields
 from simgen.build import location
 from simgen.build.chunk_files import chunk_file, writable_store, write_checksummed
 from simgen.build.lock import LOCK_NAME

@@ -153,6 +153,7 @@ def _run_block(
             frame += 1
 
 
+# nogil: a build worker's writer thread (simgen.build.worker.BackgroundWriter) runs while a chunk simulates
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def run_blocks(
     indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, perm,
