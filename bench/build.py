@@ -275,7 +275,10 @@ def _worker_steps(store: Path, subject: str, prepared: Prepared, chunk: int, bac
         res = sim.run(sites[start:stop], threads=1)
         t1, c1 = time.perf_counter(), time.thread_time()
         args = store, subject, c, start, stop, res.u, res.activation, arrays
-        writer.submit(f"{subject}/{c}", write_chunk, *args) if background else write_chunk(*args)
+        if background:
+            writer.submit(f"{subject}/{c}", write_chunk, *args)
+        else:
+            write_chunk(*args)
         run, blocked, sim_cpu = run + t1 - t0, blocked + time.perf_counter() - t1, sim_cpu + c1 - c0
     t0 = time.perf_counter()
     if writer.flush():

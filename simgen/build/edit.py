@@ -192,7 +192,7 @@ def add_subject(
         tasks = [Task(s.id, k, a, min(a + size, len(site_nodes)))
                  for s in subjects for k, a in enumerate(range(0, len(site_nodes), size))]  # fmt: skip
         plan = Plan(spec, {mesh.id: m}, {mesh.id: site_nodes}, {mesh.id: electrodes}, subjects, tasks)
-        validate_plan(plan)
+        fields = validate_plan(plan)
         record = {
             "mesh": spec_dict_of(mesh),
             "mesh_sha256": _file_sha256(mesh.source),
@@ -206,7 +206,7 @@ def add_subject(
         root.attrs["complete"] = False
         write_mesh_group(root, mesh.id, m, site_nodes, electrodes)
         for subject in subjects:
-            write_subject_group(root, subject, m, len(site_nodes), spec.output, spec.solver)
+            write_subject_group(root, subject, m, len(site_nodes), spec.output, spec.solver, fields[subject.id])
         root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
         consolidate_metadata(store)  # readers of consolidated metadata see the new groups
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=new_ids)

@@ -148,7 +148,7 @@ def _run_round(
     """
     home = subject_workers(tasks, list(client.scheduler_info()["workers"]))
     futures = {
-        client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver, True,
+        client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver,
                       key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
                       workers=home.get(t.subject_id), allow_other_workers=t.subject_id in home): t
         for t in tasks

@@ -95,22 +95,14 @@ def flush_writes() -> list[tuple[str, str]]:
     return _WRITER.flush()
 
 
-def run_task(
-    store: str | Path, subject_id: str, chunk: int, start: int, stop: int, solver: SolverConfig,
-    background: bool = False,
-) -> str:  # fmt: skip
-    """Simulate sites ``[start, stop)`` of ``subject_id`` single-threaded and write chunk ``chunk``.
+def run_task(store: str | Path, subject_id: str, chunk: int, start: int, stop: int, solver: SolverConfig) -> str:
+    """Simulate sites ``[start, stop)`` of ``subject_id`` single-threaded and hand chunk ``chunk`` to the writer.
 
-    ``background``: hand the write to this process's :class:`BackgroundWriter`
-    and return (the caller must :func:`flush_writes` before relying on the
-    chunk); else write it before returning.
+    The chunk is written by this process's :class:`BackgroundWriter`: the
+    caller must :func:`flush_writes` before relying on it.
     """
     sim, sites, arrays = prepare(str(store), subject_id, solver)
     result = sim.run(sites[start:stop], threads=1)
     key = f"{subject_id}/{chunk}"
-    args = store, subject_id, chunk, start, stop, result.u, result.activation, arrays
-    if background:
-        _WRITER.submit(key, write_chunk, *args)
-    else:
-        write_chunk(*args)
+    _WRITER.submit(key, write_chunk, store, subject_id, chunk, start, stop, result.u, result.activation, arrays)
     return key
