@@ -8,7 +8,7 @@ written exactly as a build computes and writes them.
 * :func:`add_subject` lays out a new mesh group and one subject group per
   tissue setting with the same code as :func:`simgen.build.store.create_layout`
   (:func:`~simgen.build.store.write_mesh_group`,
-  :func:`~simgen.build.store.write_subject_group`), with the store's own
+  :func:`~simgen.build.store.write_subject_groups`), with the store's own
   solver and output settings, and records the addition in the root attribute
   ``added`` (a list of ``{"mesh", "sites", "tissue", "subjects"}`` dicts).
   ``spec`` and ``spec_hash`` are left alone, so ``simgen build SPEC`` still
@@ -48,7 +48,7 @@ from simgen.build.store import (
     remove_partials,
     spec_dict_of,
     write_mesh_group,
-    write_subject_group,
+    write_subject_groups,
 )
 from simgen.meshes.catalog import GENERATORS, get_mesh
 from simgen.tissue.defaults import default_settings
@@ -205,8 +205,8 @@ def add_subject(
         root = _root(store, "r+")
         root.attrs["complete"] = False
         write_mesh_group(root, mesh.id, m, site_nodes, electrodes)
-        for subject in subjects:
-            write_subject_group(root, subject, m, len(site_nodes), spec.output, spec.solver, fields[subject.id])
+        write_subject_groups(root, subjects, {mesh.id: m}, {mesh.id: len(site_nodes)}, spec.output, spec.solver,
+                             fields)  # fmt: skip
         root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
         consolidate_metadata(store)  # readers of consolidated metadata see the new groups
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=new_ids)

@@ -25,7 +25,7 @@ from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
 from simgen.build.manifest import Task, make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
-from simgen.build.store import consolidate, create_layout, done_flags, pending_tasks, subject_ids
+from simgen.build.store import chunk_tasks, consolidate, create_layout, pending_tasks
 from simgen.build.worker import flush_writes, run_task
 from simgen.solver.simulate import SolverConfig
 
@@ -180,9 +180,9 @@ def run_pending(
     so builds, added subjects and regenerated chunks all run through here.
     """
     start = time.perf_counter()
-    todo = pending_tasks(store, subjects)
-    total = sum(len(done_flags(store, s)) for s in (subjects or subject_ids(store)))
-    report = BuildReport(store, total, len(todo), sum(t.stop - t.start for t in todo), 0.0)
+    chunks = chunk_tasks(store, subjects)
+    todo = [task for task, done in chunks.items() if not done]
+    report = BuildReport(store, len(chunks), len(todo), sum(t.stop - t.start for t in todo), 0.0)
     if todo:
         with dask_client(scheduler, workers) as client:
             report.dashboard = client.dashboard_link
@@ -190,10 +190,12 @@ def run_pending(
                 on_start(len(todo), report.dashboard)
             errors, _ = _run_round(client, store, solver, todo, retries, on_done)
             # a chunk whose write failed after its task returned, or whose worker died first, is still pending
-            redo = [t for t in pending_tasks(store, subjects) if t.key not in errors]
+            todo = pending_tasks(store, subjects)
+            redo = [t for t in todo if t.key not in errors]
             if redo:
                 again, write_errors = _run_round(client, store, solver, redo, retries, None)
-                left = {t.key for t in pending_tasks(store, subjects)} - errors.keys() - again.keys()
+                todo = pending_tasks(store, subjects)
+                left = {t.key for t in todo} - errors.keys() - again.keys()
                 errors |= again | {key: write_errors.get(key, "simulated twice, never written") for key in left}
             report.failed = [f"{key}: {why}" for key, why in errors.items()]
     if report.failed:
@@ -201,6 +203,6 @@ def run_pending(
             f"{len(report.failed)} task(s) failed after {retries} retries; finished chunks are kept, "
             "rerun the build to retry them:\n  " + "\n  ".join(report.failed)
         )
-    consolidate(store)
+    consolidate(store, complete=not todo if subjects is None else None)  # other subjects may be pending
     report.seconds = time.perf_counter() - start
     return report

@@ -20,6 +20,9 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
+from zarr.core.group import GroupMetadata
+from zarr.core.metadata import ArrayV3Metadata
+from zarr.storage import MemoryStore
 
 from shared.config import to_mapping
 from shared.errors import InputError
@@ -46,11 +49,12 @@ from simgen.tissue import tissue_fields
 __all__ = [
     "create_layout",
     "write_mesh_group",
-    "write_subject_group",
+    "write_subject_groups",
     "remove_partials",
     "write_chunk",
     "done_flags",
     "subject_ids",
+    "chunk_tasks",
     "pending_tasks",
     "read_mesh",
     "read_tissue",
@@ -61,8 +65,8 @@ __all__ = [
     "StoreMismatch",
 ]
 
-#: Subject groups laid out at once (Zarr's small-file round trips overlap: 2.0 -> 1.6 s for 48 subjects).
-LAYOUT_THREADS = 8
+#: Subject groups read or written at once (Zarr's small-file round trips overlap).
+IO_THREADS = 8
 
 
 class StoreMismatch(InputError):
@@ -117,11 +121,8 @@ def create_layout(
     root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False})
     for mesh_id, mesh in plan.meshes.items():
         write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
-    root.require_group("subjects")  # the common parent exists before the threads write below it
-    with ThreadPoolExecutor(LAYOUT_THREADS) as pool:
-        list(pool.map(lambda s: write_subject_group(root, s, plan.meshes[s.mesh_id], len(plan.sites[s.mesh_id]),
-                                                    plan.spec.output, plan.spec.solver, (fields or {}).get(s.id)),
-                      plan.subjects))  # fmt: skip
+    n_sites = {mesh_id: len(sites) for mesh_id, sites in plan.sites.items()}
+    write_subject_groups(root, plan.subjects, plan.meshes, n_sites, plan.spec.output, plan.spec.solver, fields)
     return True
 
 
@@ -141,40 +142,70 @@ def write_mesh_group(root: zarr.Group, mesh_id: str, mesh: Mesh, sites: NDArray,
     return g
 
 
-def write_subject_group(
+def write_subject_groups(
     root: zarr.Group,
-    subject: Subject,
-    mesh: Mesh,
-    n_sites: int,
+    subjects: list[Subject],
+    meshes: dict[str, Mesh],
+    n_sites: dict[str, int],
     output: OutputSpec,
     solver: SolverConfig,
-    fields: TissueFields | None = None,
-) -> zarr.Group:
-    """Write group ``subjects/<subject.id>``: attributes, tissue fields and the empty result arrays.
+    fields: dict[str, TissueFields] | None = None,
+) -> None:
+    """Write groups ``subjects/<id>``: attributes, tissue fields and the empty result arrays.
 
     ``u`` and ``activation`` are chunked by ``output.chunk_sites`` sites (NaN until simulated) and
-    ``done`` holds one flag per chunk, all 0. ``fields``: the subject's tissue
-    fields if already computed. The one code path for subject groups, used by
-    :func:`create_layout` and by :func:`simgen.build.edit.add_subject`.
+    ``done`` holds one flag per chunk, all 0. ``meshes`` and ``n_sites`` by mesh id;
+    ``fields``: the subjects' tissue fields by id where already computed. All
+    groups and arrays are created at once (:func:`zarr.create_hierarchy`: 0.2 s
+    instead of 1.2 s for 48 subjects), then the fields written. The one code
+    path for subject groups, used by :func:`create_layout` and by
+    :func:`simgen.build.edit.add_subject`.
     """
-    compressors = _compressors(output.compressor, output.level)
-    n_frames, n_nodes = solver.frames, mesh.n_nodes
-    g = root.require_group(subject_path(subject.id))
-    g.attrs.update({"mesh_id": subject.mesh_id, "tissue": spec_dict_of(subject.tissue),
-                    "chunk_sites": output.chunk_sites})  # fmt: skip
-    fields = fields if fields is not None else tissue_fields(mesh, subject.tissue)
-    for name, values in (("a", fields.a), ("D", fields.D), ("label", fields.label)):
-        _array(g, name, SUBJECT_ARRAYS, (n_nodes,))[...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
+    nodes: dict[str, Any] = {}
+    for s in subjects:
+        attrs = {"mesh_id": s.mesh_id, "tissue": spec_dict_of(s.tissue), "chunk_sites": output.chunk_sites}
+        nodes[subject_path(s.id)] = GroupMetadata(attributes=attrs)
+        for name, (shape, chunks) in _subject_shapes(meshes[s.mesh_id].n_nodes, n_sites[s.mesh_id], output,
+                                                     solver).items():  # fmt: skip
+            nodes[f"{subject_path(s.id)}/{name}"] = _subject_metadata(name, shape, chunks, output.compressor,
+                                                                      output.level)  # fmt: skip
+    arrays = dict(zarr.create_hierarchy(store=root.store, nodes=nodes))
+    times = solver.output_interval * np.arange(1, solver.frames + 1)
+
+    def write_fields(s: Subject) -> None:
+        f = (fields or {}).get(s.id)
+        f = f if f is not None else tissue_fields(meshes[s.mesh_id], s.tissue)
+        for name, values in (("a", f.a), ("D", f.D), ("label", f.label), ("times", times)):
+            arrays[f"{subject_path(s.id)}/{name}"][...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
+
+    with ThreadPoolExecutor(IO_THREADS) as pool:
+        list(pool.map(write_fields, subjects))
+
+
+def _subject_shapes(
+    n_nodes: int, n_sites: int, output: OutputSpec, solver: SolverConfig
+) -> dict[str, tuple[tuple[int, ...], tuple[int, ...]]]:
+    """Shape and chunk shape of each array of a subject group."""
     chunk = min(output.chunk_sites, n_sites)
-    _array(g, "u", SUBJECT_ARRAYS, (n_sites, n_frames, n_nodes), (chunk, n_frames, n_nodes),
-           compressors=compressors, fill_value=np.nan)  # fmt: skip
-    _array(g, "activation", SUBJECT_ARRAYS, (n_sites, n_nodes), (chunk, n_nodes), compressors=compressors,
-           fill_value=np.nan)  # fmt: skip
-    _array(g, "done", SUBJECT_ARRAYS, (-(-n_sites // output.chunk_sites),), (1,), fill_value=0,
-           compressors=_compressors("none", 0))  # fmt: skip
-    times = solver.output_interval * np.arange(1, n_frames + 1)
-    _array(g, "times", SUBJECT_ARRAYS, (n_frames,))[...] = times
-    return g
+    field = ((n_nodes,), (n_nodes,))
+    return {"a": field, "D": field, "label": field,
+            "u": ((n_sites, solver.frames, n_nodes), (chunk, solver.frames, n_nodes)),
+            "activation": ((n_sites, n_nodes), (chunk, n_nodes)),
+            "done": ((-(-n_sites // output.chunk_sites),), (1,)),
+            "times": ((solver.frames,), (solver.frames,))}  # fmt: skip
+
+
+@lru_cache(maxsize=64)
+def _subject_metadata(
+    name: str, shape: tuple[int, ...], chunks: tuple[int, ...], compressor: str, level: int
+) -> ArrayV3Metadata:
+    """Zarr metadata of subject array ``name``, as :meth:`zarr.Group.create_array` makes it (in memory)."""
+    kw: dict[str, Any] = {}
+    if name in ("u", "activation"):
+        kw = {"compressors": _compressors(compressor, level), "fill_value": np.nan}
+    elif name == "done":  # its own chunk per flag, written by the task that finished it
+        kw = {"compressors": _compressors("none", 0), "fill_value": 0}
+    return _array(zarr.open_group(MemoryStore(), mode="w"), name, SUBJECT_ARRAYS, shape, chunks, **kw).metadata
 
 
 def spec_dict_of(obj: Any) -> Any:
@@ -262,16 +293,24 @@ def _filled(shape: tuple[int, ...], dtype: str, value: bytes) -> NDArray:  # the
     return fill
 
 
-def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
-    """Chunks not flagged done, in subject then chunk order (all subjects, or ``subjects``)."""
+def chunk_tasks(path: str | Path, subjects: list[str] | None = None) -> dict[Task, bool]:
+    """Every chunk of the store (or of ``subjects``) as a task, with its ``done`` flag; subject then chunk order."""
     root = zarr.open_group(str(path), mode="r", use_consolidated=False)
-    tasks = []
-    for subject_id in subjects if subjects is not None else subject_ids(path):
+
+    def chunks(subject_id: str) -> dict[Task, bool]:
         g = root[subject_path(subject_id)]
         n_sites, size = g["u"].shape[0], int(g.attrs["chunk_sites"])
-        for chunk in np.flatnonzero(g["done"][...] == 0):
-            tasks.append(Task(subject_id, int(chunk), int(chunk) * size, min((int(chunk) + 1) * size, n_sites)))
-    return tasks
+        return {Task(subject_id, k, k * size, min((k + 1) * size, n_sites)): bool(flag)
+                for k, flag in enumerate(g["done"][...])}  # fmt: skip
+
+    with ThreadPoolExecutor(IO_THREADS) as pool:
+        found = pool.map(chunks, subjects if subjects is not None else subject_ids(path))
+        return {task: done for subject in found for task, done in subject.items()}
+
+
+def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[Task]:
+    """Chunks not flagged done, in subject then chunk order (all subjects, or ``subjects``)."""
+    return [task for task, done in chunk_tasks(path, subjects).items() if not done]
 
 
 def consolidate_metadata(path: str | Path) -> None:
@@ -281,10 +320,11 @@ def consolidate_metadata(path: str | Path) -> None:
         zarr.consolidate_metadata(str(path))
 
 
-def consolidate(path: str | Path) -> None:
-    """Mark the store complete when no chunk is pending, then consolidate its metadata."""
+def consolidate(path: str | Path, complete: bool | None = None) -> None:
+    """Mark the store complete when no chunk is pending, then consolidate its metadata.
+
+    ``complete``: whether no chunk is pending, if the caller knows (else read from the store).
+    """
     root = zarr.open_group(str(path), mode="r+", use_consolidated=False)
-    root.attrs["complete"] = not pending_tasks(path)
+    root.attrs["complete"] = not pending_tasks(path) if complete is None else complete
     consolidate_metadata(path)
-
-
