@@ -33,10 +33,11 @@ tree) and warns above 0.1.
 3. **Paper scale** (``--paper``, not run by default): ``specs/default.toml``
    (3 meshes x 16 settings x 200 sites = 9,600 simulations) built once per
    ``--paper-workers`` count (default 2; ``--paper-workers 1 2`` gives the
-   2-vs-1 speed-up at full size); wall time, sims/s and store size on disk
+   2-vs-1 speed-up at full size) and ``--paper-repeat`` round (the counts
+   alternating, fastest kept); wall time, sims/s and store size on disk
    (goal <= 15 min on 2 cores).
 
-Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2]] [--out DIR]`` (DIR gets build.md and build.json).
+Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]`` (DIR gets build.md and build.json).
 """
 
 from __future__ import annotations
