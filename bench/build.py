@@ -37,7 +37,8 @@ tree) and warns above 0.1.
    alternating, fastest kept); wall time, sims/s and store size on disk
    (goal <= 15 min on 2 cores).
 
-Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]`` (DIR gets build.md and build.json).
+Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]``
+ (DIR gets build.md and build.json).
 """
 
 from __future__ import annotations
