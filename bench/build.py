@@ -38,7 +38,7 @@ tree) and warns above 0.1.
    (goal <= 15 min on 2 cores).
 
 Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]``
- (DIR gets build.md and build.json).
+(DIR gets build.md and build.json).
 """
 
 from __future__ import annotations
