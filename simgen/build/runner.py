@@ -181,7 +181,7 @@ def run_pending(
     """
     start = time.perf_counter()
     chunks = chunk_tasks(store, subjects)
-    todo = [task for task, done in chunks.items() if not done]
+    todo = [task for task, done in chunks.items() if not done]  # still pending; read again after each round
     report = BuildReport(store, len(chunks), len(todo), sum(t.stop - t.start for t in todo), 0.0)
     if todo:
         with dask_client(scheduler, workers) as client:
