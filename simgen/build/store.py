@@ -36,7 +36,7 @@ from shared.schema import (
     mesh_path,
     subject_path,
 )
-from shared.reader import check_store, done_flags, read_mesh, read_sites, read_tissue, subject_ids
+from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from shared.tissue import TissueFields
 from simgen.build import location
 from simgen.build.chunk_files import chunk_file, writable_store, write_checksummed
@@ -52,7 +52,6 @@ __all__ = [
     "write_subject_groups",
     "remove_partials",
     "write_chunk",
-    "done_flags",
     "subject_ids",
     "chunk_tasks",
     "pending_tasks",
