@@ -37,6 +37,7 @@ def train(
     fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
     epochs: Annotated[Optional[int], typer.Option(help="Override train.epochs.")] = None,
     max_minutes: Annotated[Optional[float], typer.Option(help="Override train.max_minutes.")] = None,
+    seed: Annotated[Optional[int], typer.Option(help="Override train.seed.")] = None,
     store: Annotated[Optional[Path], typer.Option(help="Override data.store.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Override the run directory.")] = None,
     kind: Annotated[Optional[str], typer.Option(help="Override model.kind (metapns or pns).")] = None,
@@ -53,6 +54,8 @@ def train(
             t = replace(cfg.train, epochs=epochs or cfg.train.epochs,
                         max_minutes=cfg.train.max_minutes if max_minutes is None else max_minutes)  # fmt: skip
             cfg = replace(cfg, train=t)
+        if seed is not None:
+            cfg = replace(cfg, train=replace(cfg.train, seed=seed))
         if store is not None:
             cfg = replace(cfg, data=replace(cfg.data, store=str(store.resolve())))
         if out is not None:
@@ -97,6 +100,26 @@ def evaluate(
     js, md = report.write(out)
     console.print(report.to_markdown().split("### per subject")[0])
     console.print(f"wrote {js} and {md}")
+
+
+@app.command()
+def curves(
+    runs: Annotated[list[Path], typer.Argument(help="Run directories (each with a log.jsonl).")],
+    out: Annotated[Path, typer.Option(help="PNG to write.")] = Path("report/training_curves.png"),
+) -> None:
+    """Plot the validation and training target MSE of one or more training runs against epoch."""
+    import json
+
+    from learner.plot import plot_training_curves
+
+    logs = {}
+    for run in runs:
+        log = run / "log.jsonl"
+        if not log.is_file():
+            _fail(InputError(f"{log} not found: is {run} a training run directory?"))
+        logs[run.name] = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    console.print(f"wrote {plot_training_curves(logs, out)}")
 
 
 @app.command()

@@ -60,6 +60,7 @@ class ModelConfig:
     decoder_skips: bool = False  # decoder blocks also see the stimulus encoder's features of their level
     stimulus_distance: bool = True  # the site's geodesic distance map joins its one-hot map as an input
     context_stride: int = 1  # the context encoder sees every k-th frame (1 = all, as in the paper)
+    latent_norm: bool = True  # layer-normalise the latent state after each transition step (False: the reference)
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:

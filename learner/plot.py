@@ -1,4 +1,4 @@
-"""Figures of the surrogate's results: activation maps (truth vs prediction) and accuracy vs context size.
+"""Figures of the surrogate's results: activation maps, accuracy vs context size, training curves.
 
 Built on :class:`matplotlib.figure.Figure` with the Agg canvas (no pyplot, no
 display, the caller's backend untouched), like ``simgen.plot``.
@@ -14,7 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-__all__ = ["plot_activation_panels", "plot_context_curves"]
+__all__ = ["plot_activation_panels", "plot_context_curves", "plot_training_curves"]
 
 _VIEWS = ((12.0, 0.0), (12.0, 180.0))
 
@@ -75,6 +75,33 @@ def plot_context_curves(
         ax.set_xticks(range(1, 1 + max(int(k) for s in by_size.values() for k in s)))
         ax.grid(alpha=0.3)
     fig.axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot_training_curves(runs: Mapping[str, Sequence[Mapping[str, float]]], path: str | Path) -> Path:
+    """Validation target MSE (log scale) and mean training target MSE against epoch, one colour per run.
+
+    ``runs[label]`` is a run's ``log.jsonl`` rows (``epoch``, ``target_mse`` and,
+    on validation epochs, ``val_target_mse``).
+    """
+    fig = Figure(figsize=(6.4, 3.6))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    for i, (label, rows) in enumerate(runs.items()):
+        colour = f"C{i}"
+        val = [(r["epoch"], r["val_target_mse"]) for r in rows if r.get("val_target_mse") is not None]
+        ax.plot([r["epoch"] for r in rows], [r["target_mse"] for r in rows], color=colour, alpha=0.35, lw=1)
+        if val:
+            ax.plot(*zip(*val), color=colour, marker="o", ms=3, label=f"{label}: validation")
+    ax.plot([], [], color="grey", alpha=0.35, label="training (mean per epoch)")
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("target MSE")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)

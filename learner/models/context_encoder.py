@@ -11,6 +11,11 @@ from learner.nn.gcn_gru import GCNGRU
 
 __all__ = ["ContextEncoder"]
 
+#: Initial log-variance of q(c | Y): draws of ``c`` start with a spread of 0.14, below that of the means
+#: across subjects (~0.4). With the default 0 the draws were mostly noise, the generator learned to ignore ``c``,
+#: and training sat at the accuracy of PNS for tens of epochs (docs/training.md).
+INITIAL_LOGVAR = -4.0
+
 
 class ContextEncoder(nn.Module):
     r"""Observed sequences ``(K, T, N_0)`` on nodes ``observed`` to :math:`(\mu_c, \log\sigma^2_c)`.
@@ -31,6 +36,7 @@ class ContextEncoder(nn.Module):
         self.compress_time = nn.Linear(len(range(0, frames, stride)), 1)
         self.mu = nn.Linear(latent, latent)
         self.logvar = nn.Linear(latent, latent)
+        nn.init.constant_(self.logvar.bias, INITIAL_LOGVAR)
 
     def embed_sequences(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Tensor:
         """Per-sequence embeddings ``h(y_1:T)``: ``(K, V, latent)`` (before the set average).

@@ -30,6 +30,7 @@ class GraphDecoder(nn.Module):
         extra = tuple(reversed(channels)) if skips else (0,) * len(channels)
         self.blocks = nn.ModuleList(ResidualGraphBlock(a + e, b) for a, b, e in zip(widths[:-1], widths[1:], extra))
         self.out = nn.Linear(channels[0], 1)
+        nn.init.zeros_(self.out.weight)  # a fresh decoder predicts its bias everywhere (PNS.set_output_mean)
 
     def forward(self, z: Tensor, hierarchy: MeshHierarchy, skips: list[Tensor] | None = None) -> Tensor:
         """``skips[l]`` (B, N_l, C_l): features of level ``l`` joined to the decoder's input there."""

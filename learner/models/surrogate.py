@@ -53,8 +53,18 @@ class PNS(nn.Module):
         self.stimulus_encoder = GraphEncoder(2 if config.stimulus_distance else 1, ch, hid, lat)
         self.coarse_blocks = nn.ModuleList(ResidualGraphBlock(lat, lat) for _ in range(config.coarse_blocks))
         self.initial_state = nn.Linear(lat, lat)
-        self.transition = ConditionalGatedTransition(lat, conditioned=self.conditioned)
+        self.transition = ConditionalGatedTransition(lat, self.conditioned, config.latent_norm)
         self.decoder = GraphDecoder(lat, ch, hid, skips=config.decoder_skips)
+
+    @torch.no_grad()
+    def set_output_mean(self, mean: float) -> None:
+        """Start as the mean predictor: a fresh decoder (zero output weights) then predicts ``mean`` everywhere.
+
+        Its first errors are then the data's spread (~0.1) instead of ~0.7 for a
+        random output layer, whose large early gradients push the whole network
+        around before it has learned anything (docs/training.md).
+        """
+        self.decoder.out.bias.fill_(mean)
 
     def initial(self, sites: Tensor, hierarchy: MeshHierarchy) -> Tensor:
         """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""

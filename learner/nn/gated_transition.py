@@ -4,10 +4,16 @@ r"""Conditional gated transition of the latent state, per node (no graph convolu
 
     z_1 &= \mathrm{ELU}(\alpha_1 z + \beta_1 c + \gamma_1), & g &= \sigma(W_1 z_1 + b_1) \\
     z_2 &= \mathrm{ELU}(\alpha_2 z + \beta_2 c + \gamma_2), & h &= \mathrm{ELU}(W_2 z_2 + b_2) \\
-    z_3 &= \alpha_3 z + \beta_3 c + \gamma_3, & z' &= (1 - g)(W_3 z_3 + b_3) + g\, h
+    z_3 &= \alpha_3 z + \beta_3 c + \gamma_3, & z' &= \mathrm{LN}\big((1 - g)(W_3 z_3 + b_3) + g\, h\big)
 
 with :math:`\alpha_i, \beta_i, \gamma_i` learnable per-channel vectors; the
-unconditioned variant (PNS) has no :math:`\beta_i c` terms.
+unconditioned variant (PNS) has no :math:`\beta_i c` terms. ``LN`` is a layer
+normalisation over the channels of each node (with a learnable scale and shift):
+the transition runs once per frame, so without it any expansive map (gain above
+1 on the linear path) grows the state geometrically over the sequence. Training
+without it diverged that way: the last state's magnitude rose from ~5 to 5e4 in
+a dozen steps, then the loss spiked (docs/training.md). ``normalize=False``
+gives the unnormalised transition of the reference.
 """
 
 from __future__ import annotations
@@ -33,11 +39,12 @@ class ConditionalGatedTransition(nn.Module):
     ``c`` enters the gate and the candidate from the start.
     """
 
-    def __init__(self, latent: int, conditioned: bool = True) -> None:
+    def __init__(self, latent: int, conditioned: bool = True, normalize: bool = True) -> None:
         super().__init__()
         if latent < 1:
             raise InputError(f"latent must be >= 1, got {latent}")
         self.latent, self.conditioned = latent, conditioned
+        self.norm = nn.LayerNorm(latent) if normalize else nn.Identity()
         for i in (1, 2, 3):
             setattr(self, f"alpha{i}", nn.Parameter(torch.empty(latent)))
             setattr(self, f"gamma{i}", nn.Parameter(torch.empty(latent)))
@@ -59,6 +66,8 @@ class ConditionalGatedTransition(nn.Module):
             self.lin2.reset_parameters()
             self.lin3.weight.copy_(torch.eye(self.latent))
             self.lin3.bias.zero_()
+            if isinstance(self.norm, nn.LayerNorm):
+                self.norm.reset_parameters()
 
     def _affine(self, i: int, z: Tensor, c: Tensor | None) -> Tensor:
         y = getattr(self, f"alpha{i}") * z + getattr(self, f"gamma{i}")
@@ -80,7 +89,7 @@ class ConditionalGatedTransition(nn.Module):
             raise InputError("this transition is unconditioned (conditioned=False) and takes no c")
         g = torch.sigmoid(self.lin1(elu(self._affine(1, z, c))))
         h = elu(self.lin2(elu(self._affine(2, z, c))))
-        return (1 - g) * self.lin3(self._affine(3, z, c)) + g * h
+        return self.norm((1 - g) * self.lin3(self._affine(3, z, c)) + g * h)
 
     def extra_repr(self) -> str:
         return f"latent={self.latent}, conditioned={self.conditioned}"

@@ -10,6 +10,12 @@ where ``rec`` is the squared error summed over nodes and frames and averaged
 over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
 embedding of the context set and ``q(c | Y u X)`` that of context and targets
 (both by the same network). PNS has no ``c``: its loss is the reconstruction.
+
+The optimiser gets :math:`\mathcal{L} / (N T)` for a mesh of ``N`` nodes and
+``T`` frames: mean squared errors plus KL terms weighted by
+:math:`\lambda_i / (N T)`. That is the same objective, episode by episode, with
+gradients of order one instead of ~1e5, so that ``train.grad_clip`` is a bound
+on outliers (measured in docs/training.md) rather than a rescaling of every step.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ __all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss"]
 
 @dataclass
 class LossTerms:
-    """The loss and its parts (the MSEs are per node and frame, for logs)."""
+    """The loss and its parts: ``total`` is the negative ELBO per node and frame; the MSEs and KLs as defined above."""
 
     total: Tensor
     target_mse: Tensor
@@ -86,7 +92,7 @@ def episode_loss(
     err = (pred - truth) ** 2
     k = len(episode.context_sites)
     n_frames, n_nodes = model.frames, truth.shape[-1]
-    scale = n_nodes * n_frames
+    per_value = 1.0 / (n_nodes * n_frames)
     target_mse, context_mse = err[k:].mean(), err[:k].mean()
-    total = scale * (target_mse + context_mse) + kl_weight * (lambda1 * kl_q + lambda2 * kl_p)
+    total = target_mse + context_mse + kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
     return LossTerms(total, target_mse, context_mse, kl_q, kl_p)

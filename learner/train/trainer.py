@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,15 +24,18 @@ from tqdm.auto import tqdm
 from shared.errors import InputError
 
 from learner.config import LearnerConfig, config_from_mapping
-from learner.data.episodes import EpisodeDataset
+from learner.data.episodes import Episode, EpisodeDataset
 from learner.data.split import split_subjects
 from learner.models.surrogate import PNS, build_model
 from learner.runtime import set_threads, tune_allocator
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
-from learner.train.loss import episode_loss
+from learner.train.loss import LossTerms, episode_loss
 
 __all__ = ["TrainingDiverged", "TrainResult", "Trainer", "train", "load_model"]
+
+#: Called once per training step: ``(episode, loss terms, gradient norm before clipping)``.
+StepHook = Callable[[Episode, LossTerms, float], None]
 
 #: Validation episodes use their own seed stream, disjoint from training epochs.
 VALIDATION_EPOCH = 1_000_000
@@ -111,6 +115,14 @@ class Trainer:
         self.generator.set_state(ckpt["generator"])
         self.epoch, self.history, self.best = ckpt["epoch"], list(ckpt["history"]), ckpt["best_validation"]
 
+    def training_mean(self) -> float:
+        """Mean potential of the first epoch's training episodes (context and targets, every node and frame)."""
+        total, count = 0.0, 0
+        for ep in self._episodes(self.splits["train"], 0):
+            for u in (ep.context_u, ep.target_u):
+                total, count = total + float(u.double().sum()), count + u.numel()
+        return total / max(count, 1)
+
     # -- one epoch ---------------------------------------------------------
     def _episodes(self, subjects: list[str], epoch: int) -> DataLoader:
         spec, workers = self.config.data.episodes, self.config.data.workers
@@ -127,11 +139,17 @@ class Trainer:
             return None
         return torch.randperm(self.view.frames, generator=self.generator)[:k].sort().values
 
-    def train_epoch(self) -> dict[str, float]:
-        """One episode per training subject; returns the mean loss terms."""
+    def train_epoch(self, on_step: StepHook | None = None) -> dict[str, float]:
+        """One episode per training subject; returns the mean loss terms and the gradient norms' median and maximum.
+
+        ``on_step(episode, terms, grad_norm)`` is called after each backward pass
+        and clipping, before the optimiser step (diagnostics:
+        ``bench/training_stability.py``); ``grad_norm`` is the norm before clipping.
+        """
         cfg, m = self.config.train, self.model
         m.train()
         sums: dict[str, float] = {}
+        norms: list[float] = []
         loader = self._episodes(self.splits["train"], self.epoch)
         bar = tqdm(loader, total=len(self.splits["train"]), disable=not self.progress, leave=False,
                    desc=f"epoch {self.epoch + 1}/{cfg.epochs}")  # fmt: skip
@@ -147,11 +165,15 @@ class Trainer:
                     f"non-finite loss or gradient at epoch {self.epoch + 1}, subject {ep.subject_id}; "
                     f"the last good checkpoint is {self.out / 'last.pt'} (lower train.lr or train.grad_clip)"
                 )
+            if on_step is not None:
+                on_step(ep, terms, float(grad_norm))
             self.optimizer.step()
+            norms.append(float(grad_norm))
             for k, v in terms.as_floats().items():
                 sums[k] = sums.get(k, 0.0) + v
             bar.set_postfix(loss=f"{sums['total'] / n:.4g}", mse=f"{sums['target_mse'] / n:.3g}")
-        return {k: v / max(len(self.splits["train"]), 1) for k, v in sums.items()}
+        means = {k: v / max(len(self.splits["train"]), 1) for k, v in sums.items()}
+        return {**means, "grad_norm_median": statistics.median(norms), "grad_norm_max": max(norms)}
 
     @torch.no_grad()
     def validate(self) -> float:
@@ -169,19 +191,22 @@ class Trainer:
         return total / max(n, 1)
 
     # -- the loop ----------------------------------------------------------
-    def fit(self, on_epoch: Callable[[dict], None] | None = None) -> TrainResult:
+    def fit(self, on_epoch: Callable[[dict], None] | None = None, on_step: StepHook | None = None) -> TrainResult:
         """Train until ``train.epochs`` (or ``train.max_minutes``), checkpointing every epoch."""
         cfg = self.config.train
         tune_allocator()
         set_threads(cfg.threads)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "config.json").write_text(json.dumps(self.config.to_dict(), indent=2))
-        if self.warm_start is not None and self.epoch == 0:
-            (self.out / "warm_start.json").write_text(json.dumps({"init": self.config.train.init, **self.warm_start}))
+        if self.epoch == 0 and not self.history:
+            if self.warm_start is not None:
+                (self.out / "warm_start.json").write_text(json.dumps({"init": self.config.train.init, **self.warm_start}))
+            if self.warm_start is None or "decoder.out.bias" in self.warm_start["fresh"]:
+                self.model.set_output_mean(self.training_mean())
         start, stopped = time.perf_counter(), False
         while self.epoch < cfg.epochs:
             t0 = time.perf_counter()
-            row = {"epoch": self.epoch + 1, "lr": self.optimizer.param_groups[0]["lr"], **self.train_epoch()}
+            row = {"epoch": self.epoch + 1, "lr": self.optimizer.param_groups[0]["lr"], **self.train_epoch(on_step)}
             self.scheduler.step()
             self.epoch += 1
             row["seconds"] = time.perf_counter() - t0
@@ -204,7 +229,8 @@ class Trainer:
 
     def _log(self, row: dict) -> None:
         path = self.out / "log.csv"
-        keys = ["epoch", "lr", "total", "target_mse", "context_mse", "kl_posterior", "kl_prior", "val_target_mse", "seconds"]
+        keys = ["epoch", "lr", "total", "target_mse", "context_mse", "kl_posterior", "kl_prior", "grad_norm_median",
+                "grad_norm_max", "val_target_mse", "seconds"]
         new = not path.exists()
         with path.open("a", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")

@@ -14,6 +14,13 @@ from learner.train.loss import episode_loss
 CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10, coarse_blocks=1)
 
 
+def _trained_like(model: PNS) -> PNS:
+    """A fresh decoder predicts a constant (zero output weights); give it the random output layer of a trained one."""
+    with torch.no_grad():
+        model.decoder.out.weight.normal_(0.0, 0.5)
+    return model
+
+
 @pytest.fixture(scope="module")
 def setup(tiny_store):
     view = StoreView(tiny_store)
@@ -26,7 +33,7 @@ def setup(tiny_store):
 def test_generate_and_embed_shapes(setup, skips):
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = MetaPNS(ModelConfig(**{**CONFIG.__dict__, "decoder_skips": skips}), view.frames)
+    model = _trained_like(MetaPNS(ModelConfig(**{**CONFIG.__dict__, "decoder_skips": skips}), view.frames))
     n, v = hier.graphs[0].num_nodes, hier.graphs[-1].num_nodes
     post = model.embed(ep.context_obs, ep.observed, hier)
     assert post.mu.shape == post.logvar.shape == (v, CONFIG.latent)
@@ -40,13 +47,15 @@ def test_generate_and_embed_shapes(setup, skips):
 def test_every_parameter_gets_a_finite_gradient(setup, kind, skips):
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = build_model(ModelConfig(**{**CONFIG.__dict__, "kind": kind, "decoder_skips": skips}), view.frames)
+    config = ModelConfig(**{**CONFIG.__dict__, "kind": kind, "decoder_skips": skips})
+    model = _trained_like(build_model(config, view.frames))
     assert isinstance(model, MetaPNS) == (kind == "metapns")
     terms = episode_loss(model, ep, hier, lambda1=1e-4, lambda2=0.1, generator=torch.Generator().manual_seed(0))
     terms.total.backward()
     for name, p in model.named_parameters():
         assert p.grad is not None, f"{name} gets no gradient"
         assert torch.isfinite(p.grad).all(), name
+        assert p.grad.abs().sum() > 0, f"{name}'s gradient is zero"
     if kind == "pns":
         assert float(terms.kl_posterior) == float(terms.kl_prior) == 0.0
         assert not hasattr(model, "context_encoder")
@@ -99,10 +108,11 @@ def test_inference_layout_gives_the_training_paths_result(setup):
     """Under no_grad the blocks, pooling and output layer run on the (N, C, B) layout: same sequences."""
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = MetaPNS(CONFIG, view.frames).eval()
+    model = _trained_like(MetaPNS(CONFIG, view.frames)).eval()
     c = model.embed(ep.context_obs, ep.observed, hier).mu.detach()
     with torch.no_grad():
         fast = model.generate(ep.target_sites, hier, c)
+        assert fast.std() > 1e-3  # not the constant output of a fresh decoder
         fast_c = model.embed(ep.context_obs, ep.observed, hier).mu
     slow = model.generate(ep.target_sites, hier, c).detach()
     torch.testing.assert_close(fast, slow, rtol=1e-5, atol=1e-5)

@@ -1,4 +1,4 @@
-"""ConditionalGatedTransition against the SPEC equations (numpy, float64), initialisation and errors."""
+"""ConditionalGatedTransition against the SPEC equations (numpy, float64), initialisation, bounded state and errors."""
 
 from __future__ import annotations
 
@@ -28,21 +28,26 @@ def _reference(module: ConditionalGatedTransition, z: np.ndarray, c: np.ndarray 
 
     g = 1 / (1 + np.exp(-lin(1, _elu(affine(1)))))
     h = _elu(lin(2, _elu(affine(2))))
-    return (1 - g) * lin(3, affine(3)) + g * h
+    out = (1 - g) * lin(3, affine(3)) + g * h
+    if "norm.weight" not in p:
+        return out
+    centred = out - out.mean(-1, keepdims=True)
+    return centred / np.sqrt((centred**2).mean(-1, keepdims=True) + 1e-5) * p["norm.weight"] + p["norm.bias"]
 
 
-def _randomised(conditioned: bool) -> ConditionalGatedTransition:
+def _randomised(conditioned: bool, normalize: bool = True) -> ConditionalGatedTransition:
     torch.manual_seed(0)
-    t = ConditionalGatedTransition(L, conditioned=conditioned).double()
+    t = ConditionalGatedTransition(L, conditioned=conditioned, normalize=normalize).double()
     with torch.no_grad():
         for p in t.parameters():
             p.normal_(0.0, 0.7)
     return t
 
 
+@pytest.mark.parametrize("normalize", [True, False])
 @pytest.mark.parametrize("conditioned", [True, False])
-def test_matches_spec_equations(conditioned):
-    t = _randomised(conditioned)
+def test_matches_spec_equations(conditioned, normalize):
+    t = _randomised(conditioned, normalize)
     rng = np.random.default_rng(0)
     z = rng.normal(size=(3, 5, L))
     c = rng.normal(size=(3, 5, L)) if conditioned else None
@@ -57,14 +62,33 @@ def test_parameters():
     assert not any(n.startswith("beta") for n in pns) and len(names - pns) == 3
 
 
-def test_linear_path_starts_at_identity():
-    t = ConditionalGatedTransition(L).double()
+@pytest.mark.parametrize("normalize", [True, False])
+def test_linear_path_starts_at_identity(normalize):
+    t = ConditionalGatedTransition(L, normalize=normalize).double()
     torch.testing.assert_close(t.lin3.weight, torch.eye(L, dtype=torch.float64))
     with torch.no_grad():  # close the gate: only the linear path remains
         t.lin1.weight.zero_()
         t.lin1.bias.fill_(-60.0)
     z, c = torch.randn(2, 4, L, dtype=torch.float64), torch.randn(2, 4, L, dtype=torch.float64)
-    torch.testing.assert_close(t(z, c), z)
+    expected = torch.nn.functional.layer_norm(z, (L,)) if normalize else z
+    torch.testing.assert_close(t(z, c), expected)
+
+
+def test_state_stays_bounded_under_an_expansive_linear_path():
+    """Gain 1.5 on the linear path over 55 frames: the normalised state keeps its size, the reference's explodes."""
+    sizes = {}
+    for normalize in (True, False):
+        t = ConditionalGatedTransition(L, normalize=normalize).double()
+        with torch.no_grad():
+            t.lin3.weight.mul_(1.5)
+            t.lin1.weight.zero_()
+            t.lin1.bias.fill_(-60.0)  # gate closed: the linear path alone
+        z, c = torch.randn(3, 4, L, dtype=torch.float64), torch.zeros(3, 4, L, dtype=torch.float64)
+        for _ in range(55):
+            z = t(z, c)
+        sizes[normalize] = float(z.abs().max())
+    assert sizes[True] <= L**0.5 + 1e-6  # unit variance per node, unit scale, zero shift: |z_i| <= sqrt(L)
+    assert sizes[False] > 1.5**50
 
 
 def test_condition_matters_and_gets_gradients_at_init():

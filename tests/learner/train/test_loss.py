@@ -1,4 +1,4 @@
-"""The KL terms against torch.distributions, and the frame-subset estimate of the reconstruction."""
+"""The KL terms against torch.distributions and the loss normalised per node and frame."""
 
 from __future__ import annotations
 
@@ -25,3 +25,28 @@ def test_posterior_sample_is_reparameterised():
     c = post.sample(torch.Generator().manual_seed(1))
     c.sum().backward()
     assert torch.equal(post.mu.grad, torch.ones(4, 2)) and post.logvar.grad.abs().sum() > 0
+
+
+def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_config, tmp_path):
+    from learner.data.episodes import load_episode
+    from learner.models.surrogate import build_model
+    from learner.store_view import StoreView
+    from learner.train.loss import episode_loss
+
+    cfg = tiny_config(tiny_store, tmp_path / "run")
+    view = StoreView(tiny_store)
+    ep = load_episode(tiny_store, "lv-scar-apex", [0, 1], [2, 3, 4], "surface")
+    hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
+    torch.manual_seed(0)
+    model = build_model(cfg.model, view.frames)
+    terms = episode_loss(model, ep, hier, lambda1=0.3, lambda2=0.7, kl_weight=0.5,
+                         generator=torch.Generator().manual_seed(0))  # fmt: skip
+    c = model.embed_prior_and_posterior(ep.context_obs, ep.target_u * ep.observed, ep.observed, hier)[1].sample(
+        torch.Generator().manual_seed(0))  # fmt: skip
+    pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c)
+    truth = torch.cat([ep.context_u, ep.target_u])
+    summed = ((pred - truth) ** 2).sum(dim=(1, 2))  # SPEC's reconstruction: summed over nodes and frames
+    elbo = summed[2:].mean() + summed[:2].mean() + 0.5 * (0.3 * terms.kl_posterior + 0.7 * terms.kl_prior)
+    n_values = truth.shape[1] * truth.shape[2]
+    torch.testing.assert_close(terms.total, elbo / n_values)
+    assert float(terms.kl_prior.detach()) > 0

@@ -1,17 +1,20 @@
-"""Training: a tiny model overfits one subject, resume is exact, NaN stops cleanly, checkpoints are safe."""
+"""Training: every seed learns, a tiny model overfits one subject, resume is exact, NaN stops cleanly, checkpoints are safe."""
 
 from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 import torch
+import zarr
 
 from shared.errors import ConfigError, InputError
+from shared.schema import subject_path
 
-from learner.data.episodes import load_episode
+from learner.data.episodes import EpisodeDataset, load_episode
 from learner.train.checkpoint import load_checkpoint
-from learner.train.trainer import Trainer, TrainingDiverged, load_model, train
+from learner.train.trainer import VALIDATION_EPOCH, Trainer, TrainingDiverged, load_model, train
 
 
 def _episode_mse(model, trainer, ep) -> float:
@@ -20,6 +23,51 @@ def _episode_mse(model, trainer, ep) -> float:
         c = model.embed(ep.context_obs, ep.observed, hier).mu
         pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c)
     return float(((pred - torch.cat([ep.context_u, ep.target_u])) ** 2).mean())
+
+
+def _frame_mean_mse(trainer: Trainer) -> float:
+    """Validation target MSE of the per-frame mean of the training data: a predictor that ignores site and context."""
+    store = trainer.config.data.store
+    sums = [zarr.open_group(store, path=subject_path(s), mode="r")["u"][:].sum(axis=(0, 2), dtype=np.float64)
+            for s in trainer.splits["train"]]  # fmt: skip
+    counts = [np.prod(zarr.open_group(store, path=subject_path(s), mode="r")["u"].shape) for s in trainer.splits["train"]]
+    frame_mean = torch.from_numpy(sum(sums) * len(sums[0]) / sum(counts)).float()[None, :, None]
+    episodes = EpisodeDataset(store, trainer.splits["validation"], trainer.config.data.episodes,
+                              seed=trainer.config.train.seed, epoch=VALIDATION_EPOCH)  # fmt: skip
+    return float(np.mean([float(((ep.target_u - frame_mean) ** 2).mean()) for ep in episodes]))
+
+
+def test_every_seed_learns_past_the_input_ignoring_level(tiny_store, tiny_config, tmp_path):
+    """Three seeds, 40 epochs of 4 steps: no loss spike, and each ends well below the per-frame mean predictor.
+
+    With the reference transition, the summed loss and a random output layer
+    (docs/training.md), seed 1 started at 12x the per-frame mean's error and
+    seeds 1 and 2 ended at 0.44x and 0.51x of it here; now all end near 0.3x.
+    """
+    for seed in (0, 1, 2):
+        cfg = tiny_config(tiny_store, tmp_path / f"seed{seed}", epochs=40, lr=3e-3, seed=seed, validate_every=5)
+        trainer = Trainer(cfg, progress=False)
+        ignoring = _frame_mean_mse(trainer)
+        result = trainer.fit()
+        val = [row["val_target_mse"] / ignoring for row in result.history if "val_target_mse" in row]
+        train_mse = [row["target_mse"] for row in result.history]
+        assert val[-1] < 0.4, (seed, val)
+        assert max(val[2:]) < 1.0, (seed, val)  # from epoch 15 on, never back at the input-ignoring level
+        assert max(train_mse[1:]) < 2 * train_mse[0], (seed, train_mse)  # no spike above the first epoch
+
+
+def test_a_fresh_model_starts_as_the_mean_predictor(tiny_store, tiny_config, tmp_path):
+    trainer = Trainer(tiny_config(tiny_store, tmp_path / "mean"), progress=False)
+    mean = trainer.training_mean()
+    episodes = list(trainer._episodes(trainer.splits["train"], 0))
+    values = torch.cat([torch.cat([ep.context_u.flatten(), ep.target_u.flatten()]) for ep in episodes]).double()
+    assert mean == pytest.approx(float(values.mean()), rel=1e-9)
+    trainer.model.set_output_mean(mean)
+    hier = trainer.view.hierarchy(episodes[0].mesh_id, trainer.config.model.levels, trainer.config.model.coarsest)
+    with torch.no_grad():
+        c = trainer.model.embed(episodes[0].context_obs, episodes[0].observed, hier).mu
+        pred = trainer.model.generate(episodes[0].target_sites, hier, c)
+    torch.testing.assert_close(pred, torch.full_like(pred, mean))
 
 
 def test_tiny_model_overfits_one_subject(tiny_store, tiny_config, tmp_path):

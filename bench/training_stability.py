@@ -1,0 +1,140 @@
+"""Training diagnostics: what every step of a run does, for one or more seeds.
+
+Per optimiser step it records the loss terms (target and context MSE, both KL
+terms), the gradient norm before clipping in total and per top-level module,
+and the size of the latent state before the transition's normalisation
+(``max |z|`` of the first and of the last frame). Per epoch it prints a Markdown
+row: mean and maximum training target MSE, median and maximum gradient norm,
+the largest latent state, and the validation target MSE. docs/training.md is
+written from its output.
+
+Any key of the training config can be overridden (``--set model.latent_norm=false``
+gives the reference transition), so a change is weighed against the default by
+running both.
+
+Run: ``.venv/bin/python bench/training_stability.py --store data/default.zarr --seeds 0 1 --epochs 12
+[--config specs/train-default.toml] [--set SECTION.KEY=VALUE ...] [--out DIR]``; each seed trains
+on one thread, in its own process when several seeds are given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tomllib
+from collections import defaultdict
+from pathlib import Path
+
+import torch
+
+from learner.config import config_from_mapping, load_config
+from learner.train.trainer import Trainer
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "specs" / "train-default.toml"
+MODULES = ("stimulus_encoder", "coarse_blocks", "initial_state", "transition", "decoder", "context_encoder")
+
+
+def _override(mapping: dict, assignment: str) -> None:
+    """Apply ``section.key=value`` (value in TOML syntax) to a config mapping."""
+    key, _, value = assignment.partition("=")
+    *sections, name = key.split(".")
+    for section in sections:
+        mapping = mapping.setdefault(section, {})
+    mapping[name] = tomllib.loads(f"v = {value}")["v"]
+
+
+def run_seed(args: argparse.Namespace, seed: int) -> None:
+    """Train one seed, writing ``steps-<seed>.jsonl`` and ``epochs-<seed>.jsonl`` to ``args.out``."""
+    torch.set_num_threads(1)
+    mapping = load_config(args.config).to_dict()
+    for assignment in args.set:
+        _override(mapping, assignment)
+    _override(mapping, f"train.seed={seed}")
+    _override(mapping, f"train.epochs={args.epochs}")
+    _override(mapping, "train.max_minutes=0")
+    _override(mapping, "train.validate_every=1")
+    mapping["data"]["store"] = str(Path(args.store).resolve())
+    mapping["out"] = str(args.out / f"run-{seed}")
+    shutil.rmtree(mapping["out"], ignore_errors=True)  # a fresh run, not a resumed one
+    trainer = Trainer(config_from_mapping(mapping), progress=False)
+    model = trainer.model
+    latent: list[float] = []
+    model.transition.norm.register_forward_pre_hook(lambda _m, inputs: latent.append(float(inputs[0].detach().abs().max())))
+    steps = (args.out / f"steps-{seed}.jsonl").open("w")
+    count = [0]
+
+    def on_step(episode, terms, grad_norm: float) -> None:
+        unclip = max(1.0, grad_norm / trainer.config.train.grad_clip)  # clipping scaled every gradient alike
+        modules = {name: unclip * float(torch.sqrt(sum((p.grad**2).sum() for p in getattr(model, name).parameters()
+                                                       if p.grad is not None)))
+                   for name in MODULES if hasattr(model, name)}  # fmt: skip
+        count[0] += 1
+        row = {"epoch": trainer.epoch + 1, "step": count[0], "subject": episode.subject_id, **terms.as_floats(),
+               "grad_norm": grad_norm, **{f"grad_{k}": v for k, v in modules.items()},
+               "latent_first": latent[0], "latent_last": latent[-1]}  # fmt: skip
+        steps.write(json.dumps(row) + "\n")
+        steps.flush()
+        latent.clear()
+
+    def on_epoch(row: dict) -> None:
+        latent.clear()  # validation passes are not training steps
+        with (args.out / f"epochs-{seed}.jsonl").open("a") as fh:
+            fh.write(json.dumps(row) + "\n")
+
+    (args.out / f"epochs-{seed}.jsonl").unlink(missing_ok=True)
+    trainer.fit(on_epoch=on_epoch, on_step=on_step)
+    steps.close()
+
+
+def summary(out: Path, seed: int) -> str:
+    """Markdown table, one row per epoch, from a seed's step and epoch logs."""
+    steps = [json.loads(line) for line in (out / f"steps-{seed}.jsonl").open()]
+    epochs = {json.loads(line)["epoch"]: json.loads(line) for line in (out / f"epochs-{seed}.jsonl").open()}
+    by_epoch: dict[int, list[dict]] = defaultdict(list)
+    for row in steps:
+        by_epoch[row["epoch"]].append(row)
+    lines = [f"seed {seed}", "",
+             "| epoch | train target MSE mean | max | grad norm median | max | max latent, last frame | val target MSE |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for epoch, rows in sorted(by_epoch.items()):
+        mse = [r["target_mse"] for r in rows]
+        norms = [r["grad_norm"] for r in rows]
+        val = epochs.get(epoch, {}).get("val_target_mse")
+        lines.append(f"| {epoch} | {statistics.mean(mse):.4f} | {max(mse):.3g} | {statistics.median(norms):.3g} | "
+                     f"{max(norms):.3g} | {max(r['latent_last'] for r in rows):.3g} | "
+                     f"{'' if val is None else f'{val:.4f}'} |")  # fmt: skip
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--store", required=True, help="dataset store (simgen build)")
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--epochs", type=int, default=12)
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override a config key (TOML value), e.g. model.latent_norm=false")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=Path("report/training-stability"))
+    parser.add_argument("--one-seed", action="store_true", help=argparse.SUPPRESS)  # a child process's run
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.one_seed or len(args.seeds) == 1:
+        run_seed(args, args.seeds[0])
+    else:
+        base = [sys.executable, __file__, "--one-seed", "--store", args.store, "--config", str(args.config),
+                "--epochs", str(args.epochs), "--out", str(args.out)] + [f"--set={s}" for s in args.set]  # fmt: skip
+        children = [subprocess.Popen(base + ["--seeds", str(seed)]) for seed in args.seeds]
+        if any(child.wait() for child in children):
+            sys.exit("a seed's run failed (its error is above)")
+    if not args.one_seed:
+        tables = "\n\n".join(summary(args.out, seed) for seed in args.seeds)
+        (args.out / "training_stability.md").write_text(tables + "\n")
+        print(tables)
+
+
+if __name__ == "__main__":
+    main()
