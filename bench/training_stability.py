@@ -12,9 +12,20 @@ Any key of the training config can be overridden (``--set model.latent_norm=fals
 gives the reference transition), so a change is weighed against the default by
 running both.
 
+``--probe CHECKPOINT ...`` instead asks what trained models predict on their
+validation episodes: the target MSE next to that of the per-frame mean of the
+training data (a predictor that ignores site and context), the context effect
+(the squared change of the prediction when the context set is replaced by that
+of another validation subject on the same mesh, relative to the squared error of
+predicting each target by the mean of the context sequences: near 0 when the
+context is ignored), the spread of the predictions over sites relative to the
+truth's, and the posterior's mean log-variance next to the spread of its means
+between subjects.
+
 Run: ``.venv/bin/python bench/training_stability.py --store data/default.zarr --seeds 0 1 --epochs 12
 [--config specs/train-default.toml] [--set SECTION.KEY=VALUE ...] [--out DIR]``; each seed trains
-on one thread, in its own process when several seeds are given.
+on one thread, in its own process when several seeds are given. Probe:
+``.venv/bin/python bench/training_stability.py --store data/default.zarr --probe runs/seed0/last.pt``.
 """
 
 from __future__ import annotations
@@ -32,7 +43,9 @@ from pathlib import Path
 import torch
 
 from learner.config import config_from_mapping, load_config
-from learner.train.trainer import Trainer
+from learner.data.episodes import EpisodeDataset
+from learner.store_view import StoreView
+from learner.train.trainer import VALIDATION_EPOCH, Trainer, load_model
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "specs" / "train-default.toml"
 MODULES = ("stimulus_encoder", "coarse_blocks", "initial_state", "transition", "decoder", "context_encoder")
@@ -62,8 +75,12 @@ def run_seed(args: argparse.Namespace, seed: int) -> None:
     shutil.rmtree(mapping["out"], ignore_errors=True)  # a fresh run, not a resumed one
     trainer = Trainer(config_from_mapping(mapping), progress=False)
     model = trainer.model
-    latent: list[float] = []
-    model.transition.norm.register_forward_pre_hook(lambda _m, inputs: latent.append(float(inputs[0].detach().abs().max())))
+    latent: list[float] = []  # max |z| of each frame's state before normalisation, in order
+
+    def record(_module, inputs) -> None:
+        latent.append(float(inputs[0].detach().abs().max()))
+
+    model.transition.norm.register_forward_pre_hook(record)
     steps = (args.out / f"steps-{seed}.jsonl").open("w")
     count = [0]
 
@@ -110,6 +127,35 @@ def summary(out: Path, seed: int) -> str:
     return "\n".join(lines)
 
 
+@torch.no_grad()
+def probe(checkpoint: Path, store: str) -> dict[str, float]:
+    """What a trained model predicts on its validation episodes (the quantities of the module docstring)."""
+    torch.set_num_threads(1)
+    model, cfg, ckpt = load_model(checkpoint)
+    view = StoreView(store)
+    frame_mean = torch.from_numpy(view.frame_means(ckpt["splits"]["train"])).float()[None, :, None]
+    episodes = list(EpisodeDataset(store, ckpt["splits"]["validation"], cfg.data.episodes, seed=cfg.train.seed,
+                                   epoch=VALIDATION_EPOCH))  # fmt: skip
+    hier = {ep.mesh_id: view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest) for ep in episodes}
+    post = [model.embed(ep.context_obs, ep.observed, hier[ep.mesh_id]) for ep in episodes]
+    rows = []
+    for i, ep in enumerate(episodes):
+        truth = ep.target_u
+        pred = model.generate(ep.target_sites, hier[ep.mesh_id], post[i].mu)
+        row = {"val_target_mse": float(((pred - truth) ** 2).mean()),
+               "frame_mean_mse": float(((frame_mean - truth) ** 2).mean()),
+               "site_spread_ratio": float(pred.std(0).mean() / truth.std(0).mean()),
+               "posterior_logvar": float(post[i].logvar.mean())}  # fmt: skip
+        other = next((j for j, o in enumerate(episodes) if j != i and o.mesh_id == ep.mesh_id), None)
+        if other is not None:
+            swapped = model.generate(ep.target_sites, hier[ep.mesh_id], post[other].mu)
+            naive = float(((truth - ep.context_u.mean(0)) ** 2).mean())
+            row["context_effect"] = float(((pred - swapped) ** 2).mean()) / naive
+            row["posterior_mean_spread"] = float((post[i].mu - post[other].mu).abs().mean())
+        rows.append(row)
+    return {key: statistics.mean(r[key] for r in rows if key in r) for key in rows[0] | rows[-1]}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--store", required=True, help="dataset store (simgen build)")
@@ -119,8 +165,14 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="override a config key (TOML value), e.g. model.latent_norm=false")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("report/training-stability"))
+    parser.add_argument("--probe", type=Path, nargs="+", metavar="CHECKPOINT", help="probe trained models instead")
     parser.add_argument("--one-seed", action="store_true", help=argparse.SUPPRESS)  # a child process's run
     args = parser.parse_args()
+    if args.probe:
+        for checkpoint in args.probe:
+            found = probe(checkpoint, str(Path(args.store).resolve()))
+            print(f"{checkpoint}: " + ", ".join(f"{k} {v:.4g}" for k, v in found.items()))
+        return
     args.out.mkdir(parents=True, exist_ok=True)
     if args.one_seed or len(args.seeds) == 1:
         run_seed(args, args.seeds[0])

@@ -60,6 +60,15 @@ class StoreView:
         """Output times (model time units) of the frames."""
         return zarr.open_group(self.store, path=subject_path(self.subjects[0]), mode="r")["times"][...]
 
+    def frame_means(self, subjects: list[str]) -> np.ndarray:
+        """Mean potential per frame over every site and node of ``subjects``: the predictor that ignores all inputs."""
+        total, count = np.zeros(self.frames), 0
+        for sid in subjects:
+            u = zarr.open_group(self.store, path=subject_path(sid), mode="r")["u"]
+            total += u[...].sum(axis=(0, 2), dtype=np.float64)
+            count += u.shape[0] * u.shape[2]
+        return total / max(count, 1)
+
     def check_subject(self, subject_id: str) -> None:
         """Refuse an unknown subject id with the known ones in the message."""
         if subject_id not in self.mesh_of:
