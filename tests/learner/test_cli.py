@@ -1,4 +1,4 @@
-"""End to end through the ``learner`` CLI: train, evaluate, personalise, predict (with VTK)."""
+"""End to end through the ``learner`` CLI: train, curves, evaluate, personalise, predict (with VTK)."""
 
 from __future__ import annotations
 
@@ -46,6 +46,19 @@ epochs = 2
     assert result.exit_code == 0, result.output
     assert "epoch    2" in result.output
     return folder
+
+
+def test_train_takes_a_seed_and_curves_plot_the_runs(trained):
+    result = runner.invoke(app, ["train", str(trained / "train.toml"), "--seed", "3", "--epochs", "1",
+                                 "--out", str(trained / "seed3")])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert json.loads((trained / "seed3" / "config.json").read_text())["train"]["seed"] == 3
+    png = trained / "curves.png"
+    result = runner.invoke(app, ["curves", str(trained / "run"), str(trained / "seed3"), "--out", str(png)])
+    assert result.exit_code == 0, result.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    result = runner.invoke(app, ["curves", str(trained / "eval-missing")])
+    assert result.exit_code == 2 and "log.jsonl not found" in result.output
 
 
 def test_evaluate_writes_json_and_markdown(trained, tiny_store):
