@@ -11,8 +11,8 @@ unconditioned variant (PNS) has no :math:`\beta_i c` terms. ``LN`` is a layer
 normalisation over the channels of each node (with a learnable scale and shift):
 the transition runs once per frame, so without it any expansive map (gain above
 1 on the linear path) grows the state geometrically over the sequence. Training
-without it diverged that way: the last state's magnitude rose from ~5 to 5e4 in
-a dozen steps, then the loss spiked (docs/training.md). ``normalize=False``
+without it diverged that way: the last frame's state rose from ~30 to 5e4 within
+eleven steps, then the loss spiked (docs/training.md). ``normalize=False``
 gives the unnormalised transition of the reference.
 """
 

@@ -13,7 +13,7 @@ from shared.errors import InputError
 __all__ = ["CHECKPOINT_FORMAT", "save_checkpoint", "load_checkpoint"]
 
 #: Bumped on incompatible changes of the checkpoint contents.
-CHECKPOINT_FORMAT = 2  # 2: layer-normalised latent transition, mean-normalised loss
+CHECKPOINT_FORMAT = 2  # 2: the latent transition's layer-norm parameters
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:

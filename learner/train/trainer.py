@@ -200,7 +200,8 @@ class Trainer:
         (self.out / "config.json").write_text(json.dumps(self.config.to_dict(), indent=2))
         if self.epoch == 0 and not self.history:
             if self.warm_start is not None:
-                (self.out / "warm_start.json").write_text(json.dumps({"init": self.config.train.init, **self.warm_start}))
+                record = {"init": self.config.train.init, **self.warm_start}
+                (self.out / "warm_start.json").write_text(json.dumps(record))
             if self.warm_start is None or "decoder.out.bias" in self.warm_start["fresh"]:
                 self.model.set_output_mean(self.training_mean())
         start, stopped = time.perf_counter(), False
