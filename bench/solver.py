@@ -11,8 +11,8 @@ the same mesh, time step, stimulus and output frames:
 The ratio it exists to show is the speed-up per simulation of the batched
 solver over the naive loop, measured in the same run. Also printed: ns per
 node-step, the effective state bandwidth (24 B per node-site-step: u and v
-read, u_new and v written, float32) to compare with FACTS.md (~27 GB/s one
-thread, ~53 GB/s two threads from DRAM), and max |u_naive - u_batched|.
+read, u_new and v written, float32) to compare with what the 2-core VMs stream
+from DRAM (~27 GB/s one thread, ~53 GB/s two), and max |u_naive - u_batched|.
 
 Run: ``.venv/bin/python bench/solver.py [--quick] [--out DIR]`` (DIR gets solver.md and solver.json).
 """

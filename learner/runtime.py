@@ -17,7 +17,7 @@ def tune_allocator() -> bool:
 
     glibc's default trims and unmaps large blocks on free, so each training step
     pays page faults on fresh memory again; measured 2.5x slower episodes
-    (../shared/FACTS.md). Equivalent to ``MALLOC_MMAP_MAX_=0
+    (``bench/surrogate.py`` times the episode with and without it). Equivalent to ``MALLOC_MMAP_MAX_=0
     MALLOC_TRIM_THRESHOLD_=<large>``; a no-op (False) where glibc is absent.
     """
     name = ctypes.util.find_library("c")
