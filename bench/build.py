@@ -39,6 +39,7 @@ tree) and warns above 0.1.
 
 Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]``
 (DIR gets build.md and build.json).
+The tables are published in docs/performance.md ("Build speed") with their machine and command.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Conduction-velocity verification table for the README.
+"""Conduction-velocity verification table, published in docs/method.md ("Verification of the solver").
 
 Planar front speed against ``sqrt(2kD)(1/2 - a)`` on strips (triangles) and
 slabs (tetrahedra) under refinement, at the default resolution of the default

@@ -22,6 +22,8 @@ grows about linearly in the nodes. Writes ``scaling.md``, ``scaling.json``
 and ``scaling.png`` (log-log).
 
 Run: ``.venv/bin/python bench/scaling.py [--out DIR] [--nodes 1000,5000,20000,50000] [--sites 16,64,256,512]``.
+The tables are published in docs/performance.md ("Scaling with mesh size and sites"), the plot
+as docs/scaling.png.
 """
 
 from __future__ import annotations

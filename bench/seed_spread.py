@@ -3,7 +3,8 @@
 Reads the ``evaluation.json`` that ``learner evaluate`` writes for each model
 (same store, subjects and context sets), and prints target and context MSE,
 spatial CC and DC of each, then the mean and (sample) standard deviation of the
-per-model means: how much of a result is the seed's.
+per-model means: how much of a result is the seed's. The table is published in docs/training.md
+("Table 1 over the three seeds").
 
 Run (after training one model per seed)::
 

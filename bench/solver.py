@@ -15,6 +15,7 @@ read, u_new and v written, float32) to compare with what the 2-core VMs stream
 from DRAM (~27 GB/s one thread, ~53 GB/s two), and max |u_naive - u_batched|.
 
 Run: ``.venv/bin/python bench/solver.py [--quick] [--out DIR]`` (DIR gets solver.md and solver.json).
+The table is published in docs/performance.md ("Solver speed") with its machine and command.
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ sequences come from a store built by ``simgen build`` (default: a 2k-node LV,
 55 frames, built here in a temporary folder when ``--store`` is not given).
 
 Run: ``.venv/bin/python bench/surrogate.py [--store PATH] [--config TOML] [--mesh lv] [--out DIR]``.
+The tables are published in docs/performance.md ("Surrogate speed") with their machine and command.
 """
 
 from __future__ import annotations

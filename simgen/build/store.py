@@ -156,7 +156,8 @@ def write_subject_groups(
     ``done`` holds one flag per chunk, all 0. ``meshes`` and ``n_sites`` by mesh id;
     ``fields``: the subjects' tissue fields by id where already computed. All
     groups and arrays are created at once (:func:`zarr.create_hierarchy`), then
-    the fields written: 0.4 s instead of 1.4 s array by array for 48 subjects. The one code
+    the fields written on threads, which is much faster than creating them array by array
+    (the layout is part of a build's serial time, docs/performance.md). The one code
     path for subject groups, used by :func:`create_layout` and by
     :func:`simgen.build.edit.add_subject`.
     """
