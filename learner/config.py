@@ -75,7 +75,7 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Optimisation (SPEC section 4: Adam 1e-3 halved every 50 epochs, lambda1 1e-4, lambda2 0.1)."""
+    """Optimisation (the reference paper: Adam 1e-3 halved every 50 epochs, lambda1 1e-4, lambda2 0.1)."""
 
     epochs: int = 100
     lr: float = 1e-3

@@ -1,4 +1,4 @@
-"""Accuracy metrics of a surrogate against simulated truth (SPEC section 5).
+"""Accuracy metrics of a surrogate against simulated truth (defined in docs/surrogate.md).
 
 All functions are pure NumPy and compute in float64. A *sequence* is an array
 ``(T, N)`` of frames x nodes; :func:`mse`, :func:`spatial_cc` and

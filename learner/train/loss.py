@@ -1,4 +1,4 @@
-r"""The episode loss of SPEC section 4 (negative ELBO of the set-conditioned model).
+r"""The episode loss (docs/method.md, "Training objective") (negative ELBO of the set-conditioned model).
 
 .. math::
 

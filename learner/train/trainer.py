@@ -1,6 +1,6 @@
 """Episodic meta-training with exact resume, a NaN guard and atomic checkpoints.
 
-One epoch draws one episode per training subject (SPEC section 4); episodes
+One epoch draws one episode per training subject (docs/method.md, "Training objective"); episodes
 depend only on ``(seed, epoch, subject)`` and every other random draw comes
 from a generator saved in the checkpoint, so a run resumed from ``last.pt``
 continues exactly as if it had never stopped.

@@ -1,4 +1,4 @@
-"""ConditionalGatedTransition against the SPEC equations (numpy, float64), initialisation, bounded state and errors."""
+"""ConditionalGatedTransition against its defining equations (numpy, float64), initialisation, bounded state and errors."""
 
 from __future__ import annotations
 

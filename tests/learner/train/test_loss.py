@@ -45,7 +45,7 @@ def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_c
         torch.Generator().manual_seed(0))  # fmt: skip
     pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c)
     truth = torch.cat([ep.context_u, ep.target_u])
-    summed = ((pred - truth) ** 2).sum(dim=(1, 2))  # SPEC's reconstruction: summed over nodes and frames
+    summed = ((pred - truth) ** 2).sum(dim=(1, 2))  # the reference's reconstruction: summed over nodes and frames
     elbo = summed[2:].mean() + summed[:2].mean() + 0.5 * (0.3 * terms.kl_posterior + 0.7 * terms.kl_prior)
     n_values = truth.shape[1] * truth.shape[2]
     torch.testing.assert_close(terms.total, elbo / n_values)
