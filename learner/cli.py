@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, NoReturn, Optional
 
 import numpy as np
 import typer
 from rich.console import Console
 
+from shared.cli import fail, parse_ids
 from shared.errors import InputError
+
+if TYPE_CHECKING:
+    from learner.config import LearnerConfig
 
 app = typer.Typer(
     help="learner: meta-learned personalised neural surrogates (metaPNS) of cardiac simulations.",
@@ -18,62 +22,86 @@ app = typer.Typer(
 )
 console = Console()
 
-
-def _fail(exc: Exception) -> None:
-    console.print(f"[red]error:[/red] {exc}")
-    raise typer.Exit(code=2)
+SeedOpt = Annotated[int, typer.Option(min=0, help="Random seed.")]
 
 
-def _int_list(text: str) -> list[int]:
+def _fail(exc: Exception, path: str | Path | None = None) -> NoReturn:
+    """Report bad input on one line and exit with code 2 (:func:`shared.cli.fail`)."""
+    fail(console, exc, path)
+
+
+def _draws(samples: int) -> int:
+    """Check ``--samples``: a spread needs two draws or more."""
+    if samples == 1:
+        raise typer.BadParameter("one draw gives no spread; use 0 (mean only) or 2 or more")
+    return samples
+
+
+def _context_range(text: str) -> tuple[int, int]:
+    """``'min,max'`` (or one size) as a range of context sizes, ``1 <= min <= max``."""
     try:
-        return [int(v) for v in text.split(",") if v.strip()]
+        sizes = [int(v) for v in text.split(",")]
     except ValueError:
-        raise InputError(f"expected comma-separated node ids, got {text!r}") from None
+        sizes = []
+    if len(sizes) not in (1, 2) or not 1 <= sizes[0] <= sizes[-1]:
+        raise InputError(f"--context: expected 'min,max' (or one size) with 1 <= min <= max, got {text!r}")
+    return sizes[0], sizes[-1]
 
 
 @app.command()
 def train(
     config: Annotated[Path, typer.Argument(help="Training config (TOML).")],
     fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
-    epochs: Annotated[Optional[int], typer.Option(help="Override train.epochs.")] = None,
-    max_minutes: Annotated[Optional[float], typer.Option(help="Override train.max_minutes.")] = None,
-    seed: Annotated[Optional[int], typer.Option(help="Override train.seed.")] = None,
+    epochs: Annotated[Optional[int], typer.Option(min=1, help="Override train.epochs.")] = None,
+    max_minutes: Annotated[Optional[float], typer.Option(min=0, help="Override train.max_minutes (0: none).")] = None,
+    seed: Annotated[Optional[int], typer.Option(min=0, help="Override train.seed.")] = None,
     store: Annotated[Optional[Path], typer.Option(help="Override data.store.")] = None,
     out: Annotated[Optional[Path], typer.Option(help="Override the run directory.")] = None,
     kind: Annotated[Optional[str], typer.Option(help="Override model.kind (metapns or pns).")] = None,
 ) -> None:
     """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly."""
-    from dataclasses import replace
-
-    from learner.config import config_from_mapping, load_config
-    from learner.train.trainer import TrainingDiverged, train as run
+    from learner.config import load_config
 
     try:
-        cfg = load_config(config)
-        if epochs is not None or max_minutes is not None:
-            t = replace(cfg.train, epochs=epochs or cfg.train.epochs,
-                        max_minutes=cfg.train.max_minutes if max_minutes is None else max_minutes)  # fmt: skip
-            cfg = replace(cfg, train=t)
-        if seed is not None:
-            cfg = replace(cfg, train=replace(cfg.train, seed=seed))
-        if store is not None:
-            cfg = replace(cfg, data=replace(cfg.data, store=str(store.resolve())))
-        if out is not None:
-            cfg = replace(cfg, out=str(out.resolve()))
-        if kind is not None:
-            cfg = config_from_mapping({**cfg.to_dict(), "model": {**cfg.to_dict()["model"], "kind": kind}})
-        console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
+        cfg = _overridden(load_config(config), epochs=epochs, max_minutes=max_minutes, seed=seed, store=store,
+                          out=out, kind=kind)  # fmt: skip
+        Path(cfg.out).mkdir(parents=True, exist_ok=True)  # an unusable run directory fails before torch loads
+    except (InputError, OSError) as exc:
+        _fail(exc, config)
+    from learner.train.trainer import TrainingDiverged, train as run
 
-        def show(row: dict) -> None:
-            val = f"  val target MSE {row['val_target_mse']:.4g}" if "val_target_mse" in row else ""
-            console.print(f"epoch {row['epoch']:4d}  loss {row['total']:.4g}  target MSE {row['target_mse']:.4g}"
-                          f"  context MSE {row['context_mse']:.4g}  {row['seconds']:.1f} s{val}")  # fmt: skip
-
-        result = run(cfg, fresh=fresh, on_epoch=show)
-    except (InputError, TrainingDiverged) as exc:
-        _fail(exc)
+    console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
+    try:
+        result = run(cfg, fresh=fresh, on_epoch=_show_epoch)
+    except (InputError, TrainingDiverged, OSError) as exc:
+        _fail(exc, cfg.out)
     note = " (time budget reached)" if result.stopped_early else ""
     console.print(f"done: {result.epochs_done} epochs{note}; checkpoints in {result.out}")
+
+
+def _overridden(cfg: LearnerConfig, epochs: int | None, max_minutes: float | None, seed: int | None,
+                store: Path | None, out: Path | None, kind: str | None) -> LearnerConfig:  # fmt: skip
+    """``cfg`` with the options that were given."""
+    from dataclasses import replace
+
+    from learner.config import config_from_mapping
+
+    train = {k: v for k, v in (("epochs", epochs), ("max_minutes", max_minutes), ("seed", seed)) if v is not None}
+    cfg = replace(cfg, train=replace(cfg.train, **train))
+    if store is not None:
+        cfg = replace(cfg, data=replace(cfg.data, store=str(store.resolve())))
+    if out is not None:
+        cfg = replace(cfg, out=str(out.resolve()))
+    if kind is not None:
+        cfg = config_from_mapping({**cfg.to_dict(), "model": {**cfg.to_dict()["model"], "kind": kind}})
+    return cfg
+
+
+def _show_epoch(row: dict) -> None:
+    """One line per trained epoch."""
+    val = f"  val target MSE {row['val_target_mse']:.4g}" if "val_target_mse" in row else ""
+    console.print(f"epoch {row['epoch']:4d}  loss {row['total']:.4g}  target MSE {row['target_mse']:.4g}"
+                  f"  context MSE {row['context_mse']:.4g}  {row['seconds']:.1f} s{val}")  # fmt: skip
 
 
 @app.command()
@@ -83,17 +111,17 @@ def evaluate(
     out: Annotated[Path, typer.Option(help="Folder for evaluation.json / evaluation.md.")] = Path("report/eval"),
     subjects: Annotated[str, typer.Option(help="A split name (test, validation, train) or comma-separated ids.")] = "test",
     context: Annotated[str, typer.Option(help="Context size range 'min,max' (or one size).")] = "1,5",
-    sets: Annotated[int, typer.Option(help="Context sets per subject.")] = 3,
-    max_targets: Annotated[int, typer.Option(help="Targets per context set (0 = all).")] = 40,
-    seed: int = 0,
+    sets: Annotated[int, typer.Option(min=1, help="Context sets per subject.")] = 3,
+    max_targets: Annotated[int, typer.Option(min=0, help="Targets per context set (0 = all).")] = 40,
+    seed: SeedOpt = 0,
 ) -> None:
     """Context and target MSE / CC / DC / activation-time error, per subject and overall."""
     from learner.evaluate import EvalSpec, evaluate as run
 
     try:
-        sizes = [int(v) for v in context.split(",")]
         split = subjects if "," not in subjects and subjects in ("test", "validation", "train") else tuple(subjects.split(","))
-        spec = EvalSpec(subjects=split, context=(sizes[0], sizes[-1]), context_sets=sets, max_targets=max_targets, seed=seed)
+        spec = EvalSpec(subjects=split, context=_context_range(context), context_sets=sets, max_targets=max_targets,
+                        seed=seed)  # fmt: skip
         report = run(checkpoint, store, spec, progress=lambda i, n, s: console.print(f"[{i}/{n}] {s}"))
     except (InputError, ValueError) as exc:
         _fail(exc)
@@ -139,12 +167,12 @@ def personalize(
         if observations is not None:
             obs = observations_from_file(observations)
         elif store is not None and subject is not None:
-            obs = observations_from_store(store, subject, _int_list(sites), observe)
+            obs = observations_from_store(store, subject, parse_ids(sites, "--sites"), observe)
         else:
             raise InputError("give either --observations FILE or --store, --subject and --sites")
         info = run(checkpoint, obs, out)
-    except InputError as exc:
-        _fail(exc)
+    except (InputError, OSError) as exc:
+        _fail(exc, out)
     console.print(f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms "
                   f"-> {out}")  # fmt: skip
 
@@ -155,13 +183,15 @@ def predict(
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")],
     out: Annotated[Path, typer.Option(help=".npz with sites, times and u (site, time, node).")] = Path("prediction.npz"),
     vtk: Annotated[Optional[Path], typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
-    samples: Annotated[int, typer.Option(help="Draws of c for a predictive spread (0 = mean only).")] = 0,
+    samples: Annotated[
+        int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
+    ] = 0,
 ) -> None:
     """Predict full-mesh sequences for new stimulation sites."""
     from learner.personalize import predict as run, write_vtk
 
     try:
-        pred = run(personalized, _int_list(sites), samples=samples)
+        pred = run(personalized, parse_ids(sites, "--sites"), samples=samples)
     except InputError as exc:
         _fail(exc)
     arrays = {"sites": pred.sites, "times": pred.times, "u": pred.u}

@@ -1,7 +1,9 @@
 """A single-writer lock on a store: a second concurrent build is refused.
 
-The lock is a small JSON object ``<store>/.lock`` naming its owner (host,
-pid and a random token).
+The lock is a small JSON object ``<store>/.lock`` naming its owner: host, pid,
+the process's start time and a random token. The start time (clock ticks
+after boot, field 22 of ``/proc/<pid>/stat``; ``null`` where there is no
+``/proc``) tells the owner from a later process given the same pid.
 
 * Local folder (``file://`` URLs become folders): a file created atomically (``O_EXCL``).
 * Object store or other fsspec URL: an object written through fsspec with
@@ -12,12 +14,16 @@ pid and a random token).
   two builds started at the same instant to one round trip; it guards against
   starting a second build by mistake, not against an adversary.
 
-A lock whose owner is on this host and no longer runs is taken over, so
-resuming after a crash needs no manual step; so is one holding this process's
-own pid (a restarted container reuses its pids), since a process never takes a
+A lock whose owner is gone is taken over, so resuming after a crash needs no
+manual step. The owner is gone when it was a process of this host and no
+process runs with its pid and start time (a lock without a start time, from an
+older simgen, is judged by its pid alone), or when it holds this process's own
+pid (a restarted container reuses its pids), since a process never takes a
 lock it already holds (a second :class:`StoreLock` on the same store in one
-process is refused). A lock held by a live process or another host is refused;
-:func:`unlock` (``simgen unlock STORE``) removes one left by a build that is gone.
+process is refused). A lock held by a running process, by another host or
+naming no owner is refused. :func:`unlock` (``simgen unlock STORE``) removes
+the lock of a build that is gone; it refuses while the owner runs on this
+host, and needs ``force`` (``--force``) for an owner this host cannot check.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import os
 import socket
 import uuid
 from pathlib import Path
+from typing import Literal
 
 from shared.errors import InputError
 from simgen.build.location import StoreURLError, filesystem, is_local, store_location
@@ -51,6 +58,47 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def _start_time(pid: int) -> int | None:
+    """When process ``pid`` started (clock ticks after boot); ``None`` without ``/proc`` or such a process."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_bytes()
+        # fields after "(comm)", which may hold spaces, start at field 3: the start time is field 22
+        return int(stat[stat.rindex(b")") + 2 :].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _running(pid: int, start: int | None) -> bool:
+    """Whether process ``pid`` of this host runs and, where both start times are known, started at ``start``."""
+    if not _alive(pid):
+        return False
+    now = _start_time(pid)
+    return start is None or now is None or now == start  # no start time to compare: judged by the pid alone
+
+
+def _pid(holder: dict) -> int:
+    """The pid a lock names (0 when it names none)."""
+    try:
+        return int(holder.get("pid"))
+    except (TypeError, ValueError):
+        return 0
+
+
+def _owner_state(store: str, holder: dict) -> Literal["running", "gone", "unknown"]:
+    """Whether the owner of ``holder``, the lock of ``store``, runs; ``"unknown"`` for another host or no owner."""
+    pid = _pid(holder)
+    if holder.get("host") != socket.gethostname() or pid <= 0:
+        return "unknown"
+    if pid == os.getpid():  # this process (a build holds it only while in _HELD) or an earlier life of this container
+        return "running" if store in _HELD else "gone"
+    return "running" if _running(pid, holder.get("start")) else "gone"
+
+
+def _describe(holder: dict) -> str:
+    """``host H, pid P``: the owner a lock names."""
+    return f"host {holder.get('host')}, pid {holder.get('pid')}"
 
 
 def _lock_name(store: str) -> str:
@@ -92,7 +140,8 @@ class StoreLock:
     def __init__(self, store: str | Path):
         self.store = store_location(store)
         self.path = _lock_name(self.store)
-        self.owner = {"host": socket.gethostname(), "pid": os.getpid(), "token": uuid.uuid4().hex}
+        pid = os.getpid()
+        self.owner = {"host": socket.gethostname(), "pid": pid, "start": _start_time(pid), "token": uuid.uuid4().hex}
 
     def __enter__(self) -> StoreLock:
         if self.store in _HELD:
@@ -128,22 +177,17 @@ class StoreLock:
             ) from exc
         holder = _read(self.store)
         if holder is None or holder.get("token") != self.owner["token"]:  # lost a race to another build
-            raise StoreLocked(f"store {self.store} is locked by another build (host "
-                              f"{(holder or {}).get('host')}, pid {(holder or {}).get('pid')}), just now")  # fmt: skip
+            raise StoreLocked(f"store {self.store} is locked by another build ({_describe(holder or {})}), just now")
 
     def _break_if_stale(self) -> None:
         holder = _read(self.store)
         if holder is None:  # released in the meantime
             return
-        try:
-            pid = int(holder.get("pid"))
-        except (TypeError, ValueError):
-            pid = 0  # unreadable owner: never taken over silently
-        if holder.get("host") == self.owner["host"] and pid > 0 and (pid == os.getpid() or not _alive(pid)):
+        if _owner_state(self.store, holder) == "gone":
             _remove(self.store)  # left by a killed build on this host (or an earlier life of this container)
             return
         raise StoreLocked(
-            f"store {self.store} is locked by another build (host {holder.get('host')}, pid {holder.get('pid')}); "
+            f"store {self.store} is locked by another build ({_describe(holder)}); "
             f"wait for it to finish, or if that build is gone run `simgen unlock {self.store}` "
             f"(it deletes {self.path})"
         )
@@ -155,14 +199,29 @@ class StoreLock:
             _remove(self.store)  # never another build's lock (one that took over after `simgen unlock`)
 
 
-def unlock(store: str | Path) -> dict | None:
+def unlock(store: str | Path, force: bool = False) -> dict | None:
     """Remove the lock of ``store`` left by a build that is gone; return its owner (``None``: no lock).
 
-    Run it only when no build of ``store`` is running: a running build keeps
-    writing, and a second build could then start beside it.
+    Raises :class:`StoreLocked` while the owner runs on this host (a running
+    build keeps writing, and a second build could then start beside it), and,
+    unless ``force``, when this host cannot check the owner (another host, or
+    a lock naming none).
     """
     store = store_location(store)
     holder = _read(store)
-    if holder is not None:
-        _remove(store)
+    if holder is None:
+        return None
+    state = _owner_state(store, holder)
+    if state == "running":
+        pid = _pid(holder)
+        raise StoreLocked(
+            f"store {store} is locked by a build that is still running (pid {pid} on this host): stop it with "
+            f"Ctrl-C in its terminal or `kill -INT {pid}`, and it removes its lock as it exits"
+        )
+    if state == "unknown" and not force:
+        raise StoreLocked(
+            f"store {store} is locked by a build this host cannot check ({_describe(holder)}); "
+            f"make sure it is no longer running, then run `simgen unlock --force {store}`"
+        )
+    _remove(store)
     return holder

@@ -96,7 +96,7 @@ def test_personalize_then_predict_with_vtk(trained, tiny_store):
     [
         (["--subject", "nobody", "--sites", "1"], "unknown subject"),
         (["--subject", "lv-healthy", "--sites", "999999"], "no simulation stimulated at node"),
-        (["--subject", "lv-healthy", "--sites", ""], "context size must be >= 1"),
+        (["--subject", "lv-healthy", "--sites", ""], "--sites: give at least one integer"),
     ],
 )
 def test_personalize_refuses_bad_input(trained, tiny_store, args, message):

@@ -107,7 +107,9 @@ def test_url_lock_of_another_host_is_refused_and_named(url):
     fs.pipe_file(f"{root}/.lock", json.dumps({"host": "node-17", "pid": 4242, "token": "t"}).encode())
     with pytest.raises(StoreLocked, match=r"host node-17, pid 4242.*simgen unlock"):
         StoreLock(url).__enter__()
-    assert unlock(url) == {"host": "node-17", "pid": 4242, "token": "t"}
+    with pytest.raises(StoreLocked, match="cannot check.*simgen unlock --force"):
+        unlock(url)
+    assert unlock(url, force=True) == {"host": "node-17", "pid": 4242, "token": "t"}
     assert unlock(url) is None
     with StoreLock(url):
         pass
@@ -144,7 +146,9 @@ def test_cli_unlock(tmp_path):
     store = tmp_path / "s.zarr"
     store.mkdir()
     (store / ".lock").write_text(json.dumps({"host": "gone", "pid": 7}))
-    result = CliRunner().invoke(app, ["unlock", str(store)])
+    refused = CliRunner().invoke(app, ["unlock", str(store)])
+    assert refused.exit_code == 2 and "simgen unlock --force" in refused.output  # another host: cannot check
+    result = CliRunner().invoke(app, ["unlock", str(store), "--force"])
     assert result.exit_code == 0 and "removed the lock of host gone, pid 7" in " ".join(result.output.split())
     assert "not locked" in CliRunner().invoke(app, ["unlock", str(store)]).output
 

@@ -1,0 +1,68 @@
+"""Helpers of the simgen and learner command lines: one-line errors, lists of ids.
+
+Bad input exits with code 2 and one line naming the problem, never a
+traceback: an :class:`~shared.errors.InputError`, or an :class:`OSError` by
+which the file system refuses a path the user gave (permission, read-only,
+no space, a file where a folder is expected). Any other exception is a bug
+and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import errno
+from collections import Counter
+from pathlib import Path
+from typing import NoReturn
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from shared.errors import InputError
+
+__all__ = ["PATH_ERRNOS", "fail", "path_error", "parse_ids"]
+
+#: errno values of a file system refusing a path: bad input, not a bug.
+PATH_ERRNOS = frozenset({
+    errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EISDIR, errno.ENOTDIR, errno.EEXIST,
+})  # fmt: skip
+
+# simgen and learner make folders with exist_ok=True: EEXIST means a file stands where a folder is to be made.
+_HINTS = {
+    errno.EEXIST: " (a file where a folder is expected)",
+    errno.ENOTDIR: " (a file where a folder is expected)",
+    errno.EISDIR: " (a folder where a file is expected)",
+}
+
+
+def path_error(exc: OSError, path: str | Path | None = None) -> InputError | None:
+    """``exc`` as bad input naming its file (or ``path``); ``None`` when its errno is not in :data:`PATH_ERRNOS`."""
+    if exc.errno not in PATH_ERRNOS:
+        return None
+    where = exc.filename or path
+    message = f"{exc.strerror}{_HINTS.get(exc.errno, '')}"
+    return InputError(f"{where}: {message}" if where else message)
+
+
+def fail(console: Console, exc: Exception, path: str | Path | None = None) -> NoReturn:
+    """Print ``exc`` on ``console`` as one line and exit with code 2; re-raise an OSError :func:`path_error` rejects."""
+    error = path_error(exc, path) if isinstance(exc, OSError) else exc
+    if error is None:
+        raise exc
+    console.print(f"[red]error:[/red] {escape(str(error))}", soft_wrap=True)
+    raise typer.Exit(code=2)
+
+
+def parse_ids(text: str, option: str) -> list[int]:
+    """The comma-separated integers >= 0 of ``text``, each given once (errors name ``option``)."""
+    try:
+        ids = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise InputError(f"{option}: expected comma-separated integers, got {text!r}") from None
+    if not ids:
+        raise InputError(f"{option}: give at least one integer")
+    if negative := [i for i in ids if i < 0]:
+        raise InputError(f"{option}: {negative} must be >= 0")
+    if repeated := sorted(i for i, n in Counter(ids).items() if n > 1):
+        raise InputError(f"{option}: {repeated} given more than once; give each once")
+    return ids
