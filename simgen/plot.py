@@ -27,13 +27,16 @@ from shared.errors import InputError
 from shared.mesh import Mesh
 from simgen.meshes.topology import boundary_faces
 
-__all__ = ["VIEWS", "surface_triangles", "plot_activation_maps", "plot_tissue"]
+__all__ = ["VIEWS", "surface_triangles", "plot_activation_maps", "plot_tissue", "plot_surfaces"]
 
 #: Default camera views as (elevation, azimuth) in degrees: front and back.
 VIEWS: tuple[tuple[float, float], ...] = ((12.0, 0.0), (12.0, 180.0))
 
 _NAN_COLOUR = (0.72, 0.72, 0.72, 1.0)
 _TISSUE_COLOURS = {0: ("healthy", "#efd3c4"), 1: ("border zone", "#f28e2b"), 2: ("scar core", "#7a0b0b")}
+# Surface parts in drawing priority: a face takes the first set holding all its nodes.
+_PART_COLOURS = {"base": ("base rim", "#9a9a9a"), "rv_endocardium": ("RV endocardium", "#4e79a7"),
+                 "endocardium": ("LV endocardium", "#e15759"), "epicardium": ("epicardium", "#efd3c4")}  # fmt: skip
 _PANEL_INCHES = (3.0, 3.4)
 _KEY_INCHES = 1.6
 _DPI = 120
@@ -60,14 +63,25 @@ def _shade(rgba: NDArray, tri_points: NDArray, eye: NDArray) -> NDArray:
     return out
 
 
-def _draw_surface(ax: Axes3D, mesh: Mesh, faces: NDArray, rgba: NDArray, view: tuple[float, float]) -> None:
-    """One panel: shaded triangles, camera ``view``, equal scaling, no axes."""
+def _facing(mesh: Mesh, faces: NDArray, eye: NDArray) -> NDArray:
+    """The outward-oriented faces that face the camera: fewer depth-sorting artefacts of hidden faces."""
+    p = mesh.points[faces]
+    return faces[np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) @ eye > 0]
+
+
+def _draw_surface(
+    ax: Axes3D, mesh: Mesh, faces: NDArray, rgba: NDArray, view: tuple[float, float], bounds: NDArray | None = None
+) -> None:
+    """One panel: shaded triangles, camera ``view``, equal scaling, no axes.
+
+    ``bounds`` (2, 3): the box to show (default: the mesh's bounding box).
+    """
     tri_points = mesh.points[faces]
     shaded = _shade(rgba, tri_points, _eye(*view))
     # Edges in the face colour hide the anti-aliasing seams between triangles.
     poly = Poly3DCollection(tri_points, facecolors=shaded, edgecolors=shaded, linewidths=0.3)
     ax.add_collection3d(poly)
-    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    lo, hi = (mesh.points.min(axis=0), mesh.points.max(axis=0)) if bounds is None else bounds
     ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
     ax.set_box_aspect(np.maximum(hi - lo, 1e-9 * np.ptp(mesh.points)), zoom=1.25)
     ax.view_init(elev=view[0], azim=view[1])
@@ -201,5 +215,45 @@ def plot_tissue(mesh: Mesh, label: ArrayLike, path: str | PathLike[str], title: 
         ax.set_title(f"azimuth {view[1]:g}\N{DEGREE SIGN}", fontsize=9, pad=-4)
     fig.suptitle(title, fontsize=11)
     fig.legend(handles=[Patch(color=c, label=n) for n, c in _TISSUE_COLOURS.values()],
+               loc="center right", fontsize=8, frameon=False)
+    _save(fig, path)
+
+
+def plot_surfaces(
+    meshes: Sequence[Mesh],
+    titles: Sequence[str],
+    path: str | PathLike[str],
+    n_cols: int = 6,
+    view: tuple[float, float] = (25.0, -60.0),
+) -> None:
+    """Several meshes side by side on one scale, surface parts coloured, as a PNG.
+
+    Each panel shows a mesh's boundary with epicardium, LV / RV endocardium
+    and base rim in their own colours (a face takes the first of base,
+    ``rv_endocardium``, ``endocardium``, ``epicardium`` that holds all its
+    nodes; others are grey). Every panel uses the same box, the union of the
+    meshes' bounding boxes, so sizes compare.
+    """
+    if len(titles) != len(meshes) or not meshes:
+        raise InputError(f"got {len(titles)} titles for {len(meshes)} meshes (need one per mesh, at least one)")
+    bounds = np.stack([np.min([m.points.min(axis=0) for m in meshes], axis=0),
+                       np.max([m.points.max(axis=0) for m in meshes], axis=0)])  # fmt: skip
+    n_cols = min(n_cols, len(meshes))
+    fig, axes = _grid(-(-len(meshes) // n_cols), n_cols)
+    panels = [ax for row in axes for ax in row]
+    for ax, mesh, title in zip(panels, meshes, titles):
+        faces = _facing(mesh, surface_triangles(mesh), _eye(*view))
+        rgba = np.tile(to_rgba(_NAN_COLOUR), (len(faces), 1))
+        unset = np.ones(len(faces), dtype=bool)
+        for name, (_, colour) in _PART_COLOURS.items():
+            inside = np.zeros(mesh.n_nodes, dtype=bool)
+            inside[mesh.node_sets.get(name, [])] = True
+            part = unset & inside[faces].all(axis=1)
+            rgba[part], unset[part] = to_rgba(colour), False
+        _draw_surface(ax, mesh, faces, rgba, view, bounds)
+        ax.set_title(title, fontsize=8, pad=-4)
+    for ax in panels[len(meshes):]:
+        ax.set_axis_off()
+    fig.legend(handles=[Patch(color=c, label=n) for n, c in _PART_COLOURS.values()],
                loc="center right", fontsize=8, frameon=False)
     _save(fig, path)

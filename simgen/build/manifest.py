@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,7 +37,7 @@ from simgen.solver.fem import element_gradients
 from simgen.solver.simulate import assemble
 from simgen.tissue.fields import tissue_fields
 
-__all__ = ["Subject", "Task", "Plan", "make_plan", "validate_plan", "select_sites", "sock_electrodes"]
+__all__ = ["Subject", "SubjectSetup", "Task", "Plan", "make_plan", "validate_plan", "select_sites", "sock_electrodes"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,15 @@ class Subject:
     id: str
     mesh_id: str
     tissue: TissueSpec
+
+
+class SubjectSetup(NamedTuple):
+    """What checking a subject found: its tissue fields and the solver settings resolved on its mesh."""
+
+    fields: TissueFields
+    dt: float
+    steps_per_frame: int
+    stimulus_radius: float
 
 
 @dataclass(frozen=True)
@@ -140,7 +150,7 @@ def sock_electrodes(mesh: Mesh, n_electrodes: int) -> NDArray[np.int64]:
 
 
 def _load_mesh(entry: MeshEntry) -> Mesh:
-    return get_mesh(entry.source, entry.nodes, entry.kind, name=entry.id)
+    return get_mesh(entry.source, entry.nodes, entry.kind, name=entry.id, shape_params=entry.shape_params)
 
 
 def make_plan(spec: BuildSpec) -> Plan:
@@ -169,11 +179,11 @@ def make_plan(spec: BuildSpec) -> Plan:
     return Plan(spec, meshes, sites, electrodes, subjects, tasks)
 
 
-def validate_plan(plan: Plan) -> dict[str, TissueFields]:
-    """Check every subject before anything is written; its tissue fields, by subject id.
+def validate_plan(plan: Plan) -> dict[str, SubjectSetup]:
+    """Check every subject before anything is written; its tissue fields and solver settings, by subject id.
 
     Builds the tissue fields (:class:`~shared.errors.TissueError`) and
-    assembles the operator of every subject (largest eigenvalue:
+    assembles the operator of every subject (largest eigenvalue and time step:
     :class:`~shared.errors.TimeStepError` for an unstable ``dt``), and
     checks that sites and electrodes are node ids of their mesh
     (:class:`StimulusError`). Messages name the subject and mesh.
@@ -186,15 +196,17 @@ def validate_plan(plan: Plan) -> dict[str, TissueFields]:
                     f"{what} {int(bad[0])} is out of range for mesh {mesh_id!r} ({mesh.n_nodes} nodes)"
                 )
     per_mesh = {}  # what every subject of a mesh shares: element gradients, edge graph
-    fields = {}
+    setups = {}
+    solver = plan.spec.solver
     for subject in plan.subjects:
         mesh = plan.meshes[subject.mesh_id]
         if subject.mesh_id not in per_mesh:
             per_mesh[subject.mesh_id] = element_gradients(mesh.points, mesh.cells), edge_graph(mesh)
         geometry, graph = per_mesh[subject.mesh_id]
         try:
-            fields[subject.id] = tissue_fields(mesh, subject.tissue, graph=graph)
-            assemble(mesh, fields[subject.id], plan.spec.solver, geometry)
+            fields = tissue_fields(mesh, subject.tissue, graph=graph)
+            assembly = assemble(mesh, fields, solver, geometry)
         except InputError as exc:
             raise type(exc)(f"subject {subject.id!r} (mesh {subject.mesh_id!r}): {exc}") from exc
-    return fields
+        setups[subject.id] = SubjectSetup(fields, assembly.dt, assembly.steps_per_frame, solver.radius_on(mesh))
+    return setups

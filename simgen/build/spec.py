@@ -19,6 +19,15 @@ Example (TOML)::
     source = "lv"      # or "biv", or a mesh file (relative to the spec file)
     nodes = 1000
 
+    [[meshes]]         # 12 random BiV anatomies, ids "biv-000" .. "biv-011"
+    id = "biv"
+    source = "biv"
+    shape = "random"   # or "default" (shape_params, if any, override the defaults)
+    count = 12
+    seed = 3
+    [meshes.shape_params]
+    wall_thickness = 9.0   # fixed; the others are drawn (docs/anatomies.md)
+
     [sites]
     count = 20
 
@@ -42,7 +51,9 @@ from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError, InputError, StimulusError
 from shared.mesh import NODE_SETS, OPTIONAL_NODE_SETS
 from shared.tissue import TissueSpec
+from simgen.meshes.anatomy import sample_shapes
 from simgen.meshes.catalog import GENERATORS
+from simgen.meshes.shapes import shape_from_params
 from simgen.solver.simulate import SolverConfig
 from simgen.tissue.defaults import default_settings
 
@@ -64,6 +75,9 @@ _ID = re.compile(r"[A-Za-z0-9_-]+")
 
 #: Node sets stimulation sites may be chosen from (``"all"`` = every node).
 SITE_NODE_SETS = ("all", *NODE_SETS, *OPTIONAL_NODE_SETS)
+
+#: Most anatomies one ``shape = "random"`` mesh table may stand for (ids ``<id>-000`` .. ``<id>-999``).
+MAX_ANATOMIES = 1000
 
 #: Admissible compression level per compressor (inclusive); ``"none"`` ignores it.
 COMPRESSION_LEVELS = {"zstd": (1, 22), "blosc": (0, 9), "none": (0, 22)}
@@ -87,13 +101,16 @@ class MeshEntry:
     about ``nodes`` nodes of cell ``kind``, or the path of a mesh file (then
     ``nodes`` and ``kind`` are ignored; relative paths are resolved against
     the spec file's folder by :func:`load_spec`). ``id`` names the mesh in the
-    store and prefixes its subjects' ids.
+    store and prefixes its subjects' ids. ``shape_params`` (procedural sources
+    only; ``None``: the default geometry) are the anatomy's shape parameters
+    (:mod:`simgen.meshes.shapes`), completed with the defaults of those not given.
     """
 
     id: str
     source: str = "lv"
     nodes: int = 2000
     kind: Literal["tetra", "triangle"] = "tetra"
+    shape_params: dict[str, int | float] | None = field(default=None, hash=False)
 
     def __post_init__(self) -> None:
         _check_id(self.id, "[[meshes]] id")
@@ -102,6 +119,12 @@ class MeshEntry:
         _check_int(self.nodes, 1, f"mesh {self.id!r}: nodes")
         if self.kind not in ("tetra", "triangle"):
             raise ConfigError(f"mesh {self.id!r}: kind {self.kind!r} is not one of ['tetra', 'triangle']")
+        if self.shape_params is not None:
+            try:
+                shape = shape_from_params(self.source, self.shape_params)
+            except InputError as exc:
+                raise type(exc)(f"mesh {self.id!r}: {exc}") from None
+            object.__setattr__(self, "shape_params", shape.params())
 
 
 @dataclass(frozen=True)
@@ -240,16 +263,69 @@ def _resolve_sources(data: dict[str, Any], base_dir: Path) -> dict[str, Any]:
     return {**data, "meshes": resolved}
 
 
+def _expand_meshes(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with every ``shape = "random"`` mesh table replaced by its ``count`` anatomies."""
+    meshes = data.get("meshes")
+    if not isinstance(meshes, list):
+        return data
+    return {**data, "meshes": [table for entry in meshes for table in _expand_entry(entry)]}
+
+
+def _expand_entry(entry: Any) -> list[Any]:
+    """One ``[[meshes]]`` table as the tables it stands for (ids ``<id>-000``, ... for random shapes).
+
+    ``shape``, ``count`` and ``seed`` are consumed here; each random anatomy
+    gets its complete drawn parameters as ``shape_params``
+    (:func:`simgen.meshes.anatomy.sample_shapes`, fixed ones from the table's
+    ``shape_params``).
+    """
+    if not isinstance(entry, dict) or not {"shape", "count", "seed"} & entry.keys():
+        return [entry]
+    table = dict(entry)
+    shape, count, seed = table.pop("shape", "default"), table.pop("count", None), table.pop("seed", None)
+    _check_id(table.get("id"), "[[meshes]] id")
+    where = f"mesh {table['id']!r}"
+    if shape == "default":
+        if count is not None or seed is not None:
+            raise ConfigError(f"{where}: count and seed apply to shape = 'random' only")
+        return [table]
+    if shape != "random":
+        raise ConfigError(f"{where}: shape {shape!r} is not one of ['default', 'random']")
+    source = table.get("source", "lv")
+    if source not in GENERATORS:
+        raise ConfigError(f"{where}: shape = 'random' needs source 'lv' or 'biv', got {source!r}")
+    count = 1 if count is None else count
+    _check_int(count, 1, f"{where}: count")
+    if count > MAX_ANATOMIES:
+        raise ConfigError(f"{where}: count must be at most {MAX_ANATOMIES}, got {count}")
+    seed = 0 if seed is None else seed
+    _check_int(seed, 0, f"{where}: seed")
+    fixed = table.get("shape_params", {})
+    if not isinstance(fixed, dict):
+        raise ConfigError(f"{where}: shape_params must be a table, got {fixed!r}")
+    try:
+        shapes = sample_shapes(source, count, seed, fixed)
+    except InputError as exc:
+        raise type(exc)(f"{where}: {exc}") from None
+    return [
+        {**table, "source": source, "id": f"{table['id']}-{i:03d}", "shape_params": shape.params()}
+        for i, shape in enumerate(shapes)
+    ]
+
+
 def spec_from_mapping(data: dict[str, Any], base_dir: Path | None = None) -> BuildSpec:
     """A :class:`BuildSpec` from a TOML/JSON mapping, strictly.
 
     Unknown keys and wrong types raise :class:`ConfigError` naming the key path
     (e.g. ``solver.frame``); invalid values raise the matching
     :class:`~shared.errors.InputError` subclass. With ``base_dir``, relative
-    mesh-file sources are resolved against it.
+    mesh-file sources are resolved against it. ``shape = "random"`` mesh
+    tables are expanded into their anatomies first, so the spec (and its
+    hash) lists every anatomy with its parameters.
     """
     if not isinstance(data, dict):
         raise ConfigError(f"build spec: expected a table, got {type(data).__name__}")
+    data = _expand_meshes(data)
     if base_dir is not None:
         data = _resolve_sources(data, Path(base_dir))
     return from_mapping(BuildSpec, data)

@@ -3,7 +3,8 @@
 The domain is ``(LV_epi u RV_epi) - LV_endo - (RV_endo - LV_epi)`` below the
 base plane ``z = base_z``: the RV cavity stops at the LV epicardium, so the
 septum keeps the full LV wall thickness (as in the ``cardiac-geometries``
-BiV ellipsoid). LV surfaces are prolate spheroids about the z axis; the RV
+BiV ellipsoid). LV surfaces are spheroids about the z axis (tri-axial for an
+eccentricity index above 1); the RV
 surfaces are tri-axial ellipsoids centred at ``rv_centre`` (shifted to +x).
 
 Meshing extends the column structure of :func:`simgen.meshes.ellipsoid.lv_ellipsoid`.
@@ -21,7 +22,9 @@ element is flatter than that; cavities shallower than 0.15 spacings are
 filled, so the two cavity surfaces never nearly touch. Where a cavity column would still pinch the boundary (non-manifold edge or
 vertex), the cavity columns around it are filled and the mesh rebuilt.
 
-The surfaces lie on the analytic ones, the LV part has the quality of the LV
+The LV deformations (:meth:`LVGeometry.column_shift`: apex offset, bumps)
+translate every node of a column, RV nodes included, once the mesh is built.
+Without them the surfaces lie on the analytic ones, the LV part has the quality of the LV
 mesh, and the walls are resolved at any node count (one element across at
 500 nodes). The rays diverge, so RV edges in the wall plane are ~1.4x longer
 than LV epicardial ones.
@@ -29,7 +32,7 @@ than LV epicardial ones.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -49,39 +52,33 @@ _MIN_GAP = 0.15  # RV cavities shallower than this many spacings are closed (wal
 
 @dataclass(frozen=True)
 class BiVGeometry:
-    """Adult-sized BiV: spheroid semi-axes (mm), RV ellipsoid centre and the base plane.
+    """Adult-sized BiV: the LV part, the RV ellipsoids (mm) about their centre.
 
     LV as :class:`~simgen.meshes.ellipsoid.LVGeometry` (10 mm wall, 80 mm
-    apex-to-base). RV: endocardial semi-axes ``(x, y, z)`` = (36, 38, 50) around
-    (18, 0, 0), 5 mm free wall; its cavity wraps about 160 degrees of the LV at
-    the base, is up to ~19 mm wide and reaches down to z = -50 mm (LV
-    endocardial apex: -57 mm).
+    apex-to-base; its base plane is the BiV's, its deformations move the RV
+    with the LV columns the RV nodes lie on). RV: endocardial semi-axes
+    ``(x, y, z)`` = (36, 38, 50) around (18, 0, 0), 5 mm free wall; its
+    cavity wraps about 160 degrees of the LV at the base, is up to ~19 mm
+    wide and reaches down to z = -50 mm (LV endocardial apex: -57 mm).
     """
 
-    lv_endo_short: float = 25.0
-    lv_endo_long: float = 57.0
-    lv_epi_short: float = 35.0
-    lv_epi_long: float = 65.0
+    lv: LVGeometry = field(default_factory=LVGeometry)
     rv_centre: tuple[float, float, float] = (18.0, 0.0, 0.0)
     rv_endo_axes: tuple[float, float, float] = (36.0, 38.0, 50.0)
     rv_epi_axes: tuple[float, float, float] = (41.0, 43.0, 55.0)
-    base_z: float = 15.0
 
     def __post_init__(self) -> None:
-        _ = self.lv  # runs the LV checks
         if not all(0 < a < b for a, b in zip(self.rv_endo_axes, self.rv_epi_axes)):
             raise MeshError("BiV geometry: RV endocardial semi-axes must be positive, below epicardial ones")
         if self.base_z >= self.rv_centre[2] + self.rv_endo_axes[2]:
             raise MeshError("BiV geometry: the base plane must cut the RV")
-        if self.rv_centre[0] + self.rv_endo_axes[0] <= self.lv_epi_short:
+        if self.rv_centre[0] + self.rv_endo_axes[0] <= self.lv.radii(1)[0]:
             raise MeshError("BiV geometry: the RV cavity must reach beyond the LV epicardium on the +x side")
 
     @property
-    def lv(self) -> LVGeometry:
-        """The LV part, on which the parametric columns are built."""
-        return LVGeometry(
-            self.lv_endo_short, self.lv_endo_long, self.lv_epi_short, self.lv_epi_long, self.base_z
-        )
+    def base_z(self) -> float:
+        """Height of the base plane (the LV's)."""
+        return self.lv.base_z
 
     @property
     def rv_wall(self) -> float:
@@ -108,7 +105,8 @@ class BiVGeometry:
 class _Columns:
     """Nodes of one BiV mesh and the per-vertex column bookkeeping."""
 
-    points: NDArray[np.float64]
+    points: NDArray[np.float64]  # undeformed (see :meth:`LVGeometry.column_shift`)
+    st: NDArray[np.float64]  # (n, 2) parametric (s, theta) of each column
     tris: NDArray[np.int64]  # parametric triangles
     n: int  # parametric vertices
     layers: int  # LV prism layers; LV node l * n + i
@@ -120,6 +118,13 @@ class _Columns:
     def lv_ids(self) -> NDArray[np.int64]:
         """(L + 1, n) LV column node ids."""
         return np.arange((self.layers + 1) * self.n).reshape(-1, self.n)
+
+    def column_of(self) -> NDArray[np.int64]:
+        """Parametric vertex (column) of every node."""
+        column = np.full(len(self.points), -1)
+        for level_ids in [self.lv_ids(), self.rv_ids]:
+            column[level_ids] = np.arange(self.n)
+        return column
 
     def n_surface_nodes(self) -> int:
         """Boundary node count, without building the tetrahedra."""
@@ -200,7 +205,7 @@ def _columns(
         t = start[ids] + frac * wall[ids] / length[ids]
         extra.append(endo[ids] + t[:, None] * d[ids])
     points = np.concatenate(lv_points + extra)
-    return _Columns(points, tris, n, layers, rv_ids, rv_ids[-1], ring, cavity)
+    return _Columns(points, st, tris, n, layers, rv_ids, rv_ids[-1], ring, cavity)
 
 
 def _tets(cols: _Columns) -> NDArray[np.int64]:
@@ -224,11 +229,8 @@ def _build(geom: BiVGeometry, spacing: float, layers: int, rv_layers: int) -> tu
         bad = non_manifold_nodes(tets)
         if len(bad) == 0:
             return cols, tets
-        column = np.full(len(cols.points), -1)
-        for level_ids in [cols.lv_ids(), cols.rv_ids]:
-            column[level_ids] = np.arange(cols.n)
         bad_vertices = np.zeros(cols.n, dtype=bool)
-        bad_vertices[column[bad]] = True
+        bad_vertices[cols.column_of()[bad]] = True
         demoted = np.zeros(cols.n, dtype=bool) if demoted is None else demoted
         demoted[cols.tris[bad_vertices[cols.tris].any(axis=1)].ravel()] = True
     raise MeshError("BiV mesh: could not remove non-manifold configurations; check the geometry")
@@ -277,7 +279,8 @@ def biv_ellipsoid(
     ----------
     n_nodes : target node count of the returned mesh (500 - 50,000).
     kind : ``"tetra"`` for the volume mesh, ``"triangle"`` for its closed boundary surface.
-    geometry : spheroids and base plane; defaults to :class:`BiVGeometry`.
+    geometry : LV part, RV ellipsoids; defaults to :class:`BiVGeometry`
+        (:meth:`simgen.meshes.shapes.BiVShape.geometry` gives one from clinical parameters).
 
     Node sets: ``surface``, ``epicardium``, ``endocardium`` (= ``lv_endocardium`` u
     ``rv_endocardium``; the RV septal surface counts as RV endocardium), ``base``.
@@ -305,5 +308,6 @@ def biv_ellipsoid(
 
     cols, tets = _build(geom, spacing, layers, rv_layers)
     node_sets = _node_sets(geom, cols, tets)
-    mesh = Mesh(points=cols.points, cells=tets, node_sets=node_sets, axis=geom.lv.long_axis(), name=name)
+    points = cols.points + geom.lv.column_shift(cols.st[:, 0], cols.st[:, 1])[cols.column_of()]
+    mesh = Mesh(points=points, cells=tets, node_sets=node_sets, axis=geom.lv.long_axis(), name=name)
     return validate_mesh(mesh if kind == "tetra" else extract_surface(mesh))

@@ -4,7 +4,10 @@ The shell lies between an endocardial and an epicardial half-spheroid (long
 axis = z, apex at negative z, base plane at ``z = base_z``). One parametric
 triangulation (longitude x height) is shared by every transmural layer, so the
 volume mesh is a stack of prisms, each split into three tetrahedra with the
-vertex-ordering rule that makes neighbouring prisms conform.
+vertex-ordering rule that makes neighbouring prisms conform. Optional
+deformations (an elliptic short axis, an apex offset, smooth random bumps;
+see :class:`LVGeometry`) make the shell less regular without changing the
+construction.
 
 The parametric triangulation is the convex hull of near-equal-area points on a
 unit sphere (a spherical Delaunay triangulation), which has no pole
@@ -22,7 +25,9 @@ from scipy.spatial import ConvexHull
 
 from shared.errors import MeshError
 from shared.mesh import LongAxis, Mesh
+from simgen.meshes.harmonics import degree_of, harmonic_field
 from simgen.meshes.topology import extract_surface, signed_volumes
+from simgen.meshes.validate import validate_mesh
 
 __all__ = ["LVGeometry", "lv_ellipsoid", "parametric_triangulation", "stack_prisms", "check_mesh_request"]
 
@@ -31,10 +36,22 @@ _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 @dataclass(frozen=True)
 class LVGeometry:
-    """Semi-axes (mm) of the endo- and epicardial spheroids and the base plane height.
+    """Semi-axes (mm) of the endo- and epicardial spheroids, the base plane height and deformations.
 
     Defaults are an adult-sized LV: 80 mm apex-to-base on the epicardium, 10 mm
-    wall at the equator, 8 mm at the apex.
+    wall at the equator, 8 mm at the apex. ``endo_short`` and ``epi_short``
+    are the semi-axes along y; along x (towards the septum / RV) the
+    endocardial one is ``endo_short / eccentricity_index`` and the wall keeps
+    its thickness ``epi_short - endo_short``.
+
+    Two deformations translate whole transmural columns horizontally, so wall
+    thickness along a column, heights and the flat base are unchanged:
+    ``apex_offset`` (x, y in mm) shifts the apex sideways, fading with
+    height to zero at the base; ``bumps`` are the coefficients (mm) of a
+    field ``f`` of real spherical harmonics of degree 2 and up
+    (:mod:`simgen.meshes.harmonics`) on the parametric unit sphere, and the
+    column at sphere point ``u`` moves by ``f(u)`` times ``(u_x, u_y, 0)``:
+    away from the long axis where ``f > 0``, fading to zero at the apex.
     """
 
     endo_short: float = 25.0
@@ -42,53 +59,100 @@ class LVGeometry:
     epi_short: float = 35.0
     epi_long: float = 65.0
     base_z: float = 15.0
+    eccentricity_index: float = 1.0
+    apex_offset: tuple[float, float] = (0.0, 0.0)
+    bumps: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not (0 < self.endo_short < self.epi_short and 0 < self.endo_long < self.epi_long):
             raise MeshError("LV geometry: endocardial semi-axes must be smaller than epicardial ones")
         if not -self.endo_long < self.base_z < self.endo_long:
             raise MeshError("LV geometry: base plane must cut both spheroids")
+        if not (np.isfinite(self.eccentricity_index) and self.eccentricity_index > 0):
+            raise MeshError(f"LV geometry: eccentricity_index must be positive, got {self.eccentricity_index}")
+        object.__setattr__(self, "apex_offset", tuple(float(v) for v in self.apex_offset))
+        object.__setattr__(self, "bumps", tuple(float(v) for v in self.bumps))
+        if len(self.apex_offset) != 2:
+            raise MeshError(f"LV geometry: apex_offset must be (x, y), got {self.apex_offset}")
+        if self.bumps:
+            degree_of(len(self.bumps))
+
+    def radii(self, t: float) -> tuple[float, float, float]:
+        """Semi-axes (x, y, z) of the endocardium (``t = 0``) or the epicardium (``t = 1``)."""
+        narrowing = self.endo_short * (1.0 - 1.0 / self.eccentricity_index)  # 0 for a circular section
+        if t == 0:
+            return self.endo_short - narrowing, self.endo_short, self.endo_long
+        return self.epi_short - narrowing, self.epi_short, self.epi_long
 
     def surface_point(self, s: NDArray, theta: NDArray, t: float) -> NDArray[np.float64]:
-        """Points at height parameter ``s`` (0 apex, 1 base), angle ``theta`` and wall depth ``t``.
+        """Undeformed points at height parameter ``s`` (0 apex, 1 base), angle ``theta`` and wall depth ``t``.
 
         ``t = 0`` is the endocardium and ``t = 1`` the epicardium; intermediate
-        layers interpolate linearly between the two surfaces.
+        layers interpolate linearly between the two surfaces. Add
+        :meth:`column_shift` for the deformed shape.
         """
-        endo = self._spheroid(s, theta, self.endo_short, self.endo_long)
-        epi = self._spheroid(s, theta, self.epi_short, self.epi_long)
+        endo = self._spheroid(s, theta, *self.radii(0))
+        epi = self._spheroid(s, theta, *self.radii(1))
         return (1.0 - t) * endo + t * epi
 
-    def _spheroid(self, s: NDArray, theta: NDArray, r_short: float, r_long: float) -> NDArray:
+    def _spheroid(self, s: NDArray, theta: NDArray, r_x: float, r_y: float, r_long: float) -> NDArray:
         nu_base = np.arccos(self.base_z / r_long)
         nu = np.pi - np.asarray(s) * (np.pi - nu_base)
         return np.stack(
-            [r_short * np.sin(nu) * np.cos(theta), r_short * np.sin(nu) * np.sin(theta), r_long * np.cos(nu)],
+            [r_x * np.sin(nu) * np.cos(theta), r_y * np.sin(nu) * np.sin(theta), r_long * np.cos(nu)],
             axis=-1,
         )
 
+    def sphere_point(self, s: NDArray, theta: NDArray) -> NDArray[np.float64]:
+        """Parametric unit sphere: apex = south pole, base ring at the mid-wall base latitude."""
+        psi = np.pi - np.asarray(s) * (np.pi - np.arccos(self._cos_cut))
+        return np.stack([np.sin(psi) * np.cos(theta), np.sin(psi) * np.sin(theta), np.cos(psi)], axis=-1)
+
+    @property
+    def _cos_cut(self) -> float:
+        """Height of the base ring on the parametric sphere (the mid-wall base plane)."""
+        return self.base_z / (0.5 * (self.endo_long + self.epi_long))
+
+    def column_shift(self, s: NDArray, theta: NDArray) -> NDArray[np.float64]:
+        """Horizontal translation (mm) of the transmural column at ``(s, theta)``: bumps plus apex offset."""
+        unit = self.sphere_point(s, theta)
+        weight = (self._cos_cut - unit[..., 2]) / (self._cos_cut + 1.0)  # 1 at the apex, 0 at the base
+        radial = unit * np.array([1.0, 1.0, 0.0])  # (sin psi cos theta, sin psi sin theta, 0)
+        offset = np.array([*self.apex_offset, 0.0])
+        return harmonic_field(self.bumps, unit)[..., None] * radial + weight[..., None] * offset
+
     def mid_area_density(self, s: NDArray) -> NDArray:
-        """Area of the mid-wall surface per unit ``s`` (integrated over theta)."""
+        """Area of the undeformed mid-wall surface per unit ``s`` (integrated over theta)."""
         ds = 1e-4
-        p0 = self.surface_point(s, np.zeros_like(s), 0.5)
-        p1 = self.surface_point(s + ds, np.zeros_like(s), 0.5)
-        radius = np.hypot(p0[..., 0], p0[..., 1])
-        return 2 * np.pi * radius * np.linalg.norm(p1 - p0, axis=-1) / ds
+        zero, right = np.zeros_like(s), np.full_like(s, np.pi / 2)
+        p0, q0 = self.surface_point(s, zero, 0.5), self.surface_point(s, right, 0.5)
+        p1, q1 = self.surface_point(s + ds, zero, 0.5), self.surface_point(s + ds, right, 0.5)
+        slope = 0.5 * (np.linalg.norm(p1 - p0, axis=-1) + np.linalg.norm(q1 - q0, axis=-1))
+        return _ellipse_perimeter(np.hypot(p0[..., 0], p0[..., 1]), q0[..., 1]) * slope / ds
 
     def mid_base_circumference(self) -> float:
-        return 2 * np.pi * float(np.hypot(*self.surface_point(np.array(1.0), np.array(0.0), 0.5)[:2]))
+        """Perimeter of the undeformed mid-wall base ring."""
+        p = self.surface_point(np.array(1.0), np.array(0.0), 0.5)
+        q = self.surface_point(np.array(1.0), np.array(np.pi / 2), 0.5)
+        return float(_ellipse_perimeter(np.hypot(p[0], p[1]), q[1]))
 
     def thickness(self) -> float:
         """Mean wall thickness (mm) between equator and apex."""
         return 0.5 * ((self.epi_short - self.endo_short) + (self.epi_long - self.endo_long))
 
     def long_axis(self) -> LongAxis:
-        """Frame from the epicardial apex to the base centre, angle 0 along +x."""
-        return LongAxis(
-            apex=np.array([0.0, 0.0, -self.epi_long]),
-            base=np.array([0.0, 0.0, self.base_z]),
-            reference=np.array([1.0, 0.0, 0.0]),
-        )
+        """Frame from the (shifted) epicardial apex to the base centre, angle 0 along +x."""
+        apex = np.array([self.apex_offset[0], self.apex_offset[1], -self.epi_long])
+        base = np.array([0.0, 0.0, self.base_z])
+        d = (base - apex) / np.linalg.norm(base - apex)
+        reference = np.array([1.0, 0.0, 0.0]) - d[0] * d
+        return LongAxis(apex=apex, base=base, reference=reference / np.linalg.norm(reference))
+
+
+def _ellipse_perimeter(a: NDArray, b: NDArray) -> NDArray:
+    """Ramanujan's perimeter of an ellipse with semi-axes ``a``, ``b`` (exactly ``2 pi a`` for a circle)."""
+    h = ((a - b) / (a + b)) ** 2
+    return np.pi * (a + b) * (1.0 + 3.0 * h / (10.0 + np.sqrt(4.0 - 3.0 * h)))
 
 
 def parametric_triangulation(geom: LVGeometry, spacing: float) -> tuple[NDArray, NDArray, NDArray]:
@@ -125,13 +189,9 @@ def parametric_triangulation(geom: LVGeometry, spacing: float) -> tuple[NDArray,
     theta_inner = np.arange(n_inner) * _GOLDEN_ANGLE
     s = np.concatenate([s_inner, np.ones(n_ring)])
     theta = np.concatenate([theta_inner, 2 * np.pi * np.arange(n_ring) / n_ring])
-    # Embed on a unit sphere (apex = south pole, base ring at a fixed latitude) plus a
-    # north pole, take the hull and drop the triangles that touch the pole.
-    mid_long = 0.5 * (geom.endo_long + geom.epi_long)
-    psi_cut = np.arccos(geom.base_z / mid_long)
-    psi = np.pi - s * (np.pi - psi_cut)
-    sphere = np.stack([np.sin(psi) * np.cos(theta), np.sin(psi) * np.sin(theta), np.cos(psi)], axis=1)
-    sphere = np.vstack([sphere, [0.0, 0.0, 1.0]])
+    # Embed on the parametric unit sphere plus its north pole, take the hull and drop the
+    # triangles that touch the pole.
+    sphere = np.vstack([geom.sphere_point(s, theta), [0.0, 0.0, 1.0]])
     hull = ConvexHull(sphere)
     tris = hull.simplices[(hull.simplices < len(s)).all(axis=1)]
     # Orient every triangle outward on the sphere.
@@ -206,9 +266,11 @@ def lv_ellipsoid(
     n_nodes : target node count (500 - 50,000); the result is within a few percent.
     kind : ``"tetra"`` for the volume mesh, ``"triangle"`` for its closed boundary
         surface (endocardium, epicardium and the base rim).
-    geometry : semi-axes and base height; defaults to :class:`LVGeometry`.
+    geometry : semi-axes, base height and deformations; defaults to :class:`LVGeometry`
+        (:meth:`simgen.meshes.shapes.LVShape.geometry` gives one from clinical parameters).
 
-    Node sets: ``surface``, ``epicardium``, ``endocardium``, ``base``.
+    Node sets: ``surface``, ``epicardium``, ``endocardium``, ``base``. The mesh is
+    validated (:func:`~simgen.meshes.validate.validate_mesh`).
     """
     check_mesh_request(kind, n_nodes, smallest=200)
     geom = geometry or LVGeometry()
@@ -219,8 +281,9 @@ def lv_ellipsoid(
 
     st, tris, ring = parametric_triangulation(geom, spacing)
     n = len(st)
+    shift = geom.column_shift(st[:, 0], st[:, 1])
     points = np.concatenate(
-        [geom.surface_point(st[:, 0], st[:, 1], layer / layers) for layer in range(layers + 1)]
+        [geom.surface_point(st[:, 0], st[:, 1], layer / layers) + shift for layer in range(layers + 1)]
     )
     tets = stack_prisms(tris, n, layers)
     negative = signed_volumes(points, tets) < 0
@@ -234,4 +297,4 @@ def lv_ellipsoid(
     }
     node_sets["surface"] = np.unique(np.concatenate(list(node_sets.values())))
     mesh = Mesh(points=points, cells=tets, node_sets=node_sets, axis=geom.long_axis(), name=name)
-    return mesh if kind == "tetra" else extract_surface(mesh)
+    return validate_mesh(mesh if kind == "tetra" else extract_surface(mesh))

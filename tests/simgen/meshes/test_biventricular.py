@@ -8,10 +8,12 @@ import pytest
 from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.meshes.biventricular import BiVGeometry, biv_ellipsoid
+from simgen.meshes.ellipsoid import LVGeometry
 from simgen.meshes.topology import boundary_faces, signed_volumes
 from simgen.meshes.validate import validate_mesh
 
 GEOM = BiVGeometry()
+LV = GEOM.lv
 SIZES = [500, 2000, 20_000]
 
 
@@ -75,12 +77,12 @@ def test_surfaces_lie_on_the_spheroids(biv):
     below = p[:, 2] < GEOM.base_z - 1e-6
     lv_endo = biv.node_sets["lv_endocardium"]
     lv_endo = lv_endo[below[lv_endo]]
-    level = spheroid_level(p[lv_endo], (0, 0, 0), (GEOM.lv_endo_short, GEOM.lv_endo_short, GEOM.lv_endo_long))
+    level = spheroid_level(p[lv_endo], (0, 0, 0), (LV.endo_short, LV.endo_short, LV.endo_long))
     np.testing.assert_allclose(level, 1.0, atol=1e-9)
     # RV endocardium: the RV endocardial ellipsoid or the septal LV epicardium.
     rv = biv.node_sets["rv_endocardium"]
     on_rv = np.abs(spheroid_level(p[rv], GEOM.rv_centre, GEOM.rv_endo_axes) - 1) < 1e-9
-    lv_epi_axes = (GEOM.lv_epi_short, GEOM.lv_epi_short, GEOM.lv_epi_long)
+    lv_epi_axes = (LV.epi_short, LV.epi_short, LV.epi_long)
     on_lv = np.abs(spheroid_level(p[rv], (0, 0, 0), lv_epi_axes) - 1) < 1e-9
     assert (on_rv | on_lv).all() and on_rv.any() and on_lv.any()
 
@@ -90,20 +92,20 @@ def test_rv_is_on_the_plus_x_side(biv):
     rv = p[biv.node_sets["rv_endocardium"]]
     lv = p[biv.node_sets["lv_endocardium"]]
     assert rv[:, 0].mean() > lv[:, 0].mean() + 10.0
-    assert (rv[:, 0] > -GEOM.lv_epi_short * 0.5).all()
+    assert (rv[:, 0] > -LV.epi_short * 0.5).all()
     reference_side = (rv - biv.axis.base) @ biv.axis.reference
     assert np.median(reference_side) > 0
     # The far free wall reaches well beyond the LV epicardium (it wraps the LV on +x).
-    assert p[:, 0].max() > GEOM.lv_epi_short + 15.0
-    assert p[:, 0].min() > -GEOM.lv_epi_short - 1e-6
+    assert p[:, 0].max() > LV.epi_short + 15.0
+    assert p[:, 0].min() > -LV.epi_short - 1e-6
 
 
 def test_axis():
     mesh = biv_ellipsoid(500)
-    np.testing.assert_allclose(mesh.axis.apex, [0, 0, -GEOM.lv_epi_long])
+    np.testing.assert_allclose(mesh.axis.apex, [0, 0, -LV.epi_long])
     np.testing.assert_allclose(mesh.axis.base, [0, 0, GEOM.base_z])
     np.testing.assert_allclose(mesh.axis.reference, [1, 0, 0])
-    assert -GEOM.lv_epi_long - 1e-9 < mesh.points[:, 2].min() < -GEOM.lv_epi_long + 1.0
+    assert -LV.epi_long - 1e-9 < mesh.points[:, 2].min() < -LV.epi_long + 1.0
     assert mesh.name == "biv"
 
 
@@ -142,8 +144,7 @@ def test_custom_geometry():
     "kwargs, match",
     [
         (dict(rv_endo_axes=(45.0, 38.0, 50.0)), "RV endocardial semi-axes"),
-        (dict(lv_endo_short=36.0), "LV geometry"),
-        (dict(base_z=60.0), "base plane"),
+        (dict(lv=LVGeometry(base_z=52.0)), "base plane must cut the RV"),
         (dict(rv_centre=(0.0, 0.0, 0.0), rv_endo_axes=(30.0, 38.0, 50.0)), "reach beyond the LV epicardium"),
     ],
 )
