@@ -8,7 +8,7 @@ Example (TOML)::
     store = "default.zarr"           # relative paths are relative to this file
     [data.split]
     seed = 0
-    test = 0.25
+    test = 0.25                      # source = "store": the store's canonical split instead
     [data.episodes]
     context = [1, 5]
     targets = 20

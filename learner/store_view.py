@@ -10,7 +10,7 @@ import zarr
 
 from shared.errors import InputError, SchemaError
 from shared.mesh import Mesh
-from shared.reader import check_store, read_mesh, read_sites, subject_attrs, subject_ids
+from shared.reader import check_store, read_mesh, read_sites, read_split, subject_attrs, subject_ids
 from shared.schema import subject_path
 
 from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
@@ -46,6 +46,11 @@ class StoreView:
     def mesh_of(self) -> dict[str, str]:
         """Subject id -> mesh id."""
         return {sid: subject_attrs(self.store, sid)["mesh_id"] for sid in self.subjects}
+
+    @cached_property
+    def stored_split(self) -> dict[str, str]:
+        """Subject id -> part of the store's canonical split (empty for a version-1 store)."""
+        return read_split(self.store)
 
     @cached_property
     def frames(self) -> int:

@@ -26,6 +26,8 @@ __all__ = [
     "read_tissue",
     "read_sites",
     "read_index_set",
+    "read_statistics",
+    "read_split",
 ]
 
 
@@ -40,12 +42,15 @@ def _has_root_metadata(path: str | Path) -> bool:
     return (Path(path) / "zarr.json").exists()
 
 
-def check_store(path: str | Path) -> dict:
-    """Root attributes of an existing store (a folder or an fsspec URL) after a schema-version check."""
+def check_store(path: str | Path, write: bool = False) -> dict:
+    """Root attributes of an existing store (a folder or an fsspec URL) after a schema-version check.
+
+    ``write``: the store is to be written (resumed or edited), which needs the current schema version.
+    """
     if not _has_root_metadata(path):
         raise SchemaError(f"{path} is not a Zarr store (no zarr.json)")
     attrs = dict(zarr.open_group(str(path), mode="r").attrs)
-    check_schema_version(attrs, str(path))
+    check_schema_version(attrs, str(path), write=write)
     return attrs
 
 
@@ -56,7 +61,8 @@ def subject_ids(path: str | Path) -> list[str]:
 
 
 def subject_attrs(path: str | Path, subject_id: str) -> dict:
-    """Attributes of a subject group: ``mesh_id``, ``tissue``, ``chunk_sites``."""
+    """Attributes of a subject group: ``mesh_id``, ``tissue``, ``chunk_sites`` (and from version 2
+    ``solver``, ``split``, ``statistics``)."""
     return dict(zarr.open_group(str(path), path=subject_path(subject_id), mode="r").attrs)
 
 
@@ -92,3 +98,23 @@ def read_tissue(path: str | Path, subject_id: str) -> TissueFields:
 def read_sites(path: str | Path, mesh_id: str) -> NDArray[np.int64]:
     """Stimulation node ids of every subject on ``mesh_id``."""
     return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")["stim_nodes"][...].astype(np.int64)
+
+
+def read_statistics(path: str | Path, subject_id: str | None = None) -> dict | None:
+    """Normalisation statistics of ``u`` and ``activation`` of one subject, or of the store (``None``).
+
+    ``{"u": {"count", "mean", "std", "min", "max"}, "activation": {...}}`` over the
+    finite values; ``None`` while chunks are pending, and in version-1 stores.
+    """
+    group = zarr.open_group(str(path), mode="r", path=subject_path(subject_id) if subject_id else "",
+                            use_consolidated=False)  # fmt: skip
+    return group.attrs.get("statistics")
+
+
+def read_split(path: str | Path) -> dict[str, str]:
+    """The store's canonical split: subject id -> ``"train"``, ``"validation"`` or ``"test"``.
+
+    Subjects without a ``split`` attribute (every subject of a version-1 store) are left out.
+    """
+    parts = {sid: subject_attrs(path, sid).get("split") for sid in subject_ids(path)}
+    return {sid: part for sid, part in parts.items() if part is not None}

@@ -1,72 +1,127 @@
 """The dataset store contract (Zarr v3), shared by simgen (writer) and learner (reader).
 
-Layout of one store (one dataset)::
+Layout of one store (one dataset), version 2::
 
-    <store>/                      attrs: schema_version, spec (build spec as JSON-able dict), spec_hash
-      meshes/<mesh_id>/           attrs: name, cell_type, axis (apex/base/reference or null)
+    <store>/                      attrs: schema_version, spec, spec_hash, complete, provenance,
+                                         simulation, split, statistics, summary (and added: edits)
+      meshes/<mesh_id>/           attrs: name, cell_type, axis (apex/base/reference or null), shape_params
         points (node, xyz) f8     cells (cell, vertex) i4
         surface / epicardium / endocardium / base / electrodes (k,) i4   observed-node index sets
         stim_nodes (site,) i4     stimulation sites of every subject on this mesh
-      subjects/<subject_id>/      attrs: mesh_id, tissue (TissueSpec as dict), chunk_sites
+      subjects/<subject_id>/      attrs: mesh_id, tissue, chunk_sites, solver, split, statistics
         a, D (node,) f4           label (node,) i1
         u (site, time, node) f4   chunked along site: one chunk = one build task
         activation (site, node) f4  first crossing of the activation threshold (NaN = never), time units
-        times (time,) f8          done (chunk,) u1: 1 once a chunk's u and activation are written
+        done (chunk,) u1          1 once a chunk's u, activation and moments are written
+        moments (chunk, variable, moment) f8   per-chunk count, sum, sum of squares, min, max of u, activation
+        coordinates: site (site,) i4 stimulated node ids, times (time,) f8 in time units,
+                     time_ms (time,) f8, x / y / z (node,) f8 in mm
 
-Rules: ``done[k]`` is written only after chunk ``k``'s data; readers must treat a
-chunk with ``done == 0`` as missing. Any Zarr v3 reader (zarr, xarray through
-``dimension_names``) opens the store without simgen.
+Every array carries CF-style ``units`` and ``long_name`` attributes, and a
+data array lists the coordinates along its dimensions in ``coordinates``, so
+``xarray.open_zarr(store, group="subjects/<id>")`` labels sites, frames and
+nodes. Rules: ``done[k]`` is written only after chunk ``k``'s data; readers
+must treat a chunk with ``done == 0`` as missing. Version-1 stores (no
+coordinates, moments, units or the attributes of version 2) are still read,
+never written: see :func:`check_schema_version`.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 from shared.errors import SchemaError
+from shared.units import TIME_UNITS
 
 __all__ = [
     "SCHEMA_VERSION",
+    "READABLE_VERSIONS",
     "ArraySpec",
     "MESH_ARRAYS",
     "MESH_INDEX_SETS",
     "SUBJECT_ARRAYS",
+    "MOMENT_VARIABLES",
+    "MOMENTS",
+    "SchemaWarning",
+    "array_attributes",
     "mesh_path",
     "subject_path",
     "check_schema_version",
 ]
 
-#: Bumped on any incompatible change of names, dtypes or dimensions below.
-SCHEMA_VERSION = 1
+#: Bumped on any change of names, dtypes, dimensions or required attributes below.
+SCHEMA_VERSION = 2
+
+#: Versions this code reads; it writes :data:`SCHEMA_VERSION` only.
+READABLE_VERSIONS = (1, SCHEMA_VERSION)
 
 
 @dataclass(frozen=True)
 class ArraySpec:
-    """Name, dtype and dimension names of one array."""
+    """Dtype, dimension names and CF ``units`` / ``long_name`` of one array.
+
+    ``coordinate``: the array labels its dimensions (xarray shows it as a
+    coordinate); ``since``: the schema version that added the array.
+    """
 
     dtype: str
     dims: tuple[str, ...]
+    units: str
+    long_name: str
+    coordinate: bool = False
+    since: int = 1
 
 
 #: Index sets of nodes stored per mesh (observation operators read these).
 MESH_INDEX_SETS = ("surface", "epicardium", "endocardium", "base", "electrodes")
 
 MESH_ARRAYS: dict[str, ArraySpec] = {
-    "points": ArraySpec("float64", ("node", "xyz")),
-    "cells": ArraySpec("int32", ("cell", "vertex")),
-    "stim_nodes": ArraySpec("int32", ("site",)),
-    **{name: ArraySpec("int32", (f"{name}_node",)) for name in MESH_INDEX_SETS},
+    "points": ArraySpec("float64", ("node", "xyz"), "mm", "node coordinates"),
+    "cells": ArraySpec("int32", ("cell", "vertex"), "1", "node ids of each cell's vertices"),
+    "stim_nodes": ArraySpec("int32", ("site",), "1", "stimulated node id of each site"),
+    **{name: ArraySpec("int32", (f"{name}_node",), "1", f"node ids of the {name} node set")
+       for name in MESH_INDEX_SETS},
 }
 
+#: Variables and moments of a subject's ``moments`` array (its last two dimensions).
+MOMENT_VARIABLES = ("u", "activation")
+MOMENTS = ("count", "sum", "sum_sq", "min", "max")
+
 SUBJECT_ARRAYS: dict[str, ArraySpec] = {
-    "a": ArraySpec("float32", ("node",)),
-    "D": ArraySpec("float32", ("node",)),
-    "label": ArraySpec("int8", ("node",)),
-    "u": ArraySpec("float32", ("site", "time", "node")),
-    "activation": ArraySpec("float32", ("site", "node")),
-    "times": ArraySpec("float64", ("time",)),
-    "done": ArraySpec("uint8", ("chunk",)),
-}
+    "a": ArraySpec("float32", ("node",), "1", "excitability threshold a of the Aliev-Panfilov model"),
+    "D": ArraySpec("float32", ("node",), "1", "diffusivity scale (conductivity = solver diffusivity x D)"),
+    "label": ArraySpec("int8", ("node",), "1", "tissue label: 0 healthy, 1 border zone, 2 scar core"),
+    "u": ArraySpec("float32", ("site", "time", "node"), "1",
+                   "transmembrane potential u, dimensionless (V = 100 u - 80 mV)"),
+    "activation": ArraySpec("float32", ("site", "node"), TIME_UNITS,
+                            "activation time: first crossing of the activation threshold (NaN = never)"),
+    "times": ArraySpec("float64", ("time",), TIME_UNITS, "frame time in model time units", coordinate=True),
+    "done": ArraySpec("uint8", ("chunk",), "1", "chunk done flag: 1 once the chunk's data are written"),
+    "site": ArraySpec("int32", ("site",), "1", "stimulated node id", coordinate=True, since=2),
+    "time_ms": ArraySpec("float64", ("time",), "ms", "frame time", coordinate=True, since=2),
+    **{axis: ArraySpec("float64", ("node",), "mm", f"node {axis} coordinate", coordinate=True, since=2)
+       for axis in "xyz"},
+    "moments": ArraySpec("float64", ("chunk", "variable", "moment"), "1",
+                         "per-chunk count, sum, sum of squares, min and max of the finite values of u "
+                         "(dimensionless) and activation (model time units)", since=2),
+}  # fmt: skip
+
+
+class SchemaWarning(UserWarning):
+    """A store of an older schema version is read without the metadata added since."""
+
+
+def array_attributes(table: Mapping[str, ArraySpec], name: str) -> dict[str, str]:
+    """CF attributes of array ``name`` of ``table``: ``units``, ``long_name`` and, for a
+    data array, ``coordinates`` (the coordinate arrays along its dimensions)."""
+    spec = table[name]
+    attrs = {"units": spec.units, "long_name": spec.long_name}
+    aux = [key for key, c in table.items() if c.coordinate and key not in spec.dims and set(c.dims) <= set(spec.dims)]
+    if aux and not spec.coordinate:
+        attrs["coordinates"] = " ".join(aux)
+    return attrs
 
 
 def mesh_path(mesh_id: str) -> str:
@@ -79,13 +134,33 @@ def subject_path(subject_id: str) -> str:
     return f"subjects/{subject_id}"
 
 
-def check_schema_version(attrs: Mapping[str, Any], where: str = "store") -> None:
-    """Raise :class:`SchemaError` unless ``attrs`` carry this module's schema version."""
+def check_schema_version(attrs: Mapping[str, Any], where: str = "store", write: bool = False) -> int:
+    """The store's schema version, after a check that this code reads it (``write``: writes it).
+
+    Raises :class:`SchemaError` for a store without a version, of an unknown
+    version or, with ``write``, of an older one (resuming or editing it needs
+    a rebuild). Reading a version-1 store warns (:class:`SchemaWarning`): it
+    lacks coordinates, units, statistics, the canonical split and provenance.
+    """
     version = attrs.get("schema_version")
     if version is None:
         raise SchemaError(f"{where} has no schema_version attribute: not a simgen dataset store")
-    if version != SCHEMA_VERSION:
+    rebuild = f"rebuild it with `simgen build SPEC --store {where} --force` (its spec is the root attribute 'spec')"
+    if version not in READABLE_VERSIONS:
         raise SchemaError(
-            f"{where} has schema_version {version}, this code reads version {SCHEMA_VERSION}; "
-            "rebuild the store or use a matching release"
+            f"{where} has schema_version {version}, this code reads versions "
+            f"{', '.join(map(str, READABLE_VERSIONS))}; {rebuild} or use a matching release"
         )
+    if write and version != SCHEMA_VERSION:
+        raise SchemaError(
+            f"{where} has schema_version {version}, this simgen writes version {SCHEMA_VERSION} only: "
+            f"to resume or edit the store, {rebuild}"
+        )
+    if version != SCHEMA_VERSION:
+        warnings.warn(
+            f"{where} has schema_version {version}: read without the metadata of version {SCHEMA_VERSION} "
+            f"(units, coordinates, statistics, canonical split, provenance); {rebuild} to add them",
+            SchemaWarning,
+            stacklevel=2,
+        )
+    return version

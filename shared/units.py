@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
-__all__ = ["MS_PER_TIME_UNIT", "to_millivolts"]
+__all__ = ["MS_PER_TIME_UNIT", "TIME_UNITS", "to_millivolts"]
 
 #: Milliseconds per dimensionless time unit.
 MS_PER_TIME_UNIT = 12.9
+
+#: The model time unit as a UDUNITS string (a scaled millisecond), for CF ``units`` attributes.
+TIME_UNITS = f"{MS_PER_TIME_UNIT:g} ms"
 
 
 def to_millivolts(u):

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, NoReturn, Optional
 
 import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from shared.cli import fail, parse_ids
 from shared.config import load_toml
 from shared.errors import InputError
 from simgen.meshes.catalog import get_mesh
@@ -26,17 +27,18 @@ app = typer.Typer(
 console = Console()
 
 MeshOpt = Annotated[str, typer.Option("--mesh", help="'lv', 'biv' or a mesh file (any meshio format).")]
-NodesOpt = Annotated[int, typer.Option("--nodes", help="Target node count of a procedural mesh.")]
+NodesOpt = Annotated[int, typer.Option("--nodes", min=1, help="Target node count of a procedural mesh.")]
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
 SchedulerOpt = Annotated[Optional[str], typer.Option(help="Address of an existing Dask scheduler.")]
-WorkersOpt = Annotated[int, typer.Option(help="Local worker processes when no --scheduler is given.")]
+WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]
+ThreadsOpt = Annotated[int, typer.Option(min=1, help="Solver threads.")]
 # A string, not a Path: Path("s3://bucket/x.zarr") would collapse the "//" of a URL.
 StoreArg = Annotated[str, typer.Argument(help="A simgen Zarr store: a folder or an fsspec URL (s3://bucket/x.zarr).")]
 
 
-def _fail(exc: Exception) -> None:
-    console.print(f"[red]error:[/red] {exc}")
-    raise typer.Exit(code=2)
+def _fail(exc: Exception, path: str | Path | None = None) -> NoReturn:
+    """Report bad input on one line and exit with code 2 (:func:`shared.cli.fail`)."""
+    fail(console, exc, path)
 
 
 @app.command()
@@ -50,8 +52,8 @@ def mesh(
     try:
         m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
         save_mesh(m, out)
-    except InputError as exc:
-        _fail(exc)
+    except (InputError, OSError) as exc:
+        _fail(exc, out)
     table = Table(title=f"{m.name} -> {out}")
     for key, value in [
         ("nodes", m.n_nodes), ("cells", f"{m.n_cells} {m.cell_type}"), ("mean edge (mm)", f"{m.mean_edge_length():.2f}"),
@@ -82,16 +84,16 @@ def simulate(
     kind: KindOpt = "tetra",
     tissue: Annotated[str, typer.Option(help="Default setting name (see `simgen tissues`) or a TOML file.")] = "healthy",
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")] = "0",
-    threads: Annotated[int, typer.Option(help="Solver threads.")] = 2,
+    threads: ThreadsOpt = 2,
     dt: Annotated[Optional[float], typer.Option(help="Time step; automatic when omitted.")] = None,
 ) -> None:
     """Simulate stimulation SITES on one mesh + tissue and save u, activation times and a figure."""
     from simgen.plot import plot_activation_maps
 
     try:
+        site_ids = np.array(parse_ids(sites, "--sites"))
         m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
         spec = _tissue_spec(tissue)
-        site_ids = np.array([int(s) for s in sites.split(",") if s.strip()])
         sim = Simulator(m, tissue_fields(m, spec), SolverConfig(dt=dt))
         result = sim.run(site_ids, threads=threads)
     except (InputError, ValueError) as exc:
@@ -121,8 +123,8 @@ def _tissue_spec(tissue: str):
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("report/demo"),
     nodes: NodesOpt = 2000,
-    sites: Annotated[int, typer.Option(help="Stimulation sites per setting.")] = 4,
-    threads: Annotated[int, typer.Option(help="Solver threads.")] = 2,
+    sites: Annotated[int, typer.Option(min=1, help="Stimulation sites per setting.")] = 4,
+    threads: ThreadsOpt = 2,
 ) -> None:
     """Run the demo sweep (LV + BiV, four tissue settings) and write figures and a summary."""
     from simgen.demo import run_demo
@@ -139,7 +141,7 @@ def build(
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
     force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
-    retries: Annotated[int, typer.Option(help="Retries per failing task.")] = 2,
+    retries: Annotated[int, typer.Option(min=0, help="Retries per failing task.")] = 2,
 ) -> None:
     """Build (or resume) the dataset of SPEC into STORE on a Dask cluster."""
     from simgen.build import load_spec
@@ -167,9 +169,9 @@ def _run_with_progress(store: str, job) -> None:
 
     try:
         report = job(on_start, on_done)
-    except (InputError, ValueError) as exc:
+    except (InputError, ValueError, OSError) as exc:
         bar.stop()
-        _fail(exc)
+        _fail(exc, store)
     bar.stop()
     if report.tasks_run == 0:
         console.print(f"{store}: nothing to do, all {report.tasks_total} chunks done")
@@ -214,7 +216,7 @@ def regenerate(
     from simgen.build.edit import regenerate as run_regenerate
 
     def job(on_start, on_done):
-        site_ids = None if sites is None else [int(s) for s in sites.split(",") if s.strip()]
+        site_ids = None if sites is None else parse_ids(sites, "--sites")
         return run_regenerate(store, [s.strip() for s in subjects.split(",") if s.strip()], site_ids,
                               scheduler=scheduler, workers=workers, on_start=on_start, on_done=on_done)  # fmt: skip
 
@@ -240,14 +242,17 @@ def status(store: StoreArg) -> None:
 
 
 @app.command()
-def unlock(store: StoreArg) -> None:
-    """Remove the lock of STORE left by a build that is gone (never while a build of STORE runs)."""
+def unlock(
+    store: StoreArg,
+    force: Annotated[bool, typer.Option(help="Also remove a lock of another host (check its build is gone).")] = False,
+) -> None:
+    """Remove the lock of STORE left by a build that is gone (refused while a build of STORE runs on this host)."""
     from simgen.build.lock import unlock as run_unlock
 
     try:
-        holder = run_unlock(store)
-    except InputError as exc:
-        _fail(exc)
+        holder = run_unlock(store, force=force)
+    except (InputError, OSError) as exc:
+        _fail(exc, store)
     if holder is None:
         console.print(f"{store}: not locked")
     else:
@@ -257,8 +262,8 @@ def unlock(store: StoreArg) -> None:
 @app.command()
 def verify(
     store: StoreArg,
-    sample: Annotated[int, typer.Option(help="Chunks recomputed and compared bit for bit.")] = 2,
-    seed: Annotated[int, typer.Option(help="Seed of the chunk sample.")] = 0,
+    sample: Annotated[int, typer.Option(min=0, help="Chunks recomputed and compared bit for bit.")] = 2,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the chunk sample.")] = 0,
 ) -> None:
     """Check every chunk (done, readable, right shape, finite) and recompute a random sample."""
     from simgen.build.verify import verify_store
@@ -277,11 +282,31 @@ def verify(
         raise typer.Exit(code=1)
 
 
+@app.command()
+def card(
+    store: StoreArg,
+    out: Annotated[Optional[Path], typer.Option(help="Markdown file to write; printed when omitted.")] = None,
+) -> None:
+    """Write the Markdown dataset card of STORE: model, parameters, sizes, cost, statistics, provenance, citation."""
+    from simgen.build.card import dataset_card
+
+    try:
+        text = dataset_card(store)
+        if out is not None:
+            out.write_text(text + "\n")
+    except (InputError, OSError) as exc:
+        _fail(exc, out)
+    if out is None:
+        typer.echo(text)
+    else:
+        console.print(f"dataset card of {store} -> {out}")
+
+
 @app.command("export-vtk")
 def export_vtk(
     store: StoreArg,
     subject: Annotated[str, typer.Argument(help="Subject id (see `simgen status`).")],
-    site: Annotated[int, typer.Argument(help="Site index within the subject (0-based).")],
+    site: Annotated[int, typer.Argument(min=0, help="Site index within the subject (0-based).")],
     out: Annotated[Path, typer.Option(help="Output folder for the .vtu frames and .pvd collection.")] = Path("vtk"),
 ) -> None:
     """Write one simulation as a ParaView time series (.pvd + one .vtu per frame)."""
@@ -289,8 +314,8 @@ def export_vtk(
 
     try:
         pvd = run_export(store, subject, site, out)
-    except InputError as exc:
-        _fail(exc)
+    except (InputError, OSError) as exc:
+        _fail(exc, out)
     console.print(f"wrote {pvd} (open it in ParaView)")
 
 

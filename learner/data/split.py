@@ -4,13 +4,16 @@ Splitting is by subject, never by simulation: every simulation of a subject
 lands in the same part, so a test subject's tissue is never seen in training.
 Subjects on a held-out mesh all go to ``test`` (an unseen geometry, the
 paper's real-data setting); the others are shuffled by ``seed`` and cut by
-fractions.
+fractions (``source = "computed"``, the default) or take the part the store
+records for them (``source = "store"``: the canonical split of
+:mod:`shared.split`, which subjects added later never change).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -35,12 +38,16 @@ class SplitSpec:
         sum ``< 1``.
     held_out_meshes
         Mesh ids whose subjects all go to ``test``.
+    source
+        ``"computed"``: shuffle and cut as above; ``"store"``: the split
+        recorded in the store (``seed`` and the fractions are then unused).
     """
 
     seed: int = 0
     validation: float = 0.1
     test: float = 0.2
     held_out_meshes: tuple[str, ...] = ()
+    source: Literal["computed", "store"] = "computed"
 
     def __post_init__(self) -> None:
         # TOML gives lists; a tuple keeps the spec hashable and comparable.
@@ -53,6 +60,8 @@ class SplitSpec:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 <= value < 1.0):
                 raise InputError(f"{name} fraction must be in [0, 1), got {value!r}")
+        if self.source not in ("computed", "store"):
+            raise InputError(f"split source must be 'computed' or 'store', got {self.source!r}")
         if self.validation + self.test >= 1.0:
             raise InputError(
                 f"validation + test fractions must be < 1 to leave training subjects, "
@@ -66,21 +75,27 @@ def _round_half_up(x: float) -> int:
 
 
 def split_subjects(
-    subject_ids: Iterable[str], mesh_of: Mapping[str, str], spec: SplitSpec = SplitSpec()
+    subject_ids: Iterable[str],
+    mesh_of: Mapping[str, str],
+    spec: SplitSpec = SplitSpec(),
+    stored: Mapping[str, str] | None = None,
 ) -> dict[str, list[str]]:
     """Split subjects into disjoint ``train``, ``validation`` and ``test`` lists.
 
     With ``n`` subjects off the held-out meshes, ``validation`` gets
     ``round(spec.validation * n)`` and ``test`` ``round(spec.test * n)`` of them
     (then shrunk, test first, until at least one subject is left for training);
-    ``train`` gets the rest. The result depends only on the *set* of subjects,
-    their meshes and ``spec`` (input order does not matter); each list is sorted.
+    ``train`` gets the rest. With ``spec.source == "store"`` they take their
+    part in ``stored`` (the store's split, :func:`shared.reader.read_split`)
+    instead. The result depends only on the *set* of subjects, their meshes,
+    ``spec`` and ``stored`` (input order does not matter); each list is sorted.
 
     Raises
     ------
     InputError
-        Duplicate subjects, a subject missing from ``mesh_of``, a held-out mesh
-        that no subject uses, or no subject left for training.
+        Duplicate subjects, a subject missing from ``mesh_of`` (or, from the
+        store, from ``stored``), a held-out mesh that no subject uses, or no
+        subject left for training.
     """
     ids = list(subject_ids)
     if len(set(ids)) != len(ids):
@@ -105,6 +120,10 @@ def split_subjects(
             f"no subject left for training: all {len(ids)} subject(s) are on held-out meshes "
             f"{', '.join(spec.held_out_meshes) or '(none)'}"
         )
+    if spec.source == "store":
+        if stored is None:
+            raise InputError("data.split.source = 'store' needs the store's split (StoreView.stored_split)")
+        return _stored_parts(rest, held_out, stored)
     n = len(rest)
     n_val, n_test = _round_half_up(spec.validation * n), _round_half_up(spec.test * n)
     while n_val + n_test > n - 1:  # keep at least one training subject
@@ -118,3 +137,18 @@ def split_subjects(
     test = shuffled[n_val : n_val + n_test]
     train = shuffled[n_val + n_test :]
     return {"train": sorted(train), "validation": sorted(val), "test": sorted(test + held_out)}
+
+
+def _stored_parts(rest: list[str], held_out: list[str], stored: Mapping[str, str]) -> dict[str, list[str]]:
+    """``rest`` by their stored part, ``held_out`` added to ``test``."""
+    missing = [s for s in rest if stored.get(s) not in SPLITS]
+    if missing:
+        raise InputError(
+            f"data.split.source = 'store', but the store records no split for subject(s) {', '.join(missing)} "
+            "(a schema-version-1 store: rebuild it with `simgen build`, or use data.split.source = 'computed')"
+        )
+    parts = {part: sorted(s for s in rest if stored[s] == part) for part in SPLITS}
+    if not parts["train"]:
+        raise InputError(f"the store's split leaves no training subject among {len(rest)}; use source = 'computed'")
+    parts["test"] = sorted(parts["test"] + held_out)
+    return parts

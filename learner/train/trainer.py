@@ -63,7 +63,7 @@ class Trainer:
         self.config, self.progress = config, progress
         self.out = Path(config.out)
         self.view = StoreView(config.data.store, cache_dir=self.out / "hierarchies")
-        self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split)
+        self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split, self.view.stored_split)
         torch.manual_seed(config.train.seed)
         self.model: PNS = build_model(config.model, self.view.frames)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.train.lr)
@@ -243,7 +243,11 @@ class Trainer:
 
 
 def _resumable(config: dict) -> dict:
-    """The configuration without what a resumed run may change (its length and time budget)."""
+    """The configuration without what a resumed run may change (its length and time budget).
+
+    Keys added to the configuration since the checkpoint was written take their defaults.
+    """
+    config = config_from_mapping(config).to_dict()
     train = {k: v for k, v in config["train"].items() if k not in ("epochs", "max_minutes")}
     return {**config, "train": train}
 

@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from simgen.build.manifest import Plan, Subject, Task, make_plan, select_sites, sock_electrodes, validate_plan
+from simgen.build.manifest import (
+    Plan,
+    Subject,
+    SubjectSetup,
+    Task,
+    make_plan,
+    select_sites,
+    sock_electrodes,
+    validate_plan,
+)
 from simgen.build.spec import (
     BuildSpec,
     MeshEntry,
@@ -25,6 +34,7 @@ __all__ = [
     "spec_to_dict",
     "Plan",
     "Subject",
+    "SubjectSetup",
     "Task",
     "make_plan",
     "select_sites",

@@ -10,13 +10,19 @@ written exactly as a build computes and writes them.
   (:func:`~simgen.build.store.write_mesh_group`,
   :func:`~simgen.build.store.write_subject_groups`), with the store's own
   solver and output settings, and records the addition in the root attribute
-  ``added`` (a list of ``{"mesh", "sites", "tissue", "subjects"}`` dicts).
+  ``added`` (a list of ``{"mesh", "mesh_sha256", "sites", "tissue", "subjects",
+  "provenance"}`` dicts). Each new subject gets its canonical split part
+  (:mod:`shared.split`); no other subject moves.
   ``spec`` and ``spec_hash`` are left alone, so ``simgen build SPEC`` still
   recognises (and resumes) the store; its resume covers the added subjects
   too, since tasks come from the store layout.
 * :func:`regenerate` clears the ``done`` flags of some chunks and rebuilds
-  exactly those chunks; nothing else in the store is rewritten (the root
-  metadata apart).
+  exactly those chunks (data and moments); nothing else in the store is
+  rewritten (the root metadata, and the statistics of a subject when they change, apart).
+
+Both end as a build ends (:func:`~simgen.build.runner.run_pending`): the
+statistics of the edited subjects and of the store are recomputed from the
+chunk moments. Only stores of the current schema version are edited.
 
 A store with consolidated metadata hides groups added after consolidation
 from readers that trust it, so :func:`add_subject` re-consolidates right
@@ -40,6 +46,7 @@ from shared.tissue import TissueSpec
 from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
 from simgen.build.manifest import Plan, Subject, Task, select_sites, sock_electrodes, validate_plan
+from simgen.build.metadata import provenance
 from simgen.build.runner import BuildReport, run_pending
 from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection, spec_from_mapping
 from simgen.build.store import (
@@ -62,8 +69,8 @@ OnDone = Callable[[str], None]
 
 
 def store_spec(store: str | Path) -> BuildSpec:
-    """The build spec a store was created from (root attribute ``spec``), after a schema check."""
-    attrs = check_store(store)
+    """The build spec a store was created from (root attribute ``spec``), after a check that simgen writes it."""
+    attrs = check_store(store, write=True)
     if "spec" not in attrs:
         raise SchemaError(f"{store} has no spec attribute: not a simgen build store")
     return spec_from_mapping(attrs["spec"])
@@ -164,7 +171,7 @@ def add_subject(
         raise ConfigError(f"sites must be a SiteSelection, got {sites!r}")
     mesh = _absolute_source(mesh)
     settings = _tissue_list(tissue)
-    check_store(store)  # before the lock creates anything
+    check_store(store, write=True)  # before the lock creates anything
     with StoreLock(store):
         spec = store_spec(store)
         root = _root(store)
@@ -192,21 +199,21 @@ def add_subject(
         tasks = [Task(s.id, k, a, min(a + size, len(site_nodes)))
                  for s in subjects for k, a in enumerate(range(0, len(site_nodes), size))]  # fmt: skip
         plan = Plan(spec, {mesh.id: m}, {mesh.id: site_nodes}, {mesh.id: electrodes}, subjects, tasks)
-        fields = validate_plan(plan)
+        setups = validate_plan(plan)
         record = {
             "mesh": spec_dict_of(mesh),
             "mesh_sha256": _file_sha256(mesh.source),
             "sites": spec_dict_of(selection),
             "tissue": [spec_dict_of(s) for s in settings],
             "subjects": new_ids,
+            "provenance": provenance(),
         }
 
         remove_partials(store)
         root = _root(store, "r+")
         root.attrs["complete"] = False
         write_mesh_group(root, mesh.id, m, site_nodes, electrodes)
-        write_subject_groups(root, subjects, {mesh.id: m}, {mesh.id: len(site_nodes)}, spec.output, spec.solver,
-                             fields)  # fmt: skip
+        write_subject_groups(root, subjects, {mesh.id: m}, {mesh.id: site_nodes}, spec.output, spec.solver, setups)
         root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
         consolidate_metadata(store)  # readers of consolidated metadata see the new groups
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=new_ids)
@@ -266,7 +273,7 @@ def regenerate(
         sites = list(sites)
         if not sites:
             raise InputError("regenerate: --sites is empty; leave it out to regenerate whole subjects")
-    check_store(store)
+    check_store(store, write=True)
     with StoreLock(store):
         spec = store_spec(store)
         chunks = _chunks_to_clear(_root(store), subjects, sites)

@@ -33,6 +33,7 @@ __all__ = [
     "entries",
     "clear",
     "remove_partials",
+    "size",
 ]
 
 #: Protocols whose data live inside one process: workers in other processes would each see their own.
@@ -135,6 +136,14 @@ def entries(store: str) -> list[str]:
         return sorted(name.rstrip("/").rsplit("/", 1)[-1] for name in fs.ls(root, detail=False))
     except FileNotFoundError:
         return []
+
+
+def size(store: str) -> int:
+    """Bytes of every file (object) in the store."""
+    if is_local(store):
+        return sum(p.stat().st_size for p in Path(store).rglob("*") if p.is_file())
+    fs, root = _fs_root(store)
+    return int(fs.du(root))
 
 
 def clear(store: str, keep: frozenset[str] | set[str] = frozenset()) -> None:

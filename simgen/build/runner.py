@@ -21,11 +21,12 @@ from typing import Callable, Iterator
 from distributed import Client, LocalCluster, as_completed
 
 from shared.errors import InputError
+from simgen.build.card import short_card, store_facts
 from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
 from simgen.build.manifest import Task, make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
-from simgen.build.store import chunk_tasks, consolidate, create_layout, pending_tasks
+from simgen.build.store import chunk_tasks, consolidate, create_layout, pending_tasks, write_statistics
 from simgen.build.worker import flush_writes, run_task
 from simgen.solver.simulate import SolverConfig
 
@@ -105,10 +106,10 @@ def build(
     """
     start = time.perf_counter()
     plan = make_plan(spec)
-    fields = validate_plan(plan)  # every error that can be found before writing
+    setups = validate_plan(plan)  # every error that can be found before writing
     store = store_location(store, for_workers=True)
     with StoreLock(store):
-        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force, fields=fields)
+        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force, setups=setups)
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done)
     report.seconds = time.perf_counter() - start
     return report
@@ -174,10 +175,14 @@ def run_pending(
     on_done: Callable[[str], None] | None = None,
     subjects: list[str] | None = None,
 ) -> BuildReport:
-    """Simulate every chunk of ``store`` (or of ``subjects``) not flagged done, then consolidate.
+    """Simulate every chunk of ``store`` (or of ``subjects``) not flagged done, then finish the store.
 
     The caller holds the store lock. Tasks come from the store layout itself,
     so builds, added subjects and regenerated chunks all run through here.
+    Finishing sets the statistics of ``subjects`` (default: all) and of the
+    store, the short card (root attribute ``summary``) and ``complete``, and
+    consolidates the metadata; all follow from the store's contents, so a
+    resumed build ends byte-identical to an uninterrupted one.
     """
     start = time.perf_counter()
     chunks = chunk_tasks(store, subjects)
@@ -203,6 +208,7 @@ def run_pending(
             f"{len(report.failed)} task(s) failed after {retries} retries; finished chunks are kept, "
             "rerun the build to retry them:\n  " + "\n  ".join(report.failed)
         )
-    consolidate(store, complete=not todo if subjects is None else None)  # other subjects may be pending
+    summary = {"statistics": write_statistics(store, subjects), "summary": short_card(store_facts(store))}
+    consolidate(store, complete=not todo if subjects is None else None, attrs=summary)  # others may be pending
     report.seconds = time.perf_counter() - start
     return report

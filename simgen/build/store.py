@@ -14,7 +14,7 @@ import warnings
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import zarr
@@ -30,27 +30,36 @@ from shared.mesh import Mesh
 from shared.schema import (
     MESH_ARRAYS,
     MESH_INDEX_SETS,
+    MOMENT_VARIABLES,
+    MOMENTS,
     SCHEMA_VERSION,
     SUBJECT_ARRAYS,
+    SchemaWarning,
+    array_attributes,
     check_schema_version,
     mesh_path,
     subject_path,
 )
 from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
-from shared.tissue import TissueFields
+from shared.split import canonical_part, split_rule
+from shared.units import MS_PER_TIME_UNIT
 from simgen.build import location
 from simgen.build.chunk_files import chunk_file, writable_store, write_checksummed
 from simgen.build.lock import LOCK_NAME
-from simgen.build.manifest import Subject, Task
+from simgen.build.manifest import Subject, SubjectSetup, Task, validate_plan
+from simgen.build.metadata import provenance, simulation_attrs, solver_attrs
 from simgen.build.spec import OutputSpec
+from simgen.build.stats import chunk_moments, statistics
 from simgen.solver.simulate import SolverConfig
-from simgen.tissue import tissue_fields
 
 __all__ = [
     "create_layout",
     "write_mesh_group",
     "write_subject_groups",
     "remove_partials",
+    "subject_shapes",
+    "ResultArrays",
+    "result_arrays",
     "write_chunk",
     "subject_ids",
     "chunk_tasks",
@@ -58,6 +67,7 @@ __all__ = [
     "read_mesh",
     "read_tissue",
     "read_sites",
+    "write_statistics",
     "consolidate",
     "consolidate_metadata",
     "check_store",
@@ -83,45 +93,57 @@ def _compressors(kind: str, level: int) -> tuple[Any, ...]:
 
 def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...], chunks=None, **kw) -> zarr.Array:
     spec = spec_table[name]
-    return group.create_array(
-        name, shape=shape, chunks=chunks or shape, dtype=spec.dtype, dimension_names=spec.dims, **kw
-    )
+    return group.create_array(name, shape=shape, chunks=chunks or shape, dtype=spec.dtype, dimension_names=spec.dims,
+                              attributes=array_attributes(spec_table, name), **kw)  # fmt: skip
 
 
 def create_layout(
-    path: str | Path, plan, spec_dict: dict, spec_hash: str, force: bool = False, fields: dict | None = None
+    path: str | Path,
+    plan,
+    spec_dict: dict,
+    spec_hash: str,
+    force: bool = False,
+    setups: dict[str, SubjectSetup] | None = None,
 ) -> bool:
     """Create the store for ``plan`` unless it exists with the same spec hash.
 
     ``path`` is a folder or an fsspec URL (:mod:`simgen.build.location`).
     Returns ``True`` when a new layout was written, ``False`` when an existing
-    store of the same spec is reused (resume). A store from another spec is
-    refused with :class:`StoreMismatch` unless ``force`` (then everything in it
-    but the lock is deleted and the store written anew). ``fields``: the
-    subjects' tissue fields by id, as :func:`~simgen.build.manifest.validate_plan`
-    returns them (else computed here).
+    store of the same spec and schema version is reused (resume). A store
+    from another spec or an older schema version is refused with
+    :class:`StoreMismatch` unless ``force`` (then everything in it but the
+    lock is deleted and the store written anew). ``setups``: the subjects'
+    fields and solver settings by id, as :func:`~simgen.build.manifest.validate_plan`
+    returns them (else computed here). The root attributes written here
+    (provenance, simulation, split rule) are never rewritten by a resume.
     """
     path = location.store_location(path)
     if location.exists(path, "zarr.json"):
         attrs = dict(zarr.open_group(path, mode="r").attrs)
-        check_schema_version(attrs, path)
-        if attrs.get("spec_hash") == spec_hash:
+        with warnings.catch_warnings():  # an older version is refused or replaced below, not read
+            warnings.simplefilter("ignore", SchemaWarning)
+            version = check_schema_version(attrs, path)
+        if attrs.get("spec_hash") == spec_hash and version == SCHEMA_VERSION:
             remove_partials(path)
             return False
         if not force:
-            raise StoreMismatch(
-                f"store {path} was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
-                f"this spec {spec_hash[:12]}...); use a new store path or --force to replace it"
-            )
+            why = (f"was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
+                   f"this spec {spec_hash[:12]}...)" if attrs.get("spec_hash") != spec_hash else
+                   f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}")  # fmt: skip
+            raise StoreMismatch(f"store {path} {why}; use a new store path or --force to replace it")
         location.clear(path, keep={LOCK_NAME})  # the lock stays: this build still holds the store
     elif any(name != LOCK_NAME for name in location.entries(path)):
         raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
     root = zarr.open_group(path, mode="a", zarr_format=3)
-    root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False})
+    root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False,
+                       "provenance": provenance(), "simulation": simulation_attrs(plan.spec.solver),
+                       "split": split_rule()})  # fmt: skip
+    shape_params = {m.id: m.shape_params for m in plan.spec.meshes}
     for mesh_id, mesh in plan.meshes.items():
-        write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
-    n_sites = {mesh_id: len(sites) for mesh_id, sites in plan.sites.items()}
-    write_subject_groups(root, plan.subjects, plan.meshes, n_sites, plan.spec.output, plan.spec.solver, fields)
+        group = write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
+        group.attrs["shape_params"] = shape_params[mesh_id]  # a sampled anatomy's parameters; None otherwise
+    setups = setups if setups is not None else validate_plan(plan)
+    write_subject_groups(root, plan.subjects, plan.meshes, plan.sites, plan.spec.output, plan.spec.solver, setups)
     return True
 
 
@@ -145,17 +167,20 @@ def write_subject_groups(
     root: zarr.Group,
     subjects: list[Subject],
     meshes: dict[str, Mesh],
-    n_sites: dict[str, int],
+    sites: dict[str, NDArray],
     output: OutputSpec,
     solver: SolverConfig,
-    fields: dict[str, TissueFields] | None = None,
+    setups: dict[str, SubjectSetup],
 ) -> None:
-    """Write groups ``subjects/<id>``: attributes, tissue fields and the empty result arrays.
+    """Write groups ``subjects/<id>``: attributes, tissue fields, coordinates and the empty result arrays.
 
-    ``u`` and ``activation`` are chunked by ``output.chunk_sites`` sites (NaN until simulated) and
-    ``done`` holds one flag per chunk, all 0. ``meshes`` and ``n_sites`` by mesh id;
-    ``fields``: the subjects' tissue fields by id where already computed. All
-    groups and arrays are created at once (:func:`zarr.create_hierarchy`), then
+    ``u``, ``activation`` and ``moments`` are chunked by ``output.chunk_sites``
+    sites (NaN until simulated) and ``done`` holds one flag per chunk, all 0.
+    ``meshes`` and ``sites`` (stimulated node ids) by mesh id; ``setups``: the
+    subjects' fields and solver settings by id (:func:`~simgen.build.manifest.validate_plan`).
+    Attributes: ``mesh_id``, ``tissue``, ``chunk_sites``, the resolved
+    ``solver`` settings and the canonical ``split`` part (:mod:`shared.split`).
+    All groups and arrays are created at once (:func:`zarr.create_hierarchy`), then
     the fields written on threads, which is much faster than creating them array by array
     (the layout is part of a build's serial time, docs/performance.md). The one code
     path for subject groups, used by :func:`create_layout` and by
@@ -163,9 +188,10 @@ def write_subject_groups(
     """
     nodes: dict[str, Any] = {}
     for s in subjects:
-        attrs = {"mesh_id": s.mesh_id, "tissue": spec_dict_of(s.tissue), "chunk_sites": output.chunk_sites}
+        attrs = {"mesh_id": s.mesh_id, "tissue": spec_dict_of(s.tissue), "chunk_sites": output.chunk_sites,
+                 "solver": solver_attrs(setups[s.id], solver), "split": canonical_part(s.id)}  # fmt: skip
         nodes[subject_path(s.id)] = GroupMetadata(attributes=attrs)
-        for name, (shape, chunks) in _subject_shapes(meshes[s.mesh_id].n_nodes, n_sites[s.mesh_id], output,
+        for name, (shape, chunks) in subject_shapes(meshes[s.mesh_id].n_nodes, len(sites[s.mesh_id]), output,
                                                      solver).items():  # fmt: skip
             nodes[f"{subject_path(s.id)}/{name}"] = _subject_metadata(name, shape, chunks, output.compressor,
                                                                       output.level)  # fmt: skip
@@ -173,26 +199,28 @@ def write_subject_groups(
     times = solver.output_interval * np.arange(1, solver.frames + 1)
 
     def write_fields(s: Subject) -> None:
-        f = (fields or {}).get(s.id)
-        f = f if f is not None else tissue_fields(meshes[s.mesh_id], s.tissue)
-        for name, values in (("a", f.a), ("D", f.D), ("label", f.label), ("times", times)):
-            arrays[f"{subject_path(s.id)}/{name}"][...] = np.asarray(values, SUBJECT_ARRAYS[name].dtype)
+        f, points = setups[s.id].fields, meshes[s.mesh_id].points
+        values = {"a": f.a, "D": f.D, "label": f.label, "times": times, "time_ms": times * MS_PER_TIME_UNIT,
+                  "site": sites[s.mesh_id], "x": points[:, 0], "y": points[:, 1], "z": points[:, 2]}  # fmt: skip
+        for name, value in values.items():
+            arrays[f"{subject_path(s.id)}/{name}"][...] = np.asarray(value, SUBJECT_ARRAYS[name].dtype)
 
     with ThreadPoolExecutor(IO_THREADS) as pool:
         list(pool.map(write_fields, subjects))
 
 
-def _subject_shapes(
+def subject_shapes(
     n_nodes: int, n_sites: int, output: OutputSpec, solver: SolverConfig
 ) -> dict[str, tuple[tuple[int, ...], tuple[int, ...]]]:
     """Shape and chunk shape of each array of a subject group."""
-    chunk = min(output.chunk_sites, n_sites)
-    field = ((n_nodes,), (n_nodes,))
-    return {"a": field, "D": field, "label": field,
+    chunk, n_chunks = min(output.chunk_sites, n_sites), -(-n_sites // output.chunk_sites)
+    field, frames = ((n_nodes,), (n_nodes,)), ((solver.frames,), (solver.frames,))
+    moments = (len(MOMENT_VARIABLES), len(MOMENTS))
+    return {"a": field, "D": field, "label": field, "x": field, "y": field, "z": field,
             "u": ((n_sites, solver.frames, n_nodes), (chunk, solver.frames, n_nodes)),
             "activation": ((n_sites, n_nodes), (chunk, n_nodes)),
-            "done": ((-(-n_sites // output.chunk_sites),), (1,)),
-            "times": ((solver.frames,), (solver.frames,))}  # fmt: skip
+            "done": ((n_chunks,), (1,)), "moments": ((n_chunks, *moments), (1, *moments)),
+            "times": frames, "time_ms": frames, "site": ((n_sites,), (n_sites,))}  # fmt: skip
 
 
 @lru_cache(maxsize=64)
@@ -203,8 +231,8 @@ def _subject_metadata(
     kw: dict[str, Any] = {}
     if name in ("u", "activation"):
         kw = {"compressors": _compressors(compressor, level), "fill_value": np.nan}
-    elif name == "done":  # its own chunk per flag, written by the task that finished it
-        kw = {"compressors": _compressors("none", 0), "fill_value": 0}
+    elif name in ("done", "moments"):  # a chunk of its own per task, written by the task that finished it
+        kw = {"compressors": _compressors("none", 0), "fill_value": 0 if name == "done" else np.nan}
     return _array(zarr.open_group(MemoryStore(), mode="w"), name, SUBJECT_ARRAYS, shape, chunks, **kw).metadata
 
 
@@ -229,8 +257,17 @@ def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) 
             arr[...] = np.asarray(idx, np.int32)
 
 
-def result_arrays(path: str | Path, subject_id: str) -> tuple[zarr.Array, zarr.Array, zarr.Array]:
-    """A subject's ``u``, ``activation`` and ``done`` arrays, opened for writing (a worker keeps them).
+class ResultArrays(NamedTuple):
+    """The arrays a task writes, in the order it writes them."""
+
+    u: zarr.Array
+    activation: zarr.Array
+    moments: zarr.Array
+    done: zarr.Array
+
+
+def result_arrays(path: str | Path, subject_id: str) -> ResultArrays:
+    """A subject's ``u``, ``activation``, ``moments`` and ``done`` arrays, opened for writing (a worker keeps them).
 
     A local store is opened through :class:`~simgen.build.chunk_files.DirectLocalStore`
     (Zarr's files, written with direct I/O: a 29 MB chunk in ~20 ms instead of 75-80 ms
@@ -239,7 +276,7 @@ def result_arrays(path: str | Path, subject_id: str) -> tuple[zarr.Array, zarr.A
     g = zarr.open_group(writable_store(str(path)), path=subject_path(subject_id), mode="r+")
     # a chunk of results is never all fill value (NaN): skip Zarr's full scan for one before each write
     whole = {"write_empty_chunks": True}
-    return g["u"].with_config(whole), g["activation"].with_config(whole), g["done"]
+    return ResultArrays(g["u"].with_config(whole), g["activation"].with_config(whole), g["moments"], g["done"])
 
 
 def write_chunk(
@@ -250,17 +287,18 @@ def write_chunk(
     stop: int,
     u: NDArray,
     activation: NDArray,
-    arrays: tuple[zarr.Array, zarr.Array, zarr.Array] | None = None,
+    arrays: ResultArrays | None = None,
 ) -> None:
-    """Worker: write one chunk of sites, then (only then) its completion flag.
+    """Worker: write one chunk of sites and its moments, then (only then) its completion flag.
 
     ``arrays``: :func:`result_arrays` of the subject, opened once by a caller
-    that writes many chunks (saves four metadata reads per chunk).
+    that writes many chunks (saves five metadata reads per chunk).
     """
-    u_array, activation_array, done = arrays or result_arrays(path, subject_id)
-    _write_sites(u_array, chunk, start, stop, u)
-    _write_sites(activation_array, chunk, start, stop, activation)
-    _write_sites(done, chunk, chunk, chunk + 1, np.ones(1, done.dtype))
+    arrays = arrays or result_arrays(path, subject_id)
+    _write_sites(arrays.u, chunk, start, stop, u)
+    _write_sites(arrays.activation, chunk, start, stop, activation)
+    _write_sites(arrays.moments, chunk, chunk, chunk + 1, chunk_moments(u, activation)[None])
+    _write_sites(arrays.done, chunk, chunk, chunk + 1, np.ones(1, arrays.done.dtype))
 
 
 def _write_sites(array: zarr.Array, chunk: int, start: int, stop: int, values: NDArray) -> None:
@@ -313,6 +351,32 @@ def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[T
     return [task for task, done in chunk_tasks(path, subjects).items() if not done]
 
 
+def write_statistics(path: str | Path, subjects: list[str] | None = None) -> dict | None:
+    """Set the ``statistics`` attribute of ``subjects`` (default: all) from their chunk moments; the store's.
+
+    A subject with a pending chunk gets ``None``, and so does the store while
+    any subject has one (:mod:`simgen.build.stats`). An attribute is written
+    only when it changes: other subjects' metadata stay untouched.
+    """
+    root = zarr.open_group(str(path), mode="r+", use_consolidated=False)
+    ids = subject_ids(path)
+
+    def done_moments(subject_id: str) -> NDArray | None:
+        g = root[subject_path(subject_id)]
+        return g["moments"][...] if g["done"][...].all() else None
+
+    with ThreadPoolExecutor(IO_THREADS) as pool:
+        moments = dict(zip(ids, pool.map(done_moments, ids)))
+    for subject_id in ids if subjects is None else subjects:
+        value = None if moments[subject_id] is None else statistics(moments[subject_id])
+        attrs = root[subject_path(subject_id)].attrs
+        if "statistics" not in attrs or attrs["statistics"] != value:
+            attrs["statistics"] = value
+    if any(m is None for m in moments.values()):
+        return None
+    return statistics(np.concatenate(list(moments.values())))
+
+
 def consolidate_metadata(path: str | Path) -> None:
     """Consolidate the metadata so readers open the store in one read (and see new groups)."""
     with warnings.catch_warnings():  # consolidated metadata is not (yet) part of the v3 spec
@@ -320,11 +384,11 @@ def consolidate_metadata(path: str | Path) -> None:
         zarr.consolidate_metadata(str(path))
 
 
-def consolidate(path: str | Path, complete: bool | None = None) -> None:
-    """Mark the store complete when no chunk is pending, then consolidate its metadata.
+def consolidate(path: str | Path, complete: bool | None = None, attrs: dict | None = None) -> None:
+    """Set root ``attrs`` and mark the store complete when no chunk is pending, then consolidate its metadata.
 
     ``complete``: whether no chunk is pending, if the caller knows (else read from the store).
     """
     root = zarr.open_group(str(path), mode="r+", use_consolidated=False)
-    root.attrs["complete"] = not pending_tasks(path) if complete is None else complete
+    root.attrs.update({**(attrs or {}), "complete": not pending_tasks(path) if complete is None else complete})
     consolidate_metadata(path)

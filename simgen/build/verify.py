@@ -1,11 +1,15 @@
-"""Integrity check of a dataset store: completeness, readability, value ranges, recomputation.
+"""Integrity check of a dataset store: layout, metadata, completeness, readability, values, recomputation.
 
 :func:`verify_store` reads the store one chunk at a time (never a whole
 array), so a corrupted or truncated chunk file becomes a problem naming its
-subject, array and chunk instead of a crash. A random sample of done chunks is
-then simulated again in-process and compared bitwise with the stored data: the
-solver is deterministic and independent of how sites are batched, so any
-difference means the stored chunk is not what the spec produces.
+subject, array and chunk instead of a crash. In a store of the current schema
+version it also checks the metadata: every array's dimensions and CF
+attributes, the coordinates against the mesh, the canonical split, each
+chunk's moments against its data and the statistics against the moments. A
+random sample of done chunks is then simulated again in-process and compared
+bitwise with the stored data: the solver is deterministic and independent of
+how sites are batched, so any difference means the stored chunk is not what
+the spec produces.
 """
 
 from __future__ import annotations
@@ -18,10 +22,13 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from shared.schema import SUBJECT_ARRAYS, mesh_path, subject_path
-from simgen.build.spec import spec_from_mapping
+from shared.schema import SCHEMA_VERSION, SUBJECT_ARRAYS, array_attributes, mesh_path, subject_path
+from shared.split import canonical_part
+from shared.units import MS_PER_TIME_UNIT
 from simgen.build.location import store_location
-from simgen.build.store import check_store, read_mesh, read_sites, read_tissue, subject_ids
+from simgen.build.spec import BuildSpec, spec_from_mapping
+from simgen.build.stats import chunk_moments, statistics
+from simgen.build.store import check_store, read_mesh, read_sites, read_tissue, subject_ids, subject_shapes
 from simgen.solver.simulate import Simulator, SolverConfig
 
 __all__ = ["U_RANGE", "ChunkRef", "VerifyReport", "verify_store"]
@@ -63,33 +70,42 @@ def _chunk_refs(subject_id: str, n_sites: int, chunk_sites: int) -> Iterator[Chu
         yield ChunkRef(subject_id, k, start, min(start + chunk_sites, n_sites))
 
 
-def _expected_shapes(root: zarr.Group, g: zarr.Group, frames: int) -> dict[str, tuple[int, ...]]:
-    """Schema shapes of a subject's ``u`` and ``activation`` from its mesh."""
-    m = root[mesh_path(g.attrs["mesh_id"])]
-    n_sites, n_nodes = m["stim_nodes"].shape[0], m["points"].shape[0]
-    return {"u": (n_sites, frames, n_nodes), "activation": (n_sites, n_nodes)}
-
-
-def _layout_problems(root: zarr.Group, subject_id: str, frames: int) -> list[str]:
-    """Missing arrays, wrong dtypes or shapes, wrong number of done flags of one subject."""
+def _layout_problems(root: zarr.Group, subject_id: str, spec: BuildSpec, version: int) -> list[str]:
+    """Missing arrays, wrong shapes, dtypes, dimensions or (current version) attributes of one subject."""
     try:
         g = root[subject_path(subject_id)]
-        expected = _expected_shapes(root, g, frames)
-        arrays = {name: g[name] for name in ("u", "activation", "done")}
-        chunk_sites = int(g.attrs["chunk_sites"])
+        m = root[mesh_path(g.attrs["mesh_id"])]
+        shapes = subject_shapes(m["points"].shape[0], m["stim_nodes"].shape[0], spec.output, spec.solver)
+        arrays = {name: g[name] for name in shapes if SUBJECT_ARRAYS[name].since <= version}
     except Exception as exc:  # missing group, array or attribute
         return [f"subject {subject_id}: layout unreadable ({type(exc).__name__}: {exc})"]
     problems = []
-    for name, shape in expected.items():
-        arr = arrays[name]
-        if tuple(arr.shape) != shape:
-            problems.append(f"subject {subject_id}: {name} has shape {tuple(arr.shape)}, schema expects {shape}")
-        if str(arr.dtype) != SUBJECT_ARRAYS[name].dtype:
-            problems.append(f"subject {subject_id}: {name} has dtype {arr.dtype}, schema expects "
-                            f"{SUBJECT_ARRAYS[name].dtype}")  # fmt: skip
-    n_chunks = -(-expected["u"][0] // chunk_sites)
-    if arrays["done"].shape != (n_chunks,):
-        problems.append(f"subject {subject_id}: done has shape {arrays['done'].shape}, expected ({n_chunks},)")
+    for name, arr in arrays.items():
+        schema, shape = SUBJECT_ARRAYS[name], shapes[name][0]
+        found = {"shape": tuple(arr.shape), "dtype": str(arr.dtype), "dimensions": arr.metadata.dimension_names}
+        expected = {"shape": shape, "dtype": schema.dtype, "dimensions": schema.dims}
+        if version == SCHEMA_VERSION:
+            found["attributes"] = {k: arr.attrs.get(k) for k in ("units", "long_name", "coordinates")}
+            expected["attributes"] = {"coordinates": None, **array_attributes(SUBJECT_ARRAYS, name)}
+        problems += [f"subject {subject_id}: {name} has {key} {found[key]}, schema expects {expected[key]}"
+                     for key in expected if found[key] != expected[key]]  # fmt: skip
+    if version == SCHEMA_VERSION and not problems:
+        problems += _metadata_problems(g, m, subject_id)
+    return problems
+
+
+def _metadata_problems(g: zarr.Group, m: zarr.Group, subject_id: str) -> list[str]:
+    """Coordinates that disagree with the mesh, a wrong canonical split part, missing solver settings."""
+    points = m["points"][...]
+    expected = {"site": m["stim_nodes"][...], "time_ms": g["times"][...] * MS_PER_TIME_UNIT,
+                **{axis: points[:, i] for i, axis in enumerate("xyz")}}  # fmt: skip
+    problems = [f"subject {subject_id}: coordinate {name} disagrees with the mesh and times"
+                for name, values in expected.items() if not np.array_equal(g[name][...], values)]  # fmt: skip
+    if g.attrs.get("split") != canonical_part(subject_id):
+        problems.append(f"subject {subject_id}: split attribute {g.attrs.get('split')!r}, the canonical split "
+                        f"assigns {canonical_part(subject_id)!r}")  # fmt: skip
+    if not {"dt", "steps_per_frame", "stimulus_radius"} <= set(g.attrs.get("solver") or {}):
+        problems.append(f"subject {subject_id}: solver attribute missing or incomplete")
     return problems
 
 
@@ -121,13 +137,14 @@ def _value_problems(ref: ChunkRef, u: NDArray, activation: NDArray) -> list[str]
     return problems
 
 
-def _check_chunks(root: zarr.Group, subject_id: str, report: VerifyReport) -> list[ChunkRef]:
+def _check_chunks(root: zarr.Group, subject_id: str, report: VerifyReport, version: int) -> list[ChunkRef]:
     """Check every chunk of one subject; return the done chunks that read back fine."""
     g = root[subject_path(subject_id)]
     try:
         done = np.asarray(g["done"][...]).astype(bool)
+        moments = g["moments"][...] if version == SCHEMA_VERSION else None
     except Exception as exc:
-        report.problems.append(f"subject {subject_id}: done flags unreadable ({type(exc).__name__}: {exc})")
+        report.problems.append(f"subject {subject_id}: done flags or moments unreadable ({type(exc).__name__}: {exc})")
         return []
     good = []
     for ref in _chunk_refs(subject_id, g["u"].shape[0], int(g.attrs["chunk_sites"])):
@@ -140,6 +157,8 @@ def _check_chunks(root: zarr.Group, subject_id: str, report: VerifyReport) -> li
         errors = [e for e in (err_u, err_a) if e]
         if not errors:
             errors = _value_problems(ref, u, activation)
+        if not errors and moments is not None and not np.array_equal(moments[ref.chunk], chunk_moments(u, activation)):
+            errors = [f"{ref}: stored moments differ from the chunk's data"]
         report.problems.extend(errors)
         if not errors:
             good.append(ref)
@@ -167,6 +186,21 @@ def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: Solve
     return problems
 
 
+def _statistics_problems(root: zarr.Group, ids: list[str]) -> list[str]:
+    """Statistics attributes that are not what the moments of finished subjects give."""
+    problems, moments = [], []
+    for subject_id in ids:
+        g = root[subject_path(subject_id)]
+        if not g["done"][...].all():
+            continue
+        moments.append(g["moments"][...])
+        if g.attrs.get("statistics") != statistics(moments[-1]):
+            problems.append(f"subject {subject_id}: statistics attribute differs from its chunk moments")
+    if len(moments) == len(ids) and root.attrs.get("statistics") != statistics(np.concatenate(moments)):
+        problems.append("store: statistics attribute differs from the subjects' chunk moments")
+    return problems
+
+
 def verify_store(store: str | Path, sample: int = 2, seed: int = 0) -> VerifyReport:
     """Check every chunk of ``store`` and recompute ``sample`` random done chunks.
 
@@ -185,19 +219,24 @@ def verify_store(store: str | Path, sample: int = 2, seed: int = 0) -> VerifyRep
     Raises
     ------
     SchemaError
-        When ``store`` is not a store of this schema version.
+        When ``store`` is not a store of a schema version this code reads
+        (a version-1 store is checked without the metadata of version 2).
     """
     store = store_location(store)
     attrs = check_store(store)
-    solver = spec_from_mapping(attrs["spec"]).solver
-    root = zarr.open_group(store, mode="r")
+    version, spec = attrs["schema_version"], spec_from_mapping(attrs["spec"])
+    solver = spec.solver
+    root = zarr.open_group(store, mode="r", use_consolidated=False)  # what is stored, not a copy of its metadata
     report = VerifyReport(store)
     candidates: list[ChunkRef] = []
-    for subject_id in subject_ids(store):
-        layout = _layout_problems(root, subject_id, solver.frames)
+    ids = subject_ids(store)
+    for subject_id in ids:
+        layout = _layout_problems(root, subject_id, spec, version)
         report.problems.extend(layout)
         if not layout:
-            candidates.extend(_check_chunks(root, subject_id, report))
+            candidates.extend(_check_chunks(root, subject_id, report, version))
+    if version == SCHEMA_VERSION and not report.problems:
+        report.problems.extend(_statistics_problems(root, ids))
     n = min(max(int(sample), 0), len(candidates))
     picked = sorted(np.random.default_rng(seed).choice(len(candidates), size=n, replace=False).tolist())
     report.problems.extend(_recompute(store, root, [candidates[i] for i in picked], solver))

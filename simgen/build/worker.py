@@ -21,7 +21,7 @@ import numpy as np
 import zarr
 
 from shared.schema import subject_path
-from simgen.build.store import read_mesh, read_sites, read_tissue, result_arrays, write_chunk
+from simgen.build.store import ResultArrays, read_mesh, read_sites, read_tissue, result_arrays, write_chunk
 from simgen.solver.simulate import Simulator, SolverConfig
 
 __all__ = ["Prepared", "prepare", "run_task", "BackgroundWriter", "flush_writes"]
@@ -35,7 +35,7 @@ class Prepared(NamedTuple):
 
     sim: Simulator
     sites: np.ndarray
-    arrays: tuple[zarr.Array, zarr.Array, zarr.Array]
+    arrays: ResultArrays
 
 
 def prepare(store: str, subject_id: str, solver: SolverConfig) -> Prepared:

@@ -79,6 +79,10 @@ class SolverConfig:
         """Simulated time (time units)."""
         return self.frames * self.output_interval
 
+    def radius_on(self, mesh: Mesh) -> float:
+        """The stimulus radius (mm) on ``mesh``: ``stimulus_radius``, or 1.5 mean edge lengths when unset."""
+        return 1.5 * mesh.mean_edge_length() if self.stimulus_radius is None else self.stimulus_radius
+
 
 @dataclass(frozen=True)
 class SimulationResult:
@@ -147,8 +151,7 @@ class Simulator:
         self._indices = Ap.indices.astype(np.int64)
         self._data = Ap.data.astype(np.float32)
         self._a = np.asarray(self.tissue.a, np.float32)[self.perm]
-        radius = self.config.stimulus_radius
-        self.stimulus_radius = 1.5 * mesh.mean_edge_length() if radius is None else radius
+        self.stimulus_radius = self.config.radius_on(mesh)
         self._edge_graph = edge_graph(mesh)  # for the stimulus patches of every run
 
     def run(self, sites: NDArray[np.integer], threads: int = 1, block_size: int = BLOCK_SIZE) -> SimulationResult:

@@ -73,3 +73,49 @@ def test_refusals(ids, mesh_of, spec, match):
 def test_bad_spec(kwargs, match):
     with pytest.raises(InputError, match=match):
         SplitSpec(**kwargs)
+
+
+def test_stored_split_takes_the_parts_the_store_records():
+    stored = {sid: ("test" if sid.endswith("0") else "validation" if sid.endswith("1") else "train") for sid in IDS}
+    parts = split_subjects(IDS, MESH_OF, SplitSpec(source="store", held_out_meshes=("m2",)), stored)
+    _check_partition(parts, IDS)
+    assert parts["validation"] == sorted(s for s in IDS if s.endswith("1") and MESH_OF[s] != "m2")
+    assert parts["test"] == sorted(s for s in IDS if s.endswith("0") or MESH_OF[s] == "m2")
+    other = SplitSpec(source="store", seed=5, test=0.5)  # seed and fractions do not apply
+    assert split_subjects(IDS, MESH_OF, other, stored) == split_subjects(IDS, MESH_OF, SplitSpec(source="store"),
+                                                                        stored)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "stored, match",
+    [
+        (None, "needs the store's split"),
+        ({"a": "train"}, "records no split for subject.*b.*rebuild it with `simgen build`"),
+        ({"a": "test", "b": "validation"}, "leaves no training subject"),
+    ],
+)
+def test_stored_split_refusals(stored, match):
+    with pytest.raises(InputError, match=match):
+        split_subjects(["a", "b"], {"a": "m", "b": "m"}, SplitSpec(source="store"), stored)
+
+
+def test_unknown_split_source_is_refused():
+    with pytest.raises(InputError, match="split source must be 'computed' or 'store'"):
+        SplitSpec(source="file")
+
+
+def test_adding_a_subject_moves_no_stored_subject(store_copy):
+    from learner.store_view import StoreView
+    from simgen.build.edit import add_subject
+    from simgen.build.spec import MeshEntry
+
+    spec = SplitSpec(source="store")
+    view = StoreView(store_copy)
+    before = split_subjects(view.subjects, view.mesh_of, spec, view.stored_split)
+    assert sum(map(len, before.values())) == 6 and before["train"]
+    add_subject(store_copy, MeshEntry(id="extra", source="lv", nodes=500), ["healthy", "scar-apex"], workers=1)
+    view = StoreView(store_copy)
+    after = split_subjects(view.subjects, view.mesh_of, spec, view.stored_split)
+    for part in SPLITS:
+        assert set(before[part]) <= set(after[part])
+    assert sum(map(len, after.values())) == 8

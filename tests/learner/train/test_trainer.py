@@ -11,7 +11,7 @@ import torch
 from shared.errors import ConfigError, InputError
 
 from learner.data.episodes import EpisodeDataset, load_episode
-from learner.train.checkpoint import load_checkpoint
+from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import VALIDATION_EPOCH, Trainer, TrainingDiverged, load_model, train
 
 
@@ -90,6 +90,15 @@ def test_resume_refuses_another_configuration(tiny_store, tiny_config, tmp_path)
     train(tiny_config(tiny_store, tmp_path / "r", epochs=1), progress=False)
     with pytest.raises(InputError, match="different configuration"):
         train(tiny_config(tiny_store, tmp_path / "r", epochs=1, lr=5e-4), progress=False)
+
+
+def test_resume_fills_keys_added_since_the_checkpoint(tiny_store, tiny_config, tmp_path):
+    train(tiny_config(tiny_store, tmp_path / "r", epochs=1), progress=False)
+    ckpt = load_checkpoint(tmp_path / "r" / "last.pt")
+    del ckpt["config"]["model"]["latent_norm"]  # a checkpoint written before the key existed (default: True)
+    save_checkpoint(tmp_path / "r" / "last.pt", {k: v for k, v in ckpt.items() if k != "format"})
+    resumed = train(tiny_config(tiny_store, tmp_path / "r", epochs=2), progress=False)
+    assert [r["epoch"] for r in resumed.history] == [1, 2]
 
 
 def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_store, tiny_config, tmp_path, monkeypatch):

@@ -1,7 +1,13 @@
-"""Shared helpers of the build tests: a tiny spec and byte-level store comparison."""
+"""Shared helpers of the build tests: a tiny spec and byte-level store comparison.
+
+Separate builds compared byte for byte must share their creation date (root
+attribute ``provenance``): ``SOURCE_DATE_EPOCH`` fixes it for every build of
+these tests, client processes and workers included.
+"""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -28,6 +34,22 @@ def store_bytes(store: Path) -> dict[str, bytes]:
         for p in sorted(store.rglob("*"))
         if p.is_file() and p.name != ".lock"
     }
+
+
+#: The creation date of every store these tests build (2024-01-01T00:00:00Z).
+BUILD_EPOCH = "1704067200"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def fixed_build_date():
+    """``SOURCE_DATE_EPOCH`` set for the session (inherited by the processes the tests start), then restored."""
+    saved = os.environ.get("SOURCE_DATE_EPOCH")
+    os.environ["SOURCE_DATE_EPOCH"] = BUILD_EPOCH
+    yield
+    if saved is None:
+        os.environ.pop("SOURCE_DATE_EPOCH", None)
+    else:
+        os.environ["SOURCE_DATE_EPOCH"] = saved
 
 
 @pytest.fixture(scope="session")

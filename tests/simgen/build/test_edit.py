@@ -10,6 +10,7 @@ import pytest
 import zarr
 
 from shared.errors import InputError, TissueError
+from shared.split import canonical_part
 from shared.tissue import ScarSpec, TissueSpec
 from simgen.build.edit import add_subject, added_entries, regenerate
 from simgen.build.inspect import store_status
@@ -79,6 +80,13 @@ def test_add_subject_from_mesh_file(store, patient, tiny_spec):
     # with consolidated metadata too (plain zarr readers)
     assert "patient-healthy" in dict(zarr.open_consolidated(str(store))["subjects"].groups())
 
+    # the new subjects join the canonical split and the statistics; the others keep theirs (bytes unchanged above)
+    subjects = [root[f"subjects/{s}"] for s in status]
+    assert [g.attrs["split"] for g in subjects] == [canonical_part(s) for s in status]
+    assert root.attrs["statistics"]["u"]["count"] == sum(g.attrs["statistics"]["u"]["count"] for g in subjects)
+    assert root.attrs["summary"].startswith("dataset: 4 subjects on 2 mesh(es) of 520-")
+    assert entry["provenance"]["created"] == "2024-01-01T00:00:00+00:00"
+
     # the original spec still recognises the store: nothing to do
     final = build(tiny_spec(), store)
     assert final.tasks_run == 0 and final.tasks_total == 8
@@ -119,8 +127,8 @@ def test_regenerate_site_subset_rewrites_only_that_chunk(store, store_bytes, ref
     after = snapshot(store)
     rewritten = {k for k in before if before[k][1] != after[k][1]}
     chunk1 = {"subjects/lv-healthy/u/c/1/0/0", "subjects/lv-healthy/activation/c/1/0",
-              "subjects/lv-healthy/done/c/1"}  # fmt: skip
-    assert rewritten - {"zarr.json"} == chunk1
+              "subjects/lv-healthy/moments/c/1/0/0", "subjects/lv-healthy/done/c/1"}  # fmt: skip
+    assert rewritten - {"zarr.json"} == chunk1  # the subject's statistics are the same: not rewritten
 
 
 def test_regenerate_refusals_change_nothing(store):

@@ -5,11 +5,14 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zarr
 
 from shared.errors import SchemaError
 from shared.schema import SCHEMA_VERSION
+from shared.split import canonical_part
+from simgen.build.stats import chunk_moments, statistics
 from simgen.build.verify import verify_store
 
 
@@ -74,12 +77,51 @@ def test_out_of_range_values_are_reported(store):
     assert "lv-healthy chunk 1" in problem and "outside [-0.5, 1.5]" in problem
 
 
+def test_altered_valid_data_is_caught_by_its_moments(store):
+    g = _subject(store, "lv-healthy")
+    g["u"][0:3] = g["u"][0:3] * 0.5  # finite, in range, but no longer what the chunk's moments describe
+    problem = _only_problem(store, sample=0)
+    assert problem == "subject lv-healthy chunk 0 (sites 0..2): stored moments differ from the chunk's data"
+
+
 def test_altered_valid_data_is_caught_by_recomputation(store):
     g = _subject(store, "lv-healthy")
-    g["u"][0:3] = g["u"][0:3] * 0.5  # finite, in range: only recomputation can tell
+    g["u"][0:3] = u = g["u"][0:3] * 0.5  # finite, in range, with matching moments: only recomputation can tell
+    g["moments"][0] = chunk_moments(u, g["activation"][0:3])
+    stats = dict(g.attrs["statistics"])
+    g.attrs["statistics"] = statistics(g["moments"][...])
+    root = zarr.open_group(str(store), mode="r+")
+    root.attrs["statistics"] = statistics(np.concatenate([_subject(store, s)["moments"][...]
+                                                          for s in ("lv-healthy", "lv-scar-apex")]))  # fmt: skip
+    assert g.attrs["statistics"] != stats
     assert verify_store(store, sample=0).ok
     problem = _only_problem(store, sample=10)
     assert "lv-healthy chunk 0" in problem and "differs from recomputation" in problem
+
+
+def test_statistics_that_disagree_with_the_moments_are_reported(store):
+    g = _subject(store, "lv-scar-apex")
+    g.attrs["statistics"] = {**g.attrs["statistics"], "u": {**g.attrs["statistics"]["u"], "mean": 0.5}}
+    assert _only_problem(store, sample=0) == "subject lv-scar-apex: statistics attribute differs from its chunk moments"
+
+
+@pytest.mark.parametrize("name, attrs", [("u", {"units": "mV"}), ("x", {"long_name": None})])
+def test_wrong_cf_attributes_are_reported(store, name, attrs):
+    arr = _subject(store, "lv-healthy")[name]
+    arr.attrs.update(attrs)
+    problem = _only_problem(store, sample=0)
+    assert problem.startswith(f"subject lv-healthy: {name} has attributes") and "schema expects" in problem
+
+
+def test_coordinates_and_split_are_checked_against_the_mesh(store):
+    g = _subject(store, "lv-healthy")
+    g["site"][0] = g["site"][0] + 1
+    g.attrs["split"] = next(p for p in ("train", "test") if p != g.attrs["split"])
+    assert verify_store(store, sample=0).problems == [
+        "subject lv-healthy: coordinate site disagrees with the mesh and times",
+        f"subject lv-healthy: split attribute {g.attrs['split']!r}, the canonical split assigns "
+        f"{canonical_part('lv-healthy')!r}",
+    ]
 
 
 def test_wrong_schema_version_is_refused(store):
