@@ -63,7 +63,8 @@ class Trainer:
         self.config, self.progress = config, progress
         self.out = Path(config.out)
         self.view = StoreView(config.data.store, cache_dir=self.out / "hierarchies")
-        self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split, self.view.stored_split)
+        stored = self.view.stored_split if config.data.split.source == "store" else None  # one read per subject
+        self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split, stored)
         torch.manual_seed(config.train.seed)
         self.model: PNS = build_model(config.model, self.view.frames)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.train.lr)
