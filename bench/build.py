@@ -70,8 +70,14 @@ PAPER_SPEC = ROOT / "specs" / "default.toml"
 TISSUE = ["healthy", "scar-anterior-basal", "scar-septal-mid", "scar-lateral-apical"]
 #: (compressor, level, chunk_sites) of the write-share table; the first is the default [output] setting,
 #: which the summary line quotes.
-WRITE_CONFIGS = [("none", 0, 64), ("blosc", 3, 64), ("blosc", 1, 64), ("zstd", 1, 64), ("none", 0, 32),
-                 ("none", 0, 128)]
+WRITE_CONFIGS = [
+    ("none", 0, 64),
+    ("blosc", 3, 64),
+    ("blosc", 1, 64),
+    ("zstd", 1, 64),
+    ("none", 0, 32),
+    ("none", 0, 128),
+]
 
 
 class CpuMeter:
@@ -89,8 +95,11 @@ class CpuMeter:
         with open("/proc/stat") as f:
             v = [int(x) for x in f.readline().split()[1:]]
         hz = os.sysconf("SC_CLK_TCK")
-        own = sum(getattr(resource.getrusage(who), f) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
-                  for f in ("ru_utime", "ru_stime"))  # fmt: skip
+        own = sum(
+            getattr(resource.getrusage(who), f)
+            for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+            for f in ("ru_utime", "ru_stime")
+        )
         busy = (v[0] + v[1] + v[2] + v[5] + v[6]) / hz  # user nice system irq softirq
         return time.perf_counter(), busy, own
 
@@ -105,8 +114,9 @@ class CpuMeter:
             self.others_cores = max(0.0, busy - own) / t
 
 
-def small_spec(nodes: int, settings: int, sites: int, chunk: int, compressor: str | None = None,
-               level: int | None = None) -> BuildSpec:  # fmt: skip
+def small_spec(
+    nodes: int, settings: int, sites: int, chunk: int, compressor: str | None = None, level: int | None = None
+) -> BuildSpec:
     """One procedural LV under ``settings`` tissue settings (healthy first), built in code.
 
     ``compressor`` / ``level``: the ``[output]`` defaults unless given.
@@ -114,12 +124,16 @@ def small_spec(nodes: int, settings: int, sites: int, chunk: int, compressor: st
     names = [s.name for s in default_settings()]
     tissue = [n for n in TISSUE if n in names] + [n for n in names if n not in TISSUE]
     output = {"chunk_sites": chunk, "compressor": compressor, "level": level}
-    return spec_from_mapping({
-        "name": "bench-build", "seed": 0, "tissue": tissue[:settings],
-        "meshes": [{"id": "lv", "source": "lv", "nodes": nodes}],
-        "sites": {"count": sites},
-        "output": {k: v for k, v in output.items() if v is not None},
-    })  # fmt: skip
+    return spec_from_mapping(
+        {
+            "name": "bench-build",
+            "seed": 0,
+            "tissue": tissue[:settings],
+            "meshes": [{"id": "lv", "source": "lv", "nodes": nodes}],
+            "sites": {"count": sites},
+            "output": {k: v for k, v in output.items() if v is not None},
+        }
+    )
 
 
 def disk_bytes(path: Path) -> tuple[int, int, int]:
@@ -165,17 +179,25 @@ def timed_build(spec: BuildSpec, store: Path, workers: int, progress: bool = Fal
     wall = time.perf_counter() - t0
     compute = [
         ss["stop"] - ss["start"]
-        for rec in marks.get("stream", []) if str(rec.get("key", "")).startswith("simgen-")
-        for ss in rec.get("startstops", ()) if ss.get("action") == "compute"
-    ]  # fmt: skip
+        for rec in marks.get("stream", [])
+        if str(rec.get("key", "")).startswith("simgen-")
+        for ss in rec.get("startstops", ())
+        if ss.get("action") == "compute"
+    ]
     tasks_s = marks["last"] - marks["start"]
     return {
-        "workers": workers, "tasks": report.tasks_run, "simulations": report.simulations, "wall_s": wall,
-        "sims_per_s": report.simulations / wall, "before_tasks_s": marks["start"] - t0, "tasks_s": tasks_s,
-        "after_tasks_s": t0 + wall - marks["last"], "task_sims_per_s": report.simulations / tasks_s,
+        "workers": workers,
+        "tasks": report.tasks_run,
+        "simulations": report.simulations,
+        "wall_s": wall,
+        "sims_per_s": report.simulations / wall,
+        "before_tasks_s": marks["start"] - t0,
+        "tasks_s": tasks_s,
+        "after_tasks_s": t0 + wall - marks["last"],
+        "task_sims_per_s": report.simulations / tasks_s,
         "task_compute_mean_s": float(np.mean(compute)) if compute else None,
         "busy": sum(compute) / (workers * tasks_s) if compute else None,
-    }  # fmt: skip
+    }
 
 
 def cluster_startup(workers: int) -> tuple[float, float]:
@@ -216,8 +238,10 @@ def bench_ceiling(args) -> list[dict]:
             times = None
             for _ in range(args.repeat):  # fastest of `repeat` rounds
                 barrier, queue = ctx.Barrier(n_proc), ctx.Queue()
-                procs = [ctx.Process(target=_solo, args=(barrier, queue, args.nodes, args.ceiling_sites, args.chunk))
-                         for _ in range(n_proc)]  # fmt: skip
+                procs = [
+                    ctx.Process(target=_solo, args=(barrier, queue, args.nodes, args.ceiling_sites, args.chunk))
+                    for _ in range(n_proc)
+                ]
                 for proc in procs:
                     proc.start()
                 got = [queue.get() for _ in procs]
@@ -226,9 +250,15 @@ def bench_ceiling(args) -> list[dict]:
                 if times is None or max(got) < max(times):
                     times = got
             chunks = -(-args.ceiling_sites // args.chunk)
-            rows.append({"processes": n_proc, "sims": n_proc * args.ceiling_sites, "wall_s": max(times),
-                         "chunk_s": float(np.mean(times)) / chunks,
-                         "sims_per_s": n_proc * args.ceiling_sites / max(times)})  # fmt: skip
+            rows.append(
+                {
+                    "processes": n_proc,
+                    "sims": n_proc * args.ceiling_sites,
+                    "wall_s": max(times),
+                    "chunk_s": float(np.mean(times)) / chunks,
+                    "sims_per_s": n_proc * args.ceiling_sites / max(times),
+                }
+            )
     for row in rows:
         row["speedup"] = row["sims_per_s"] / rows[0]["sims_per_s"]
     return rows
@@ -303,7 +333,7 @@ def bench_write(args, tmp: Path) -> list[dict]:
         store = tmp / f"write-{i}.zarr"
         subject = plan.subjects[0].id
         best = {}
-        for rep in range(1 if i == 0 else args.repeat):
+        for _ in range(1 if i == 0 else args.repeat):
             for mode in ("task", "background"):
                 create_layout(store, plan, spec_to_dict(spec), spec_hash(spec))
                 if not best:
@@ -323,14 +353,28 @@ def bench_write(args, tmp: Path) -> list[dict]:
         raw = raw_bytes(spec, plan)
         n_chunks = -(-len(sites) // chunk)
         task, bg = best["task"], best["background"]
-        rows.append({
-            "compressor": compressor if compressor == "none" else f"{compressor} {level}", "chunk_sites": chunk,
-            "chunks": n_chunks, "sites": len(sites), "setup_s": setup_s, "run_s": bg["run"],
-            "write_s": task["blocked"], "task_write_share": task["share"], "task_write_cpu_s": task["write_cpu"],
-            "write_ms_per_chunk": 1e3 * task["blocked"] / n_chunks, "blocked_s": bg["blocked"], "flush_s": bg["flush"],
-            "write_cpu_s": bg["write_cpu"], "write_cpu_ms_per_chunk": 1e3 * bg["write_cpu"] / n_chunks,
-            "write_share": bg["share"], "stored_bytes": stored, "raw_bytes": raw, "ratio": stored / raw,
-        })  # fmt: skip
+        rows.append(
+            {
+                "compressor": compressor if compressor == "none" else f"{compressor} {level}",
+                "chunk_sites": chunk,
+                "chunks": n_chunks,
+                "sites": len(sites),
+                "setup_s": setup_s,
+                "run_s": bg["run"],
+                "write_s": task["blocked"],
+                "task_write_share": task["share"],
+                "task_write_cpu_s": task["write_cpu"],
+                "write_ms_per_chunk": 1e3 * task["blocked"] / n_chunks,
+                "blocked_s": bg["blocked"],
+                "flush_s": bg["flush"],
+                "write_cpu_s": bg["write_cpu"],
+                "write_cpu_ms_per_chunk": 1e3 * bg["write_cpu"] / n_chunks,
+                "write_share": bg["share"],
+                "stored_bytes": stored,
+                "raw_bytes": raw,
+                "ratio": stored / raw,
+            }
+        )
     return rows[1:]
 
 
@@ -351,19 +395,30 @@ def bench_paper(args, tmp: Path) -> list[dict]:
             store = args.paper_store if keep else tmp / f"paper-{workers}-{r}.zarr"
             if store.exists():
                 raise SystemExit(f"{store} exists; give a new --paper-store path")
-            print(f"paper-scale build of {args.paper_spec} into {store} with {workers} workers "
-                  f"(round {r + 1} of {args.paper_repeat}) ...", file=sys.stderr, flush=True)  # fmt: skip
+            print(
+                f"paper-scale build of {args.paper_spec} into {store} with {workers} workers "
+                f"(round {r + 1} of {args.paper_repeat}) ...",
+                file=sys.stderr,
+                flush=True,
+            )
             row = timed_build(spec, store, workers, progress=True)
             apparent, allocated, files = disk_bytes(store)
             subjects = len(zarr.open_group(str(store), mode="r")["subjects"])
-            row.update(spec=str(args.paper_spec), store_bytes=apparent, store_du_bytes=allocated, store_files=files,
-                       raw_bytes=raw, ratio=apparent / raw, subjects=subjects)  # fmt: skip
+            row.update(
+                spec=str(args.paper_spec),
+                store_bytes=apparent,
+                store_du_bytes=allocated,
+                store_files=files,
+                raw_bytes=raw,
+                ratio=apparent / raw,
+                subjects=subjects,
+            )
             if not keep:
                 shutil.rmtree(store)
             runs[workers].append(row)
     base = runs[args.paper_workers[0]]
     rows = []
-    for workers, built in runs.items():
+    for built in runs.values():
         row = min(built, key=lambda b: b["wall_s"])
         row["speedup"] = min(b["wall_s"] for b in base) / row["wall_s"]
         row["task_speedup"] = min(b["tasks_s"] for b in base) / min(b["tasks_s"] for b in built)
@@ -378,73 +433,108 @@ def _f(x, fmt: str) -> str:
 
 
 def _scaling_md(scaling: list[dict], ceiling: list[dict], args) -> list[str]:
-    out = [f"### Scaling: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x {args.sites} sites, "
-           f"{args.chunk} sites per chunk; fastest of {args.repeat}", "",
-           "| workers | tasks | sims | cluster up / down (s) | plan + layout (s) | build wall (s) | sims/s "
-           "| before tasks (s) | task phase (s) | after tasks (s) | task sims/s | mean task (s) | busy "
-           "| speed-up (wall) | speed-up (tasks) |",
-           "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    out = [
+        f"### Scaling: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x {args.sites} sites, "
+        f"{args.chunk} sites per chunk; fastest of {args.repeat}",
+        "",
+        "| workers | tasks | sims | cluster up / down (s) | plan + layout (s) | build wall (s) | sims/s "
+        "| before tasks (s) | task phase (s) | after tasks (s) | task sims/s | mean task (s) | busy "
+        "| speed-up (wall) | speed-up (tasks) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in scaling:
-        out.append(f"| {r['workers']} | {r['tasks']} | {r['simulations']} | {r['cluster_up_s']:.2f} / "
-                   f"{r['cluster_down_s']:.2f} | {r['plan_layout_s']:.2f} | {r['wall_s']:.2f} | {r['sims_per_s']:.1f} "
-                   f"| {r['before_tasks_s']:.2f} | {r['tasks_s']:.2f} | {r['after_tasks_s']:.2f} "
-                   f"| {r['task_sims_per_s']:.1f} | {_f(r['task_compute_mean_s'], '.3f')} "
-                   f"| {_f(r['busy'] and 100 * r['busy'], '.0f')}% | {r['speedup']:.2f}x "
-                   f"| {r['task_speedup']:.2f}x |")  # fmt: skip
-    out += ["", "cluster up / down = `dask_client` entered and left alone, no work; before tasks = plan + layout + "
-            "cluster start-up inside `build`; after tasks = cluster shut-down + consolidate; busy = worker compute "
-            "time / (workers x task phase); mean task = worker compute time per task (Dask task stream).", "",
-            f"No-Dask ceiling: {args.ceiling_sites} sites per process in chunks of {args.chunk}, P plain processes "
-            f"started together (simulation only, no writes), fastest of {args.repeat}:", "",
-            "| processes | sims | wall (s) | s per chunk | sims/s | speed-up |", "|---:|---:|---:|---:|---:|---:|",
-            *[f"| {c['processes']} | {c['sims']} | {c['wall_s']:.2f} | {c['chunk_s']:.3f} | {c['sims_per_s']:.1f} "
-              f"| {c['speedup']:.2f}x |" for c in ceiling]]  # fmt: skip
+        out.append(
+            f"| {r['workers']} | {r['tasks']} | {r['simulations']} | {r['cluster_up_s']:.2f} / "
+            f"{r['cluster_down_s']:.2f} | {r['plan_layout_s']:.2f} | {r['wall_s']:.2f} | {r['sims_per_s']:.1f} "
+            f"| {r['before_tasks_s']:.2f} | {r['tasks_s']:.2f} | {r['after_tasks_s']:.2f} "
+            f"| {r['task_sims_per_s']:.1f} | {_f(r['task_compute_mean_s'], '.3f')} "
+            f"| {_f(r['busy'] and 100 * r['busy'], '.0f')}% | {r['speedup']:.2f}x "
+            f"| {r['task_speedup']:.2f}x |"
+        )
+    out += [
+        "",
+        "cluster up / down = `dask_client` entered and left alone, no work; before tasks = plan + layout + "
+        "cluster start-up inside `build`; after tasks = cluster shut-down + consolidate; busy = worker compute "
+        "time / (workers x task phase); mean task = worker compute time per task (Dask task stream).",
+        "",
+        f"No-Dask ceiling: {args.ceiling_sites} sites per process in chunks of {args.chunk}, P plain processes "
+        f"started together (simulation only, no writes), fastest of {args.repeat}:",
+        "",
+        "| processes | sims | wall (s) | s per chunk | sims/s | speed-up |",
+        "|---:|---:|---:|---:|---:|---:|",
+        *[
+            f"| {c['processes']} | {c['sims']} | {c['wall_s']:.2f} | {c['chunk_s']:.3f} | {c['sims_per_s']:.1f} "
+            f"| {c['speedup']:.2f}x |"
+            for c in ceiling
+        ],
+    ]
     return out
 
 
 def _write_md(write: list[dict], args) -> list[str]:
-    out = [f"### Zarr write share: worker steps by hand, 1 subject x {args.write_sites} sites, threads=1, no Dask; "
-           f"fastest of {args.repeat}", "",
-           "| compressor | chunk_sites | chunks | Simulator.run (s) | in the task: write_chunk (s) | write ms/chunk "
-           "| share | background: task blocked (s) | last write (s) | write CPU (s) | write CPU ms/chunk "
-           "| **write share** | stored MB | raw MB | stored/raw |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    out = [
+        f"### Zarr write share: worker steps by hand, 1 subject x {args.write_sites} sites, threads=1, no Dask; "
+        f"fastest of {args.repeat}",
+        "",
+        "| compressor | chunk_sites | chunks | Simulator.run (s) | in the task: write_chunk (s) | write ms/chunk "
+        "| share | background: task blocked (s) | last write (s) | write CPU (s) | write CPU ms/chunk "
+        "| **write share** | stored MB | raw MB | stored/raw |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in write:
-        out.append(f"| {r['compressor']} | {r['chunk_sites']} | {r['chunks']} | {r['run_s']:.2f} | {r['write_s']:.3f} "
-                   f"| {r['write_ms_per_chunk']:.0f} | {100 * r['task_write_share']:.1f}% | {r['blocked_s']:.3f} "
-                   f"| {r['flush_s']:.3f} | {r['write_cpu_s']:.3f} | {r['write_cpu_ms_per_chunk']:.1f} "
-                   f"| **{100 * r['write_share']:.1f}%** "
-                   f"| {r['stored_bytes'] / 1e6:.1f} | {r['raw_bytes'] / 1e6:.1f} | {r['ratio']:.3f} |")  # fmt: skip
-    out += ["", "In the task: `write_chunk` after `Simulator.run`, share = write_chunk / (run + write_chunk). "
-            "Background (what a build's tasks do, `simgen.build.worker.BackgroundWriter`): the chunk is written on "
-            "a thread of its own while the next one simulates; write share = (task blocked + write CPU) / "
-            "(run + task blocked + write CPU), the write CPU counted in full as if no core were spare (a 2-worker "
-            "build on 2 cores); the disk wait it hides costs nothing. Last write = the wait for the last chunk's "
-            "write, once per worker and build (the driver's flush), not in the share. Simulator assembly (once "
-            f"per subject and process, {write[0]['setup_s']:.2f} s here) excluded; stored = u + activation chunk files; "
-            "blosc = lz4 inside blosc with bitshuffle."]  # fmt: skip
+        out.append(
+            f"| {r['compressor']} | {r['chunk_sites']} | {r['chunks']} | {r['run_s']:.2f} | {r['write_s']:.3f} "
+            f"| {r['write_ms_per_chunk']:.0f} | {100 * r['task_write_share']:.1f}% | {r['blocked_s']:.3f} "
+            f"| {r['flush_s']:.3f} | {r['write_cpu_s']:.3f} | {r['write_cpu_ms_per_chunk']:.1f} "
+            f"| **{100 * r['write_share']:.1f}%** "
+            f"| {r['stored_bytes'] / 1e6:.1f} | {r['raw_bytes'] / 1e6:.1f} | {r['ratio']:.3f} |"
+        )
+    out += [
+        "",
+        "In the task: `write_chunk` after `Simulator.run`, share = write_chunk / (run + write_chunk). "
+        "Background (what a build's tasks do, `simgen.build.worker.BackgroundWriter`): the chunk is written on "
+        "a thread of its own while the next one simulates; write share = (task blocked + write CPU) / "
+        "(run + task blocked + write CPU), the write CPU counted in full as if no core were spare (a 2-worker "
+        "build on 2 cores); the disk wait it hides costs nothing. Last write = the wait for the last chunk's "
+        "write, once per worker and build (the driver's flush), not in the share. Simulator assembly (once "
+        f"per subject and process, {write[0]['setup_s']:.2f} s here) excluded; stored = u + activation chunk files; "
+        "blosc = lz4 inside blosc with bitshuffle.",
+    ]
     return out
 
 
 def _paper_md(paper: list[dict]) -> list[str]:
     rounds = paper[0]["rounds"]
-    out = [f"### Paper scale: {Path(paper[0]['spec']).name}" + (f"; fastest of {rounds}" if rounds > 1 else ""), "",
-           "| workers | subjects | tasks | sims | wall (s) | wall (min) | sims/s | before tasks (s) | task phase (s) "
-           "| after tasks (s) | mean task (s) | busy | speed-up (wall) | speed-up (tasks) | store GB | raw GB "
-           "| stored/raw | files |",
-           "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    out = [
+        f"### Paper scale: {Path(paper[0]['spec']).name}" + (f"; fastest of {rounds}" if rounds > 1 else ""),
+        "",
+        "| workers | subjects | tasks | sims | wall (s) | wall (min) | sims/s | before tasks (s) | task phase (s) "
+        "| after tasks (s) | mean task (s) | busy | speed-up (wall) | speed-up (tasks) | store GB | raw GB "
+        "| stored/raw | files |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for p in paper:
-        out.append(f"| {p['workers']} | {p['subjects']} | {p['tasks']} | {p['simulations']} | {p['wall_s']:.0f} "
-                   f"| {p['wall_s'] / 60:.1f} | {p['sims_per_s']:.1f} | {p['before_tasks_s']:.1f} | {p['tasks_s']:.1f} "
-                   f"| {p['after_tasks_s']:.1f} | {_f(p['task_compute_mean_s'], '.3f')} "
-                   f"| {_f(p['busy'] and 100 * p['busy'], '.0f')}% | {p['speedup']:.2f}x | {p['task_speedup']:.2f}x "
-                   f"| {p['store_bytes'] / 1e9:.2f} | {p['raw_bytes'] / 1e9:.2f} | {p['ratio']:.3f} "
-                   f"| {p['store_files']} |")  # fmt: skip
-    out += ["", "store GB = apparent size of the files (du counts more while the file system still holds "
-            "preallocated blocks); the first row is the speed-up base (task phase: fastest against fastest)."]
+        out.append(
+            f"| {p['workers']} | {p['subjects']} | {p['tasks']} | {p['simulations']} | {p['wall_s']:.0f} "
+            f"| {p['wall_s'] / 60:.1f} | {p['sims_per_s']:.1f} | {p['before_tasks_s']:.1f} | {p['tasks_s']:.1f} "
+            f"| {p['after_tasks_s']:.1f} | {_f(p['task_compute_mean_s'], '.3f')} "
+            f"| {_f(p['busy'] and 100 * p['busy'], '.0f')}% | {p['speedup']:.2f}x | {p['task_speedup']:.2f}x "
+            f"| {p['store_bytes'] / 1e9:.2f} | {p['raw_bytes'] / 1e9:.2f} | {p['ratio']:.3f} "
+            f"| {p['store_files']} |"
+        )
+    out += [
+        "",
+        "store GB = apparent size of the files (du counts more while the file system still holds "
+        "preallocated blocks); the first row is the speed-up base (task phase: fastest against fastest).",
+    ]
     if rounds > 1:
-        out.append("Speed-up (wall) of each round, the worker counts built one after the other: " + "; ".join(
-            f"{p['workers']} workers " + " / ".join(f"{x:.2f}x" for x in p["round_speedups"]) for p in paper[1:]) + ".")
+        out.append(
+            "Speed-up (wall) of each round, the worker counts built one after the other: "
+            + "; ".join(
+                f"{p['workers']} workers " + " / ".join(f"{x:.2f}x" for x in p["round_speedups"]) for p in paper[1:]
+            )
+            + "."
+        )
     return out
 
 
@@ -453,19 +543,28 @@ def markdown(scaling: list[dict], ceiling: list[dict], write: list[dict], paper:
     goals = []
     if scaling:
         last = scaling[-1]
-        goals.append(f"{last['workers']}-vs-{scaling[0]['workers']} workers speed-up {last['speedup']:.2f}x on the "
-                     f"build wall time, {last['task_speedup']:.2f}x on the task phase (goal >= 1.8x; no-Dask "
-                     f"ceiling {ceiling[-1]['speedup']:.2f}x)")  # fmt: skip
+        goals.append(
+            f"{last['workers']}-vs-{scaling[0]['workers']} workers speed-up {last['speedup']:.2f}x on the "
+            f"build wall time, {last['task_speedup']:.2f}x on the task phase (goal >= 1.8x; no-Dask "
+            f"ceiling {ceiling[-1]['speedup']:.2f}x)"
+        )
     if write:
-        goals.append(f"Zarr write share {100 * write[0]['write_share']:.1f}% at {write[0]['compressor']}, "
-                     f"chunk {write[0]['chunk_sites']} (goal <= 5%)")  # fmt: skip
+        goals.append(
+            f"Zarr write share {100 * write[0]['write_share']:.1f}% at {write[0]['compressor']}, "
+            f"chunk {write[0]['chunk_sites']} (goal <= 5%)"
+        )
     for p in paper:
-        goals.append(f"paper-scale build with {p['workers']} worker(s) {p['wall_s'] / 60:.1f} min, "
-                     f"{p['sims_per_s']:.1f} sims/s, {p['store_bytes'] / 1e9:.2f} GB of files (goal <= 15 min)"
-                     + (f", {p['speedup']:.2f}x the first (goal >= 1.8x)" if p is not paper[0] else ""))  # fmt: skip
+        goals.append(
+            f"paper-scale build with {p['workers']} worker(s) {p['wall_s'] / 60:.1f} min, "
+            f"{p['sims_per_s']:.1f} sims/s, {p['store_bytes'] / 1e9:.2f} GB of files (goal <= 15 min)"
+            + (f", {p['speedup']:.2f}x the first (goal >= 1.8x)" if p is not paper[0] else "")
+        )
     out = [f"- {g}" for g in goals]
-    for section in (_scaling_md(scaling, ceiling, args) if scaling else [], _write_md(write, args) if write else [],
-                    _paper_md(paper) if paper else []):  # fmt: skip
+    for section in (
+        _scaling_md(scaling, ceiling, args) if scaling else [],
+        _write_md(write, args) if write else [],
+        _paper_md(paper) if paper else [],
+    ):
         if section:
             out += ["", *section]
     return "\n".join(out)
@@ -484,10 +583,19 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--paper", action="store_true", help="also build the paper-scale spec (minutes)")
     p.add_argument("--paper-only", action="store_true", help="only the paper-scale build")
     p.add_argument("--paper-spec", type=Path, default=PAPER_SPEC, help="spec of --paper (default specs/default.toml)")
-    p.add_argument("--paper-workers", type=int, nargs="+", default=[2],
-                   help="worker counts of --paper, one build each; the first is the speed-up base (default 2)")
-    p.add_argument("--paper-repeat", type=int, default=1,
-                   help="rounds of --paper builds, worker counts alternating; fastest kept (default 1)")
+    p.add_argument(
+        "--paper-workers",
+        type=int,
+        nargs="+",
+        default=[2],
+        help="worker counts of --paper, one build each; the first is the speed-up base (default 2)",
+    )
+    p.add_argument(
+        "--paper-repeat",
+        type=int,
+        default=1,
+        help="rounds of --paper builds, worker counts alternating; fastest kept (default 1)",
+    )
     p.add_argument("--paper-store", type=Path, help="keep the last --paper store at this new path (default: temporary)")
     p.add_argument("--tmp", type=Path, help="parent folder of the temporary stores (default: system temp)")
     p.add_argument("--out", type=Path, help="folder for build.md (the tables) and build.json (raw numbers)")
@@ -497,9 +605,15 @@ def main(argv: list[str] | None = None) -> None:
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="simgen-bench-build-", dir=args.tmp) as tmp:
         others = {}
-        sections = [] if args.paper_only else [
-            ("scaling", lambda: bench_scaling(args, Path(tmp))), ("ceiling", lambda: bench_ceiling(args)),
-            ("write", lambda: bench_write(args, Path(tmp)))]  # fmt: skip
+        sections = (
+            []
+            if args.paper_only
+            else [
+                ("scaling", lambda: bench_scaling(args, Path(tmp))),
+                ("ceiling", lambda: bench_ceiling(args)),
+                ("write", lambda: bench_write(args, Path(tmp))),
+            ]
+        )
         if args.paper or args.paper_only:
             sections.append(("paper", lambda: bench_paper(args, Path(tmp))))
         results = {}
@@ -510,28 +624,44 @@ def main(argv: list[str] | None = None) -> None:
     scaling, ceiling, write = (results.get(k, []) for k in ("scaling", "ceiling", "write"))
     paper = results.get("paper", [])
     total = time.perf_counter() - t_start
-    header = (f"Build bench: {platform.machine()}, {os.cpu_count()} CPUs, dask.distributed "
-              f"{distributed.__version__}, zarr {zarr.__version__}; total {total:.0f} s; "
-              f"1-min load average before the run {load_before:.1f}\n")  # fmt: skip
+    header = (
+        f"Build bench: {platform.machine()}, {os.cpu_count()} CPUs, dask.distributed "
+        f"{distributed.__version__}, zarr {zarr.__version__}; total {total:.0f} s; "
+        f"1-min load average before the run {load_before:.1f}\n"
+    )
     busy = {k: v for k, v in others.items() if v is not None}
     if busy:
-        header += ("CPUs taken by other processes during each measurement (average): "
-                   + ", ".join(f"{k} {v:.2f}" for k, v in busy.items()) + "\n")  # fmt: skip
+        header += (
+            "CPUs taken by other processes during each measurement (average): "
+            + ", ".join(f"{k} {v:.2f}" for k, v in busy.items())
+            + "\n"
+        )
     if any(v > 0.1 for v in busy.values()) if busy else load_before > 0.5:
         header += "WARNING: other processes were using the CPUs; the 2-worker figures above all are slowed.\n"
     if os.cpu_count() and max(args.workers) >= os.cpu_count():
-        header += (f"Note: {max(args.workers)} single-threaded workers on {os.cpu_count()} CPUs share them with the "
-                   "driver (scheduler, client) and the nanny processes.\n")  # fmt: skip
+        header += (
+            f"Note: {max(args.workers)} single-threaded workers on {os.cpu_count()} CPUs share them with the "
+            "driver (scheduler, client) and the nanny processes.\n"
+        )
     table = header + "\n" + markdown(scaling, ceiling, write, paper, args) + "\n"
     print(table)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "build.md").write_text(table)
-        meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "distributed": distributed.__version__,
-                "zarr": zarr.__version__, "total_s": total, "load_average_before": load_before,
-                "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-                "others_cores": others, "scaling": scaling, "ceiling": ceiling, "write": write,
-                "paper": paper}  # fmt: skip
+        meta = {
+            "machine": platform.machine(),
+            "cpus": os.cpu_count(),
+            "distributed": distributed.__version__,
+            "zarr": zarr.__version__,
+            "total_s": total,
+            "load_average_before": load_before,
+            "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+            "others_cores": others,
+            "scaling": scaling,
+            "ceiling": ceiling,
+            "write": write,
+            "paper": paper,
+        }
         (args.out / "build.json").write_text(json.dumps(meta, indent=2))
 
 

@@ -35,8 +35,17 @@ def planar_rows() -> list[dict]:
         for a in (0.15, 0.3):
             start = time.perf_counter()
             err = speed_error(make(), a, diffusivity=diff)
-            rows.append({"mesh": name, "h": round(h, 3), "D": diff, "h/sqrt(D)": round(h / np.sqrt(diff), 3),
-                         "a": a, "speed error %": round(100 * err, 2), "seconds": round(time.perf_counter() - start, 2)})  # fmt: skip
+            rows.append(
+                {
+                    "mesh": name,
+                    "h": round(h, 3),
+                    "D": diff,
+                    "h/sqrt(D)": round(h / np.sqrt(diff), 3),
+                    "a": a,
+                    "speed error %": round(100 * err, 2),
+                    "seconds": round(time.perf_counter() - start, 2),
+                }
+            )
     return rows
 
 
@@ -53,10 +62,11 @@ def lv_refinement(n_sites: int = 8) -> dict:
     diff = t_coarse - t_fine[:, nearest]
     total_c, total_f = np.nanmax(t_coarse, axis=1), np.nanmax(t_fine, axis=1)
     return {
-        "coarse nodes": coarse.n_nodes, "fine nodes": fine.n_nodes,
+        "coarse nodes": coarse.n_nodes,
+        "fine nodes": fine.n_nodes,
         "mean |dt| / total activation": float(np.nanmean(np.abs(diff)) / np.mean(total_f)),
         "total activation ratio coarse/fine": float(np.mean(total_c / total_f)),
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -67,12 +77,16 @@ def main() -> None:
     apd = action_potential_duration(strip(10.0, 0.5, 0.25), x=5.0)
     lv = lv_refinement()
     lines = ["| mesh | h | D | h/sqrt(D) | a | speed error vs sqrt(2kD)(1/2-a) |", "|---|---|---|---|---|---|"]
-    lines += [f"| {r['mesh']} | {r['h']} | {r['D']:g} | {r['h/sqrt(D)']} | {r['a']} | {r['speed error %']:+.1f} % |"
-              for r in rows]  # fmt: skip
+    lines += [
+        f"| {r['mesh']} | {r['h']} | {r['D']:g} | {r['h/sqrt(D)']} | {r['a']} | {r['speed error %']:+.1f} % |"
+        for r in rows
+    ]
     lines += ["", f"APD50 at a = 0.15: {apd:.1f} time units ({apd * 12.9:.0f} ms); expected about 23.", ""]
-    lines += [f"Default LV ({lv['coarse nodes']} nodes) vs {lv['fine nodes']} nodes: mean |activation-time difference| "
-              f"= {100 * lv['mean |dt| / total activation']:.1f} % of the total activation time; total activation "
-              f"time ratio {lv['total activation ratio coarse/fine']:.3f}."]  # fmt: skip
+    lines += [
+        f"Default LV ({lv['coarse nodes']} nodes) vs {lv['fine nodes']} nodes: mean |activation-time difference| "
+        f"= {100 * lv['mean |dt| / total activation']:.1f} % of the total activation time; total activation "
+        f"time ratio {lv['total activation ratio coarse/fine']:.3f}."
+    ]
     table = "\n".join(lines)
     print(table)
     if args.out:

@@ -57,7 +57,6 @@ def child_build(nodes: int, sites: int) -> dict:
     from simgen.build.spec import spec_hash, spec_to_dict
     from simgen.build.store import create_layout, write_chunk
     from simgen.build.worker import prepare
-
     from simgen.meshes.ellipsoid import lv_ellipsoid
     from simgen.solver.simulate import Simulator
 
@@ -79,10 +78,19 @@ def child_build(nodes: int, sites: int) -> dict:
         t5 = time.perf_counter()
         mesh = plan.meshes[plan.subjects[0].mesh_id]
         return {
-            "nodes": mesh.n_nodes, "sites": len(site_ids), "dt": float(sim.dt), "steps": spec.solver.frames * sim.steps_per_frame,
-            "plan_s": t1 - t0, "layout_s": t2 - t1, "setup_s": t3 - t2, "run_s": t4 - t3, "write_s": t5 - t4,
-            "s_per_sim": (t4 - t3) / len(site_ids), "total_s": t5 - t0, "peak_rss_mb": peak_rss_mb(),
-        }  # fmt: skip
+            "nodes": mesh.n_nodes,
+            "sites": len(site_ids),
+            "dt": float(sim.dt),
+            "steps": spec.solver.frames * sim.steps_per_frame,
+            "plan_s": t1 - t0,
+            "layout_s": t2 - t1,
+            "setup_s": t3 - t2,
+            "run_s": t4 - t3,
+            "write_s": t5 - t4,
+            "s_per_sim": (t4 - t3) / len(site_ids),
+            "total_s": t5 - t0,
+            "peak_rss_mb": peak_rss_mb(),
+        }
 
 
 def child_train(nodes: int, device: str = "cpu") -> dict:
@@ -112,8 +120,17 @@ def child_train(nodes: int, device: str = "cpu") -> dict:
     u = torch.rand(k + m, FRAMES, n, generator=gen)
     sites = torch.randperm(n, generator=gen)[: k + m]
     u, observed, sites, hier = u.to(device), observed.to(device), sites.to(device), hier.to(device)
-    episode = Episode("lv", "lv", sites[:k], u[:k] * observed, observed, u[:k], sites[k:], u[k:],
-                      torch.arange(FRAMES, dtype=torch.float32))  # fmt: skip
+    episode = Episode(
+        "lv",
+        "lv",
+        sites[:k],
+        u[:k] * observed,
+        observed,
+        u[:k],
+        sites[k:],
+        u[k:],
+        torch.arange(FRAMES, dtype=torch.float32),
+    )
     torch.manual_seed(0)
     model = MetaPNS(cfg, FRAMES).to(device).train()
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
@@ -122,8 +139,9 @@ def child_train(nodes: int, device: str = "cpu") -> dict:
 
     def step() -> float:
         t = time.perf_counter()
-        terms = episode_loss(model, episode, hier, train.lambda1, train.lambda2, 1.0, frames, gen,
-                             train.posterior_targets)  # fmt: skip
+        terms = episode_loss(
+            model, episode, hier, train.lambda1, train.lambda2, 1.0, frames, gen, train.posterior_targets
+        )
         opt.zero_grad()
         terms.total.backward()
         opt.step()
@@ -131,8 +149,13 @@ def child_train(nodes: int, device: str = "cpu") -> dict:
         return time.perf_counter() - t
 
     step()  # warm-up
-    row = {"nodes": n, "levels": list(hier.sizes), "hierarchy_s": hier_s, "step_s": min(step(), step()),
-           "peak_rss_mb": peak_rss_mb()}  # fmt: skip
+    row = {
+        "nodes": n,
+        "levels": list(hier.sizes),
+        "hierarchy_s": hier_s,
+        "step_s": min(step(), step()),
+        "peak_rss_mb": peak_rss_mb(),
+    }
     if device.startswith("cuda"):
         row["peak_gpu_mb"] = torch.cuda.max_memory_allocated() / 2**20
     return row
@@ -222,12 +245,25 @@ def main(argv: list[str] | None = None) -> None:
     for s in site_list:
         sites.append(run_child("build", str(SITES_MESH), str(s)))
         print(f"build {s} sites: {sites[-1]['total_s']:.1f} s", file=sys.stderr, flush=True)
-    build_cols = [("nodes", "nodes", "d"), ("sites", "sites", "d"), ("dt", "dt", ".4g"), ("steps", "steps", "d"),
-                  ("plan_s", "plan (s)", ".2f"), ("layout_s", "layout (s)", ".2f"), ("setup_s", "set-up (s)", ".2f"),
-                  ("run_s", "run (s)", ".2f"), ("s_per_sim", "s per sim", ".3f"), ("write_s", "write (s)", ".3f"),
-                  ("peak_rss_mb", "peak RSS (MB)", ".0f")]  # fmt: skip
-    train_cols = [("nodes", "nodes", "d"), ("hierarchy_s", "hierarchy (s)", ".2f"), ("step_s", "s per episode", ".2f"),
-                  ("peak_rss_mb", "peak RSS (MB)", ".0f")]  # fmt: skip
+    build_cols = [
+        ("nodes", "nodes", "d"),
+        ("sites", "sites", "d"),
+        ("dt", "dt", ".4g"),
+        ("steps", "steps", "d"),
+        ("plan_s", "plan (s)", ".2f"),
+        ("layout_s", "layout (s)", ".2f"),
+        ("setup_s", "set-up (s)", ".2f"),
+        ("run_s", "run (s)", ".2f"),
+        ("s_per_sim", "s per sim", ".3f"),
+        ("write_s", "write (s)", ".3f"),
+        ("peak_rss_mb", "peak RSS (MB)", ".0f"),
+    ]
+    train_cols = [
+        ("nodes", "nodes", "d"),
+        ("hierarchy_s", "hierarchy (s)", ".2f"),
+        ("step_s", "s per episode", ".2f"),
+        ("peak_rss_mb", "peak RSS (MB)", ".0f"),
+    ]
     md = (
         f"Scaling bench: {platform.machine()}, {os.cpu_count()} CPUs, one thread per measurement; "
         f"total {time.perf_counter() - t0:.0f} s\n\n"
@@ -239,13 +275,14 @@ def main(argv: list[str] | None = None) -> None:
         f"sites^{slope(sites, 'sites', 'peak_rss_mb'):.2f}.\n\n"
         f"### metaPNS training episode vs mesh nodes\n\n{table(train, train_cols)}\n"
         f"Episode time grows as nodes^{slope(train, 'nodes', 'step_s'):.2f}.\n"
-    )  # fmt: skip
+    )
     print(md)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "scaling.md").write_text(md)
-        (args.out / "scaling.json").write_text(json.dumps({"build_nodes": nodes, "build_sites": sites,
-                                                           "train": train}, indent=2))  # fmt: skip
+        (args.out / "scaling.json").write_text(
+            json.dumps({"build_nodes": nodes, "build_sites": sites, "train": train}, indent=2)
+        )
         plot(nodes, sites, train, args.out / "scaling.png")
 
 

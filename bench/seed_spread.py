@@ -20,8 +20,14 @@ import json
 import statistics
 from pathlib import Path
 
-COLUMNS = (("target", "mse"), ("target", "cc_spatial"), ("target", "dc"),
-           ("context", "mse"), ("context", "cc_spatial"), ("context", "dc"))  # fmt: skip
+COLUMNS = (
+    ("target", "mse"),
+    ("target", "cc_spatial"),
+    ("target", "dc"),
+    ("context", "mse"),
+    ("context", "cc_spatial"),
+    ("context", "dc"),
+)
 
 
 def spread_table(reports: dict[str, dict]) -> str:

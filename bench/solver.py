@@ -74,14 +74,25 @@ def bench_mesh(
     steps = sim.config.frames * sim.steps_per_frame
     sites = np.random.default_rng(0).choice(n, size=max(n_batch, n_naive), replace=False)
     row = {
-        "mesh": f"lv_ellipsoid({n_nodes}, {kind!r})", "nodes": n, "nnz_per_row": len(sim._data) / n + 1,
-        "dt": sim.dt, "steps": steps, "setup_s": setup_s, "variants": [],
-    }  # fmt: skip
+        "mesh": f"lv_ellipsoid({n_nodes}, {kind!r})",
+        "nodes": n,
+        "nnz_per_row": len(sim._data) / n + 1,
+        "dt": sim.dt,
+        "steps": steps,
+        "setup_s": setup_s,
+        "variants": [],
+    }
 
     def record(name: str, n_sites: int, wall: float) -> dict:
         ns = wall / (steps * n * n_sites) * 1e9
-        entry = {"variant": name, "sites": n_sites, "wall_s": wall, "sims_per_s": n_sites / wall,
-                 "ns_per_node_step": ns, "state_GB_per_s": STATE_BYTES / ns}  # fmt: skip
+        entry = {
+            "variant": name,
+            "sites": n_sites,
+            "wall_s": wall,
+            "sims_per_s": n_sites / wall,
+            "ns_per_node_step": ns,
+            "state_GB_per_s": STATE_BYTES / ns,
+        }
         row["variants"].append(entry)
         return entry
 
@@ -113,18 +124,27 @@ def bench_mesh(
 
 def markdown(rows: list[dict]) -> str:
     """Two Markdown tables: mesh settings, then timings with the speed-up over naive."""
-    out = ["| mesh | nodes | nnz/row | dt | steps | Simulator setup (s) | max abs(u_naive - u_batched) |",
-           "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    out = [
+        "| mesh | nodes | nnz/row | dt | steps | Simulator setup (s) | max abs(u_naive - u_batched) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        out.append(f"| {r['mesh']} | {r['nodes']} | {r['nnz_per_row']:.1f} | {r['dt']:.4g} | {r['steps']} "
-                   f"| {r['setup_s']:.2f} | {r['max_abs_du']:.1e} |")  # fmt: skip
-    out += ["", "| mesh | variant | sites | wall (s) | sims/s | ns/node-step | state GB/s | speed-up vs naive |",
-            "|---|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+        out.append(
+            f"| {r['mesh']} | {r['nodes']} | {r['nnz_per_row']:.1f} | {r['dt']:.4g} | {r['steps']} "
+            f"| {r['setup_s']:.2f} | {r['max_abs_du']:.1e} |"
+        )
+    out += [
+        "",
+        "| mesh | variant | sites | wall (s) | sims/s | ns/node-step | state GB/s | speed-up vs naive |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         for v in r["variants"]:
             gbs = "-" if v["state_GB_per_s"] is None else f"{v['state_GB_per_s']:.0f}"
-            out.append(f"| {r['mesh']} | {v['variant']} | {v['sites']} | {v['wall_s']:.2f} | {v['sims_per_s']:.1f} "
-                       f"| {v['ns_per_node_step']:.3f} | {gbs} | {v['speedup']:.1f}x |")  # fmt: skip
+            out.append(
+                f"| {r['mesh']} | {v['variant']} | {v['sites']} | {v['wall_s']:.2f} | {v['sims_per_s']:.1f} "
+                f"| {v['ns_per_node_step']:.3f} | {gbs} | {v['speedup']:.1f}x |"
+            )
     return "\n".join(out)
 
 
@@ -147,9 +167,11 @@ def main(argv: list[str] | None = None) -> None:
         for n, kind in meshes
     ]
     total = time.perf_counter() - t_start
-    header = (f"Solver bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__} "
-              f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; total {total:.0f} s; "
-              f"1-min load average before the run {load_before:.1f}\n")  # fmt: skip
+    header = (
+        f"Solver bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__} "
+        f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; total {total:.0f} s; "
+        f"1-min load average before the run {load_before:.1f}\n"
+    )
     if load_before > 0.5:  # our own threads are not running yet, so this is someone else's work
         header += "WARNING: other processes may have been using the CPUs; timings (2 threads above all) may be slow.\n"
     table = header + "\n" + markdown(rows) + "\n"
@@ -157,9 +179,15 @@ def main(argv: list[str] | None = None) -> None:
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "solver.md").write_text(table)
-        meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "numba": numba.__version__,
-                "block_size": args.block_size, "total_s": total, "load_average_before": load_before,
-                "meshes": rows}  # fmt: skip
+        meta = {
+            "machine": platform.machine(),
+            "cpus": os.cpu_count(),
+            "numba": numba.__version__,
+            "block_size": args.block_size,
+            "total_s": total,
+            "load_average_before": load_before,
+            "meshes": rows,
+        }
         (args.out / "solver.json").write_text(json.dumps(meta, indent=2))
 
 

@@ -42,7 +42,7 @@ from torch.utils.data import DataLoader
 
 from learner.config import LearnerConfig, load_config
 from learner.data.episodes import EpisodeDataset, load_episode
-from learner.models.surrogate import MetaPNS, PNS
+from learner.models.surrogate import PNS, MetaPNS
 from learner.nn.spline_conv import SplineConv
 from learner.runtime import tune_allocator
 from learner.store_view import StoreView
@@ -94,9 +94,14 @@ def small_store(folder: Path) -> Path:
     from simgen.build import spec_from_mapping
     from simgen.build.runner import build
 
-    spec = spec_from_mapping({"meshes": [{"id": "lv", "source": "lv", "nodes": 2000}],
-                              "tissue": ["healthy", "scar-apex"], "sites": {"count": 25},
-                              "output": {"chunk_sites": 25}})  # fmt: skip
+    spec = spec_from_mapping(
+        {
+            "meshes": [{"id": "lv", "source": "lv", "nodes": 2000}],
+            "tissue": ["healthy", "scar-apex"],
+            "sites": {"count": 25},
+            "output": {"chunk_sites": 25},
+        }
+    )
     store = folder / "bench.zarr"
     build(spec, store, workers=2)
     return store
@@ -153,9 +158,17 @@ def measure_training(
     subjects = [s for s in view.subjects if view.mesh_of[s] == mesh]
     episodes = list(EpisodeDataset(view.store, subjects, config.data.episodes, seed=0))
     loader_eps = loader_rate(view, subjects, config.data.episodes, loader_workers)
-    episodes = [dataclasses.replace(ep, **{f.name: getattr(ep, f.name).to(device) for f in dataclasses.fields(ep)
-                                           if isinstance(getattr(ep, f.name), torch.Tensor)})
-                for ep in episodes[:2]]  # fmt: skip
+    episodes = [
+        dataclasses.replace(
+            ep,
+            **{
+                f.name: getattr(ep, f.name).to(device)
+                for f in dataclasses.fields(ep)
+                if isinstance(getattr(ep, f.name), torch.Tensor)
+            },
+        )
+        for ep in episodes[:2]
+    ]
     hier = hier.to(device)
     g = torch.Generator().manual_seed(0)
     rows = {}
@@ -165,10 +178,11 @@ def measure_training(
         opt = torch.optim.Adam(model.parameters(), 1e-3)
         frames_idx = torch.arange(0, frames, max(frames // train.loss_frames, 1))[: train.loss_frames]
 
-        def step(model=model, opt=opt):
+        def step(model=model, opt=opt, frames_idx=frames_idx):
             for episode in episodes:
-                terms = episode_loss(model, episode, hier, train.lambda1, train.lambda2, 1.0, frames_idx, g,
-                                     train.posterior_targets)  # fmt: skip
+                terms = episode_loss(
+                    model, episode, hier, train.lambda1, train.lambda2, 1.0, frames_idx, g, train.posterior_targets
+                )
                 opt.zero_grad()
                 terms.total.backward()
                 opt.step()
@@ -182,14 +196,23 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--store", type=Path)
     p.add_argument("--subject", default=None, help="subject id (default: the first on --mesh)")
     p.add_argument("--mesh", default="lv")
-    p.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
-                   help="training config whose model and episode settings are timed (default: %(default)s)")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=DEFAULT_CONFIG,
+        help="training config whose model and episode settings are timed (default: %(default)s)",
+    )
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--out", type=Path)
-    p.add_argument("--device", default="cpu",
-                   help="another torch device (cuda): generation, embedding and training there")
-    p.add_argument("--loader-workers", type=int, default=0,
-                   help="loader processes for the loader rate (default 0: in this process)")
+    p.add_argument(
+        "--device", default="cpu", help="another torch device (cuda): generation, embedding and training there"
+    )
+    p.add_argument(
+        "--loader-workers",
+        type=int,
+        default=0,
+        help="loader processes for the loader rate (default 0: in this process)",
+    )
     p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--no-tune", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -223,13 +246,30 @@ def main(argv: list[str] | None = None) -> None:
         rows["speedup_sparse_conv_embed"] = rows["embed_5_ms_edges_only"] / rows["embed_5_ms"]
         rows["simulate_ms"] = 1e3 * simulator_seconds(args.store, subject, int(ep.target_sites[0]))
 
-    train_rows, loader_eps = measure_training(view, hier, meta, pns, config, args.mesh, args.device,
-                                              args.loader_workers)
+    train_rows, loader_eps = measure_training(
+        view, hier, meta, pns, config, args.mesh, args.device, args.loader_workers
+    )
     rows.update(train_rows)
     if on_cpu:
-        child = subprocess.run([sys.executable, __file__, "--store", str(args.store), "--subject", subject,
-                                "--mesh", args.mesh, "--config", str(args.config), "--train-only", "--no-tune"],
-                               capture_output=True, text=True, check=True)  # fmt: skip
+        child = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--store",
+                str(args.store),
+                "--subject",
+                subject,
+                "--mesh",
+                args.mesh,
+                "--config",
+                str(args.config),
+                "--train-only",
+                "--no-tune",
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         rows["train_metapns_s_per_episode_default_malloc"] = json.loads(child.stdout)["train_metapns_s_per_episode"]
     rows["loader_workers"] = args.loader_workers
     rows["loader_episodes_per_s"] = loader_eps  # always on the CPU
@@ -243,18 +283,27 @@ def main(argv: list[str] | None = None) -> None:
     else:
         device = torch.cuda.get_device_name(args.device) if args.device.startswith("cuda") else args.device
         where = f"{device}; the loader on the host CPU"
-    head = (f"# Surrogate speed ({where}, torch {torch.__version__})\n\n"
-            f"Mesh `{view.mesh_of[subject]}` ({n_nodes} nodes, hierarchy {hier.sizes}), {frames} frames; "
-            f"reference-size model ({sum(p.numel() for p in meta.parameters()):,} parameters).\n\n")  # fmt: skip
+    head = (
+        f"# Surrogate speed ({where}, torch {torch.__version__})\n\n"
+        f"Mesh `{view.mesh_of[subject]}` ({n_nodes} nodes, hierarchy {hier.sizes}), {frames} frames; "
+        f"reference-size model ({sum(p.numel() for p in meta.parameters()):,} parameters).\n\n"
+    )
     table = "| quantity | value | goal |\n|---|---|---|\n" + "".join(
-        f"| {k} | {v:.3g} | {goal_text(k)} |\n" for k, v in rows.items())  # fmt: skip
+        f"| {k} | {v:.3g} | {goal_text(k)} |\n" for k, v in rows.items()
+    )
     print(head + table)
     if args.out:
         name = "surrogate" if on_cpu else f"surrogate-{args.device.split(':')[0]}"
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / f"{name}.md").write_text(head + table)
-        summary = {"rows": rows, "nodes": n_nodes, "frames": frames, "device": args.device,
-                   "config": str(args.config), "model": config.to_dict()["model"]}
+        summary = {
+            "rows": rows,
+            "nodes": n_nodes,
+            "frames": frames,
+            "device": args.device,
+            "config": str(args.config),
+            "model": config.to_dict()["model"],
+        }
         (args.out / f"{name}.json").write_text(json.dumps(summary, indent=2))
     if tmp is not None:
         tmp.cleanup()

@@ -86,13 +86,23 @@ def run_seed(args: argparse.Namespace, seed: int) -> None:
 
     def on_step(episode, terms, grad_norm: float) -> None:
         unclip = max(1.0, grad_norm / trainer.config.train.grad_clip)  # clipping scaled every gradient alike
-        modules = {name: unclip * float(torch.sqrt(sum((p.grad**2).sum() for p in getattr(model, name).parameters()
-                                                       if p.grad is not None)))
-                   for name in MODULES if hasattr(model, name)}  # fmt: skip
+        modules = {
+            name: unclip
+            * float(torch.sqrt(sum((p.grad**2).sum() for p in getattr(model, name).parameters() if p.grad is not None)))
+            for name in MODULES
+            if hasattr(model, name)
+        }
         count[0] += 1
-        row = {"epoch": trainer.epoch + 1, "step": count[0], "subject": episode.subject_id, **terms.as_floats(),
-               "grad_norm": grad_norm, **{f"grad_{k}": v for k, v in modules.items()},
-               "latent_first": latent[0], "latent_last": latent[-1]}  # fmt: skip
+        row = {
+            "epoch": trainer.epoch + 1,
+            "step": count[0],
+            "subject": episode.subject_id,
+            **terms.as_floats(),
+            "grad_norm": grad_norm,
+            **{f"grad_{k}": v for k, v in modules.items()},
+            "latent_first": latent[0],
+            "latent_last": latent[-1],
+        }
         steps.write(json.dumps(row) + "\n")
         steps.flush()
         latent.clear()
@@ -114,16 +124,21 @@ def summary(out: Path, seed: int) -> str:
     by_epoch: dict[int, list[dict]] = defaultdict(list)
     for row in steps:
         by_epoch[row["epoch"]].append(row)
-    lines = [f"seed {seed}", "",
-             "| epoch | train target MSE mean | max | grad norm median | max | max latent, last frame | val target MSE |",
-             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = [
+        f"seed {seed}",
+        "",
+        "| epoch | train target MSE mean | max | grad norm median | max | max latent, last frame | val target MSE |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for epoch, rows in sorted(by_epoch.items()):
         mse = [r["target_mse"] for r in rows]
         norms = [r["grad_norm"] for r in rows]
         val = epochs.get(epoch, {}).get("val_target_mse")
-        lines.append(f"| {epoch} | {statistics.mean(mse):.4f} | {max(mse):.3g} | {statistics.median(norms):.3g} | "
-                     f"{max(norms):.3g} | {max(r['latent_last'] for r in rows):.3g} | "
-                     f"{'' if val is None else f'{val:.4f}'} |")  # fmt: skip
+        lines.append(
+            f"| {epoch} | {statistics.mean(mse):.4f} | {max(mse):.3g} | {statistics.median(norms):.3g} | "
+            f"{max(norms):.3g} | {max(r['latent_last'] for r in rows):.3g} | "
+            f"{'' if val is None else f'{val:.4f}'} |"
+        )
     return "\n".join(lines)
 
 
@@ -134,18 +149,23 @@ def probe(checkpoint: Path, store: str) -> dict[str, float]:
     model, cfg, ckpt = load_model(checkpoint)
     view = StoreView(store)
     frame_mean = torch.from_numpy(view.frame_means(ckpt["splits"]["train"])).float()[None, :, None]
-    episodes = list(EpisodeDataset(store, ckpt["splits"]["validation"], cfg.data.episodes, seed=cfg.train.seed,
-                                   epoch=VALIDATION_EPOCH))  # fmt: skip
+    episodes = list(
+        EpisodeDataset(
+            store, ckpt["splits"]["validation"], cfg.data.episodes, seed=cfg.train.seed, epoch=VALIDATION_EPOCH
+        )
+    )
     hier = {ep.mesh_id: view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest) for ep in episodes}
     post = [model.embed(ep.context_obs, ep.observed, hier[ep.mesh_id]) for ep in episodes]
     rows = []
     for i, ep in enumerate(episodes):
         truth = ep.target_u
         pred = model.generate(ep.target_sites, hier[ep.mesh_id], post[i].mu)
-        row = {"val_target_mse": float(((pred - truth) ** 2).mean()),
-               "frame_mean_mse": float(((frame_mean - truth) ** 2).mean()),
-               "site_spread_ratio": float(pred.std(0).mean() / truth.std(0).mean()),
-               "posterior_logvar": float(post[i].logvar.mean())}  # fmt: skip
+        row = {
+            "val_target_mse": float(((pred - truth) ** 2).mean()),
+            "frame_mean_mse": float(((frame_mean - truth) ** 2).mean()),
+            "site_spread_ratio": float(pred.std(0).mean() / truth.std(0).mean()),
+            "posterior_logvar": float(post[i].logvar.mean()),
+        }
         other = next((j for j, o in enumerate(episodes) if j != i and o.mesh_id == ep.mesh_id), None)
         if other is not None:
             swapped = model.generate(ep.target_sites, hier[ep.mesh_id], post[other].mu)
@@ -162,8 +182,13 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--epochs", type=int, default=12)
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="override a config key (TOML value), e.g. model.latent_norm=false")  # fmt: skip
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config key (TOML value), e.g. model.latent_norm=false",
+    )
     parser.add_argument("--out", type=Path, default=Path("report/training-stability"))
     parser.add_argument("--probe", type=Path, nargs="+", metavar="CHECKPOINT", help="probe trained models instead")
     parser.add_argument("--one-seed", action="store_true", help=argparse.SUPPRESS)  # a child process's run
@@ -177,8 +202,19 @@ def main() -> None:
     if args.one_seed or len(args.seeds) == 1:
         run_seed(args, args.seeds[0])
     else:
-        base = [sys.executable, __file__, "--one-seed", "--store", args.store, "--config", str(args.config),
-                "--epochs", str(args.epochs), "--out", str(args.out)] + [f"--set={s}" for s in args.set]  # fmt: skip
+        base = [
+            sys.executable,
+            __file__,
+            "--one-seed",
+            "--store",
+            args.store,
+            "--config",
+            str(args.config),
+            "--epochs",
+            str(args.epochs),
+            "--out",
+            str(args.out),
+        ] + [f"--set={s}" for s in args.set]
         children = [subprocess.Popen(base + ["--seeds", str(seed)]) for seed in args.seeds]
         if any(child.wait() for child in children):
             sys.exit("a seed's run failed (its error is above)")

@@ -27,24 +27,29 @@ import torch
 import zarr
 from torch import Tensor
 
+from learner.baselines import FSBO, VAEBO, PersonalisationBaseline
+from learner.data.episodes import Episode, load_episode
+from learner.evaluate import EvalReport, EvalSpec, Method, NeuralMethod, evaluate_methods
+from learner.graph.hierarchy import MeshHierarchy
+from learner.metrics import METRIC_NAMES, activation_times, mse, spatial_cc, temporal_cc
+from learner.personalize import Observations
+from learner.plot import plot_activation_panels, plot_context_curves
+from learner.store_view import StoreView
+from learner.train.trainer import load_model
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError, InputError
 from shared.mesh import Mesh
 from shared.simulator import load_simulator
 from shared.units import MS_PER_TIME_UNIT
 
-from learner.baselines import FSBO, VAEBO, PersonalisationBaseline
-from learner.data.episodes import Episode, load_episode
-from learner.evaluate import EvalReport, EvalSpec, Method, NeuralMethod, evaluate_methods
-from learner.graph.hierarchy import MeshHierarchy
-from learner.metrics import METRIC_NAMES, activation_times, spatial_cc, temporal_cc, mse
-from learner.personalize import Observations
-from learner.plot import plot_activation_panels, plot_context_curves
-from learner.store_view import StoreView
-from learner.train.trainer import load_model
-
-__all__ = ["BaselineSpec", "RealDataSpec", "BenchmarkConfig", "load_benchmark_config", "BaselineMethod",
-           "run_benchmark"]  # fmt: skip
+__all__ = [
+    "BaselineSpec",
+    "RealDataSpec",
+    "BenchmarkConfig",
+    "load_benchmark_config",
+    "BaselineMethod",
+    "run_benchmark",
+]
 
 
 @dataclass(frozen=True)
@@ -103,8 +108,14 @@ def load_benchmark_config(path: str | Path) -> BenchmarkConfig:
     for name in ("store", "metapns", "pns"):
         if not getattr(cfg, name):
             raise ConfigError(f"{path}: `{name}` is required")
-    return replace(cfg, out=rel(cfg.out), store=rel(cfg.store), metapns=rel(cfg.metapns), pns=rel(cfg.pns),
-                   real_data=replace(cfg.real_data, store=rel(cfg.real_data.store)))  # fmt: skip
+    return replace(
+        cfg,
+        out=rel(cfg.out),
+        store=rel(cfg.store),
+        metapns=rel(cfg.metapns),
+        pns=rel(cfg.pns),
+        real_data=replace(cfg.real_data, store=rel(cfg.real_data.store)),
+    )
 
 
 class BaselineMethod(Method):
@@ -114,8 +125,14 @@ class BaselineMethod(Method):
         self.baseline, self.solver, self.times, self.name = baseline, solver, times, baseline.name
 
     def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
-        obs = Observations(mesh, episode.context_sites.numpy(), episode.context_obs.numpy(),
-                           episode.observed.numpy(), self.times, episode.subject_id)  # fmt: skip
+        obs = Observations(
+            mesh,
+            episode.context_sites.numpy(),
+            episode.context_obs.numpy(),
+            episode.observed.numpy(),
+            self.times,
+            episode.subject_id,
+        )
         result = self.baseline.fit(obs, self.solver)
         return {"fit_s": result.seconds, "calls": float(result.calls)}
 
@@ -148,8 +165,9 @@ def _cell(stat: dict | None) -> str:
 NOISE_DRAWS = 10  # Gaussian model-error draws per sample of c in the calibration band
 
 
-def calibration(model, view: StoreView, subjects: list[str], cfg: BenchmarkConfig, observe: str, levels: int,
-                coarsest: int) -> dict:  # fmt: skip
+def calibration(
+    model, view: StoreView, subjects: list[str], cfg: BenchmarkConfig, observe: str, levels: int, coarsest: int
+) -> dict:
     """How often target values fall inside the 5-95% band of two predictive distributions.
 
     * ``c`` only: samples of ``c ~ p(c | Y)`` through the generator (the
@@ -176,16 +194,23 @@ def calibration(model, view: StoreView, subjects: list[str], cfg: BenchmarkConfi
         residual = draws[:, :k][..., ep.observed] - ep.context_obs[..., ep.observed]
         noise_scale = residual.pow(2).mean().sqrt()
         targets = draws[:, k:]
-        noisy = targets.unsqueeze(1) + noise_scale * torch.randn((cfg.samples, NOISE_DRAWS, *targets.shape[1:]),
-                                                                 generator=g)  # fmt: skip
+        noisy = targets.unsqueeze(1) + noise_scale * torch.randn(
+            (cfg.samples, NOISE_DRAWS, *targets.shape[1:]), generator=g
+        )
         truth = ep.target_u
         for name, band in (("c", targets), ("noise", noisy.flatten(0, 1))):
             lo, hi = torch.quantile(band, 0.05, dim=0), torch.quantile(band, 0.95, dim=0)
             tally[name] += (float(((truth >= lo) & (truth <= hi)).sum()), float((hi - lo).sum()))
         n += truth.numel()
     (inside, width), (inside_c, width_c) = tally["noise"] / max(n, 1), tally["c"] / max(n, 1)
-    return {"coverage_90": float(inside), "mean_band_width": float(width), "coverage_90_c_only": float(inside_c),
-            "mean_band_width_c_only": float(width_c), "samples": cfg.samples, "subjects": len(subjects)}  # fmt: skip
+    return {
+        "coverage_90": float(inside),
+        "mean_band_width": float(width),
+        "coverage_90_c_only": float(inside_c),
+        "mean_band_width_c_only": float(width_c),
+        "samples": cfg.samples,
+        "subjects": len(subjects),
+    }
 
 
 def real_data(model, config, cfg: BenchmarkConfig) -> dict:
@@ -215,13 +240,23 @@ def real_data(model, config, cfg: BenchmarkConfig) -> dict:
             for j, role in enumerate(["context"] * len(ctx) + ["target"]):
                 truth = ep.context_obs[j].numpy() if role == "context" else noisy_target
                 p, t = pred[j][:, obs_nodes], truth[:, obs_nodes]
-                rows.append({"subject": subject, "left_out": left, "role": role, "mse": mse(p, t),
-                             "cc_spatial": spatial_cc(p, t), "cc_temporal": temporal_cc(p, t)})  # fmt: skip
+                rows.append(
+                    {
+                        "subject": subject,
+                        "left_out": left,
+                        "role": role,
+                        "mse": mse(p, t),
+                        "cc_spatial": spatial_cc(p, t),
+                        "cc_temporal": temporal_cc(p, t),
+                    }
+                )
     out = {}
     for role in ("context", "target"):
         sub = [r for r in rows if r["role"] == role]
-        out[role] = {m: {"mean": float(np.nanmean([r[m] for r in sub])), "std": float(np.nanstd([r[m] for r in sub]))}
-                     for m in ("mse", "cc_spatial", "cc_temporal")}  # fmt: skip
+        out[role] = {
+            m: {"mean": float(np.nanmean([r[m] for r in sub])), "std": float(np.nanstd([r[m] for r in sub]))}
+            for m in ("mse", "cc_spatial", "cc_temporal")
+        }
     return {"subjects": view.subjects, "electrodes": int(ep.observed.sum()), "noise_std": spec.noise_std, **out}
 
 
@@ -241,8 +276,10 @@ def _timing(view: StoreView, meta_report: EvalReport, pns_report: EvalReport, ba
     rows["metaPNS context embedding (per set)"] = {"seconds": meta_report.timing["fit_s"]}
     rows["PNS generation (per simulation)"] = {"seconds": pns_report.timing["predict_s_per_sim"]}
     for name, rep in base_reports.items():
-        rows[f"{name} personalisation (per set)"] = {"seconds": rep.timing["fit_s"],
-                                                      "simulator calls": rep.timing["simulator_calls"]}  # fmt: skip
+        rows[f"{name} personalisation (per set)"] = {
+            "seconds": rep.timing["fit_s"],
+            "simulator calls": rep.timing["simulator_calls"],
+        }
         rows[f"{name} prediction (per simulation)"] = {"seconds": rep.timing["predict_s_per_sim"]}
     return rows
 
@@ -272,9 +309,14 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
     observe, noise = meta_cfg.data.episodes.observe, meta_cfg.data.episodes.noise_std
     test = list(meta_ckpt["splits"]["test"])
     neural = [NeuralMethod(meta, "metaPNS"), NeuralMethod(pns, "PNS")]
-    spec = EvalSpec(subjects=tuple(test), context=cfg.context, context_sets=cfg.context_sets,
-                    max_targets=cfg.max_targets, seed=cfg.seed)  # fmt: skip
-    step = lambda what: (lambda i, n, s: progress(f"{what}: [{i}/{n}] {s}"))  # noqa: E731
+    spec = EvalSpec(
+        subjects=tuple(test),
+        context=cfg.context,
+        context_sets=cfg.context_sets,
+        max_targets=cfg.max_targets,
+        seed=cfg.seed,
+    )
+    step = lambda what: lambda i, n, s: progress(f"{what}: [{i}/{n}] {s}")  # noqa: E731
     results: dict[str, Any] = {"config": to_mapping(cfg), "test_subjects": test}
 
     reports = evaluate_methods(neural, view, test, spec, observe, noise, levels, coarsest, step("Table 1"))
@@ -282,8 +324,10 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
 
     solver = dict(zarr.open_group(view.store, mode="r").attrs["spec"])["solver"]
     b = cfg.baselines
-    make = {"fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),
-            "vae-bo": lambda: VAEBO(budget=b.budget, seed=cfg.seed)}  # fmt: skip
+    make = {
+        "fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),
+        "vae-bo": lambda: VAEBO(budget=b.budget, seed=cfg.seed),
+    }
     unknown = sorted(set(b.methods) - set(make))
     if unknown:
         raise ConfigError(f"unknown baseline(s) {unknown}; choose from {sorted(make)}")
@@ -291,8 +335,9 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
     subset = test[: b.subjects]
     bspec = replace(spec, subjects=tuple(subset), context_sets=b.context_sets, max_targets=b.max_targets)
     examples: dict[str, dict] = {}
-    base_reports = evaluate_methods(neural + base_methods, view, subset, bspec, observe, noise, levels, coarsest,
-                                    step("baselines"), examples)  # fmt: skip
+    base_reports = evaluate_methods(
+        neural + base_methods, view, subset, bspec, observe, noise, levels, coarsest, step("baselines"), examples
+    )
     results["table1_baseline_subset"] = {name: _stats(r) for name, r in base_reports.items()}
 
     curves: dict[str, dict] = {m.name: {} for m in neural}
@@ -304,12 +349,15 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
     results["fig3"] = curves
     plot_context_curves(curves, out / "fig3_context.png")
 
-    results["timing"] = _timing(view, reports["metaPNS"], reports["PNS"],
-                                {n: base_reports[n] for n in b.methods})  # fmt: skip
+    results["timing"] = _timing(view, reports["metaPNS"], reports["PNS"], {n: base_reports[n] for n in b.methods})
     results["calibration"] = calibration(meta, view, test[: cfg.calibration_subjects], cfg, observe, levels, coarsest)
     results["maps"] = subset[: cfg.maps]
-    _maps_per_mesh(view, [_map_row(view, examples[s], [m.name for m in neural + base_methods], s)
-                          for s in results["maps"]], results["maps"], out / "activation_maps.png")  # fmt: skip
+    _maps_per_mesh(
+        view,
+        [_map_row(view, examples[s], [m.name for m in neural + base_methods], s) for s in results["maps"]],
+        results["maps"],
+        out / "activation_maps.png",
+    )
     if cfg.real_data.store:
         results["real_data"] = real_data(meta, meta_cfg, cfg)
     _write(results, out)
@@ -325,30 +373,44 @@ def _map_row(view: StoreView, example: dict, methods: list[str], subject: str) -
 
 def _write(results: dict, out: Path) -> None:
     maps = "".join(f"![activation maps](activation_maps-{s}.png)\n" for s in results["maps"])
-    md = ["# Benchmark\n\n", table1(results["table1_all_test"], f"Table 1: all {len(results['test_subjects'])} "
-                                    "test subjects (metaPNS, PNS)"), "\n",  # fmt: skip
-          table1(results["table1_baseline_subset"], "Table 1: the baseline subset, same context sets for every method"),
-          "\n![accuracy vs context size](fig3_context.png)\n\n### Timing (CPU)\n\n| step | seconds | simulator calls |\n"
-          "|---|---|---|\n"]  # fmt: skip
-    timing = [f"| {name} | {row['seconds']:.4g} | {row.get('simulator calls', '')} |\n"
-              for name, row in results["timing"].items()]  # fmt: skip
+    md = [
+        "# Benchmark\n\n",
+        table1(
+            results["table1_all_test"], f"Table 1: all {len(results['test_subjects'])} test subjects (metaPNS, PNS)"
+        ),
+        "\n",
+        table1(results["table1_baseline_subset"], "Table 1: the baseline subset, same context sets for every method"),
+        "\n![accuracy vs context size](fig3_context.png)\n\n### Timing (CPU)\n\n| step | seconds | simulator calls |\n"
+        "|---|---|---|\n",
+    ]
+    timing = [
+        f"| {name} | {row['seconds']:.4g} | {row.get('simulator calls', '')} |\n"
+        for name, row in results["timing"].items()
+    ]
     md += timing
     (out / "timing.md").write_text("| step | seconds | simulator calls |\n|---|---|---|\n" + "".join(timing))
     c = results["calibration"]
-    md.append(f"\n### Uncertainty\n\n{c['samples']} draws of c ~ p(c | Y), each with {NOISE_DRAWS} draws of the "
-              f"subject's context misfit N(0, s^2): the truth lies inside the 5-95% band for "
-              f"{100 * c['coverage_90']:.1f}% of target values (ideal 90%; mean band width "
-              f"{c['mean_band_width']:.3f}). From c alone: {100 * c['coverage_90_c_only']:.1f}% (width "
-              f"{c['mean_band_width_c_only']:.3f}).\n")
+    md.append(
+        f"\n### Uncertainty\n\n{c['samples']} draws of c ~ p(c | Y), each with {NOISE_DRAWS} draws of the "
+        f"subject's context misfit N(0, s^2): the truth lies inside the 5-95% band for "
+        f"{100 * c['coverage_90']:.1f}% of target values (ideal 90%; mean band width "
+        f"{c['mean_band_width']:.3f}). From c alone: {100 * c['coverage_90_c_only']:.1f}% (width "
+        f"{c['mean_band_width_c_only']:.3f}).\n"
+    )
     md.append(f"\n### Activation maps (truth vs predictions, one target site)\n\n{maps}")
     if "real_data" in results:
         r = results["real_data"]
-        md.append(f"\n### Real-data emulation\n\nUnseen geometry {', '.join(r['subjects'])}, {r['electrodes']} sock "
-                  f"electrodes, noise {r['noise_std']}, leave-one-out over 4 pacing sites: target CC spatial "
-                  f"{r['target']['cc_spatial']['mean']:.3f} ± {r['target']['cc_spatial']['std']:.3f}, temporal "
-                  f"{r['target']['cc_temporal']['mean']:.3f}; MSE {r['target']['mse']['mean']:.2e} "
-                  f"(context CC spatial {r['context']['cc_spatial']['mean']:.3f}).\n")  # fmt: skip
+        md.append(
+            f"\n### Real-data emulation\n\nUnseen geometry {', '.join(r['subjects'])}, {r['electrodes']} sock "
+            f"electrodes, noise {r['noise_std']}, leave-one-out over 4 pacing sites: target CC spatial "
+            f"{r['target']['cc_spatial']['mean']:.3f} ± {r['target']['cc_spatial']['std']:.3f}, temporal "
+            f"{r['target']['cc_temporal']['mean']:.3f}; MSE {r['target']['mse']['mean']:.2e} "
+            f"(context CC spatial {r['context']['cc_spatial']['mean']:.3f}).\n"
+        )
     (out / "benchmark.md").write_text("".join(md))
-    (out / "table1.md").write_text(table1(results["table1_all_test"], "all test subjects") + "\n" +
-                                   table1(results["table1_baseline_subset"], "baseline subset"))  # fmt: skip
+    (out / "table1.md").write_text(
+        table1(results["table1_all_test"], "all test subjects")
+        + "\n"
+        + table1(results["table1_baseline_subset"], "baseline subset")
+    )
     (out / "benchmark.json").write_text(json.dumps(results, indent=1, default=float))

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn, Optional
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import numpy as np
 import typer
@@ -52,23 +52,25 @@ def _context_range(text: str) -> tuple[int, int]:
 def train(
     config: Annotated[Path, typer.Argument(help="Training config (TOML).")],
     fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
-    epochs: Annotated[Optional[int], typer.Option(min=1, help="Override train.epochs.")] = None,
-    max_minutes: Annotated[Optional[float], typer.Option(min=0, help="Override train.max_minutes (0: none).")] = None,
-    seed: Annotated[Optional[int], typer.Option(min=0, help="Override train.seed.")] = None,
-    store: Annotated[Optional[Path], typer.Option(help="Override data.store.")] = None,
-    out: Annotated[Optional[Path], typer.Option(help="Override the run directory.")] = None,
-    kind: Annotated[Optional[str], typer.Option(help="Override model.kind (metapns or pns).")] = None,
+    epochs: Annotated[int | None, typer.Option(min=1, help="Override train.epochs.")] = None,
+    max_minutes: Annotated[float | None, typer.Option(min=0, help="Override train.max_minutes (0: none).")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="Override train.seed.")] = None,
+    store: Annotated[Path | None, typer.Option(help="Override data.store.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Override the run directory.")] = None,
+    kind: Annotated[str | None, typer.Option(help="Override model.kind (metapns or pns).")] = None,
 ) -> None:
     """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly."""
     from learner.config import load_config
 
     try:
-        cfg = _overridden(load_config(config), epochs=epochs, max_minutes=max_minutes, seed=seed, store=store,
-                          out=out, kind=kind)  # fmt: skip
+        cfg = _overridden(
+            load_config(config), epochs=epochs, max_minutes=max_minutes, seed=seed, store=store, out=out, kind=kind
+        )
         Path(cfg.out).mkdir(parents=True, exist_ok=True)  # an unusable run directory fails before torch loads
     except (InputError, OSError) as exc:
         _fail(exc, config)
-    from learner.train.trainer import TrainingDiverged, train as run
+    from learner.train.trainer import TrainingDiverged
+    from learner.train.trainer import train as run
 
     console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
     try:
@@ -79,8 +81,15 @@ def train(
     console.print(f"done: {result.epochs_done} epochs{note}; checkpoints in {result.out}")
 
 
-def _overridden(cfg: LearnerConfig, epochs: int | None, max_minutes: float | None, seed: int | None,
-                store: Path | None, out: Path | None, kind: str | None) -> LearnerConfig:  # fmt: skip
+def _overridden(
+    cfg: LearnerConfig,
+    epochs: int | None,
+    max_minutes: float | None,
+    seed: int | None,
+    store: Path | None,
+    out: Path | None,
+    kind: str | None,
+) -> LearnerConfig:
     """``cfg`` with the options that were given."""
     from dataclasses import replace
 
@@ -100,8 +109,10 @@ def _overridden(cfg: LearnerConfig, epochs: int | None, max_minutes: float | Non
 def _show_epoch(row: dict) -> None:
     """One line per trained epoch."""
     val = f"  val target MSE {row['val_target_mse']:.4g}" if "val_target_mse" in row else ""
-    console.print(f"epoch {row['epoch']:4d}  loss {row['total']:.4g}  target MSE {row['target_mse']:.4g}"
-                  f"  context MSE {row['context_mse']:.4g}  {row['seconds']:.1f} s{val}")  # fmt: skip
+    console.print(
+        f"epoch {row['epoch']:4d}  loss {row['total']:.4g}  target MSE {row['target_mse']:.4g}"
+        f"  context MSE {row['context_mse']:.4g}  {row['seconds']:.1f} s{val}"
+    )
 
 
 @app.command()
@@ -109,19 +120,27 @@ def evaluate(
     checkpoint: Annotated[Path, typer.Argument(help="Model checkpoint (best.pt / last.pt).")],
     store: Annotated[Path, typer.Argument(help="Dataset store.")],
     out: Annotated[Path, typer.Option(help="Folder for evaluation.json / evaluation.md.")] = Path("report/eval"),
-    subjects: Annotated[str, typer.Option(help="A split name (test, validation, train) or comma-separated ids.")] = "test",
+    subjects: Annotated[
+        str, typer.Option(help="A split name (test, validation, train) or comma-separated ids.")
+    ] = "test",
     context: Annotated[str, typer.Option(help="Context size range 'min,max' (or one size).")] = "1,5",
     sets: Annotated[int, typer.Option(min=1, help="Context sets per subject.")] = 3,
     max_targets: Annotated[int, typer.Option(min=0, help="Targets per context set (0 = all).")] = 40,
     seed: SeedOpt = 0,
 ) -> None:
     """Context and target MSE / CC / DC / activation-time error, per subject and overall."""
-    from learner.evaluate import EvalSpec, evaluate as run
+    from learner.evaluate import EvalSpec
+    from learner.evaluate import evaluate as run
 
     try:
-        split = subjects if "," not in subjects and subjects in ("test", "validation", "train") else tuple(subjects.split(","))
-        spec = EvalSpec(subjects=split, context=_context_range(context), context_sets=sets, max_targets=max_targets,
-                        seed=seed)  # fmt: skip
+        split = (
+            subjects
+            if "," not in subjects and subjects in ("test", "validation", "train")
+            else tuple(subjects.split(","))
+        )
+        spec = EvalSpec(
+            subjects=split, context=_context_range(context), context_sets=sets, max_targets=max_targets, seed=seed
+        )
         report = run(checkpoint, store, spec, progress=lambda i, n, s: console.print(f"[{i}/{n}] {s}"))
     except (InputError, ValueError) as exc:
         _fail(exc)
@@ -154,14 +173,17 @@ def curves(
 def personalize(
     checkpoint: Annotated[Path, typer.Argument(help="metaPNS checkpoint.")],
     out: Annotated[Path, typer.Option(help="Personalised surrogate file to write.")],
-    store: Annotated[Optional[Path], typer.Option(help="Store holding the subject's simulations.")] = None,
-    subject: Annotated[Optional[str], typer.Option(help="Subject id in --store.")] = None,
+    store: Annotated[Path | None, typer.Option(help="Store holding the subject's simulations.")] = None,
+    subject: Annotated[str | None, typer.Option(help="Subject id in --store.")] = None,
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the context set.")] = "",
     observe: Annotated[str, typer.Option(help="Observed node set (surface, epicardium, electrodes, ...).")] = "surface",
-    observations: Annotated[Optional[Path], typer.Option(help=".npz with points, cells, sites, obs, observed, times (instead of --store).")] = None,  # noqa: E501
+    observations: Annotated[
+        Path | None, typer.Option(help=".npz with points, cells, sites, obs, observed, times (instead of --store).")
+    ] = None,  # noqa: E501
 ) -> None:
     """Embed a subject's few observations into a saved personalised surrogate."""
-    from learner.personalize import observations_from_file, observations_from_store, personalize as run
+    from learner.personalize import observations_from_file, observations_from_store
+    from learner.personalize import personalize as run
 
     try:
         if observations is not None:
@@ -173,22 +195,26 @@ def personalize(
         info = run(checkpoint, obs, out)
     except (InputError, OSError) as exc:
         _fail(exc, out)
-    console.print(f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms "
-                  f"-> {out}")  # fmt: skip
+    console.print(
+        f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms -> {out}"
+    )
 
 
 @app.command()
 def predict(
     personalized: Annotated[Path, typer.Argument(help="Personalised surrogate (from `learner personalize`).")],
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")],
-    out: Annotated[Path, typer.Option(help=".npz with sites, times and u (site, time, node).")] = Path("prediction.npz"),
-    vtk: Annotated[Optional[Path], typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
+    out: Annotated[Path, typer.Option(help=".npz with sites, times and u (site, time, node).")] = Path(
+        "prediction.npz"
+    ),
+    vtk: Annotated[Path | None, typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
     samples: Annotated[
         int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
     ] = 0,
 ) -> None:
     """Predict full-mesh sequences for new stimulation sites."""
-    from learner.personalize import predict as run, write_vtk
+    from learner.personalize import predict as run
+    from learner.personalize import write_vtk
 
     try:
         pred = run(personalized, parse_ids(sites, "--sites"), samples=samples)

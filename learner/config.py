@@ -2,20 +2,20 @@
 
 Example (TOML)::
 
-    out = "runs/default"             # run directory: checkpoints, logs, hierarchy cache
+    out = "runs/default"  # run directory: checkpoints, logs, hierarchy cache
 
     [data]
-    store = "default.zarr"           # relative paths are relative to this file
+    store = "default.zarr"  # relative paths are relative to this file
     [data.split]
     seed = 0
-    test = 0.25                      # source = "store": the store's canonical split instead
+    test = 0.25  # source = "store": the store's canonical split instead
     [data.episodes]
     context = [1, 5]
     targets = 20
     observe = "surface"
 
     [model]
-    kind = "metapns"                 # or "pns" (same generator, no context embedding)
+    kind = "metapns"  # or "pns" (same generator, no context embedding)
 
     [train]
     epochs = 100
@@ -27,11 +27,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
-from shared.config import from_mapping, load_toml, to_mapping
-from shared.errors import ConfigError
-
 from learner.data.episodes import EpisodeSpec
 from learner.data.split import SplitSpec
+from shared.config import from_mapping, load_toml, to_mapping
+from shared.errors import ConfigError
 
 __all__ = ["DataConfig", "ModelConfig", "TrainConfig", "LearnerConfig", "load_config", "config_from_mapping"]
 
@@ -64,7 +63,9 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
-            raise ConfigError(f"model.levels ({self.levels}) must be len(model.channels) + 1 ({len(self.channels) + 1})")
+            raise ConfigError(
+                f"model.levels ({self.levels}) must be len(model.channels) + 1 ({len(self.channels) + 1})"
+            )
         if min(self.channels + (self.hidden, self.latent)) < 1:
             raise ConfigError("model channel counts must be positive")
         if self.context_stride < 1:
@@ -121,8 +122,12 @@ def config_from_mapping(data: dict, base: Path | None = None) -> LearnerConfig:
     if base is not None:
         store = str((base / cfg.data.store).resolve()) if "://" not in cfg.data.store else cfg.data.store
         init = str((base / cfg.train.init).resolve()) if cfg.train.init else ""
-        cfg = replace(cfg, out=str((base / cfg.out).resolve()), data=replace(cfg.data, store=store),
-                      train=replace(cfg.train, init=init))  # fmt: skip
+        cfg = replace(
+            cfg,
+            out=str((base / cfg.out).resolve()),
+            data=replace(cfg.data, store=store),
+            train=replace(cfg.train, init=init),
+        )
     return cfg
 
 

@@ -20,16 +20,15 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from learner.data.episodes import Episode, load_episode
+from learner.graph.hierarchy import MeshHierarchy
+from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
+from learner.models.surrogate import PNS
+from learner.store_view import StoreView
+from learner.train.trainer import load_model
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.units import MS_PER_TIME_UNIT
-
-from learner.data.episodes import Episode, load_episode
-from learner.graph.hierarchy import MeshHierarchy
-from learner.models.surrogate import PNS
-from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
-from learner.store_view import StoreView
-from learner.train.trainer import load_model
 
 __all__ = ["EvalSpec", "EvalReport", "Method", "NeuralMethod", "evaluate_methods", "evaluate", "default_dc_frame"]
 
@@ -71,18 +70,26 @@ class EvalReport:
     def to_markdown(self) -> str:
         """Overall and per-subject tables."""
         head = "| role | " + " | ".join(METRIC_NAMES) + " |\n|---|" + "---|" * len(METRIC_NAMES) + "\n"
+
         def fmt(stats: dict) -> str:  # noqa: E306
-            return " | ".join(f"{stats[m]['mean']:.3g} ± {stats[m]['std']:.2g}" if m in stats else "-"
-                              for m in METRIC_NAMES)  # fmt: skip
+            return " | ".join(
+                f"{stats[m]['mean']:.3g} ± {stats[m]['std']:.2g}" if m in stats else "-" for m in METRIC_NAMES
+            )
+
         lines = [f"## {self.model}: overall\n", head]
         lines += [f"| {role} | {fmt(s)} |\n" for role, s in self.overall.items()]
-        lines += ["\n### per subject\n", "| subject | role | " + " | ".join(METRIC_NAMES) + " |\n",
-                  "|---|---|" + "---|" * len(METRIC_NAMES) + "\n"]  # fmt: skip
+        lines += [
+            "\n### per subject\n",
+            "| subject | role | " + " | ".join(METRIC_NAMES) + " |\n",
+            "|---|---|" + "---|" * len(METRIC_NAMES) + "\n",
+        ]
         for subject, roles in self.per_subject.items():
             lines += [f"| {subject} | {role} | {fmt(s)} |\n" for role, s in roles.items()]
         t = self.timing
-        lines.append(f"\nPrediction {1000 * t.get('predict_s_per_sim', float('nan')):.1f} ms per simulation, "
-                     f"personalisation {1000 * t.get('fit_s', float('nan')):.1f} ms per context set (CPU).\n")  # fmt: skip
+        lines.append(
+            f"\nPrediction {1000 * t.get('predict_s_per_sim', float('nan')):.1f} ms per simulation, "
+            f"personalisation {1000 * t.get('fit_s', float('nan')):.1f} ms per context set (CPU).\n"
+        )
         return "".join(lines)
 
     def write(self, folder: str | Path, stem: str = "evaluation") -> tuple[Path, Path]:
@@ -127,8 +134,10 @@ class NeuralMethod(Method):
 
     def predict(self, sites: Tensor) -> np.ndarray:
         with torch.no_grad():
-            parts = [self.model.generate(sites[i : i + self.batch], self._hier, self._c)
-                     for i in range(0, len(sites), self.batch)]  # fmt: skip
+            parts = [
+                self.model.generate(sites[i : i + self.batch], self._hier, self._c)
+                for i in range(0, len(sites), self.batch)
+            ]
         return torch.cat(parts).numpy()
 
 
@@ -147,9 +156,17 @@ def _subjects(spec: EvalSpec, splits: dict, view: StoreView) -> list[str]:
 
 
 def evaluate_methods(
-    methods: list[Method], view: StoreView, subjects: list[str], spec: EvalSpec, observe: str, noise: float,
-    levels: int, coarsest: int, progress=None, examples: dict[str, dict] | None = None,
-) -> dict[str, EvalReport]:  # fmt: skip
+    methods: list[Method],
+    view: StoreView,
+    subjects: list[str],
+    spec: EvalSpec,
+    observe: str,
+    noise: float,
+    levels: int,
+    coarsest: int,
+    progress=None,
+    examples: dict[str, dict] | None = None,
+) -> dict[str, EvalReport]:
     """Every method on the same context sets and targets; one :class:`EvalReport` per method.
 
     ``examples``, when given, receives per subject the first target of the
@@ -192,19 +209,28 @@ def evaluate_methods(
                     examples.setdefault(subject, {"site": int(sites[k]), "truth": truth[k]})[m.name] = pred[k]
                 for j in range(len(sites)):
                     metrics = sequence_metrics(pred[j], truth[j], true_act[j], times, dc_frame)
-                    reports[m.name].rows.append({"subject": subject, "set": r, "context_size": k,
-                                                 "role": "context" if j < k else "target", "site": int(sites[j]),
-                                                 **metrics})  # fmt: skip
+                    reports[m.name].rows.append(
+                        {
+                            "subject": subject,
+                            "set": r,
+                            "context_size": k,
+                            "role": "context" if j < k else "target",
+                            "site": int(sites[j]),
+                            **metrics,
+                        }
+                    )
         if progress is not None:
             progress(si + 1, len(subjects), subject)
     for m in methods:
         report, c = reports[m.name], costs[m.name]
         _summarise(report)
         report.timing = {
-            "fit_s": float(np.mean(c["fit_s"])), "simulator_calls": float(np.mean(c["calls"])),
+            "fit_s": float(np.mean(c["fit_s"])),
+            "simulator_calls": float(np.mean(c["calls"])),
             "predict_s_per_sim": float(np.sum(c["predict_s"]) / max(n_predicted, 1)),
-            "ms_per_time_unit": MS_PER_TIME_UNIT, "dc_frame": dc_frame,
-        }  # fmt: skip
+            "ms_per_time_unit": MS_PER_TIME_UNIT,
+            "dc_frame": dc_frame,
+        }
     return reports
 
 
@@ -217,8 +243,17 @@ def evaluate(checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpe
     observe = spec.observe or config.data.episodes.observe
     noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
     method = NeuralMethod(model, config.model.kind, spec.batch)
-    reports = evaluate_methods([method], view, _subjects(spec, ckpt["splits"], view), spec, observe, noise,
-                               config.model.levels, config.model.coarsest, progress)  # fmt: skip
+    reports = evaluate_methods(
+        [method],
+        view,
+        _subjects(spec, ckpt["splits"], view),
+        spec,
+        observe,
+        noise,
+        config.model.levels,
+        config.model.coarsest,
+        progress,
+    )
     return reports[method.name]
 
 

@@ -14,20 +14,26 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from shared.errors import InputError
-from shared.mesh import Mesh
-from shared.units import MS_PER_TIME_UNIT
-
 from learner.config import config_from_mapping
 from learner.data.episodes import load_episode
 from learner.graph.hierarchy import hierarchy_for_mesh
 from learner.models.surrogate import MetaPNS, Posterior, build_model
-from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.store_view import StoreView
+from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
+from shared.errors import InputError
+from shared.mesh import Mesh
+from shared.units import MS_PER_TIME_UNIT
 
-__all__ = ["Observations", "Prediction", "observations_from_store", "observations_from_file", "personalize",
-           "predict", "write_vtk"]  # fmt: skip
+__all__ = [
+    "Observations",
+    "Prediction",
+    "observations_from_store",
+    "observations_from_file",
+    "personalize",
+    "predict",
+    "write_vtk",
+]
 
 
 @dataclass
@@ -68,8 +74,9 @@ def observations_from_store(store: str | Path, subject: str, sites: list[int], o
         raise InputError(f"subject {subject!r} has no simulation stimulated at node(s) {unknown}")
     rows = [int(np.flatnonzero(stored == s)[0]) for s in sites]
     ep = load_episode(store, subject, rows, [], observe)
-    return Observations(view.mesh(mesh_id), np.asarray(sites), ep.context_obs.numpy(), ep.observed.numpy(),
-                        ep.times.numpy(), subject)  # fmt: skip
+    return Observations(
+        view.mesh(mesh_id), np.asarray(sites), ep.context_obs.numpy(), ep.observed.numpy(), ep.times.numpy(), subject
+    )
 
 
 def observations_from_file(path: str | Path) -> Observations:
@@ -82,8 +89,9 @@ def observations_from_file(path: str | Path) -> Observations:
     if missing:
         raise InputError(f"{path} lacks array(s) {missing}")
     mesh = Mesh(points=data["points"], cells=data["cells"], name=path.stem)
-    return Observations(mesh, data["sites"], data["obs"].astype(np.float32), data["observed"].astype(bool),
-                        data["times"], path.stem)  # fmt: skip
+    return Observations(
+        mesh, data["sites"], data["obs"].astype(np.float32), data["observed"].astype(bool), data["times"], path.stem
+    )
 
 
 def personalize(checkpoint: str | Path, observations: Observations, out: str | Path) -> dict:
@@ -100,13 +108,22 @@ def personalize(checkpoint: str | Path, observations: Observations, out: str | P
     with torch.no_grad():
         post = model.embed(obs, observed, hier)
     seconds = time.perf_counter() - t0
-    save_checkpoint(out, {
-        "kind": "personalized", "config": ckpt["config"], "frames": model.frames, "model": ckpt["model"],
-        "c_mu": post.mu, "c_logvar": post.logvar, "subject": observations.subject,
-        "context_sites": torch.as_tensor(np.asarray(observations.sites, np.int64)),
-        "points": torch.as_tensor(observations.mesh.points), "cells": torch.as_tensor(observations.mesh.cells),
-        "times": torch.as_tensor(np.asarray(observations.times, np.float64)),
-    })  # fmt: skip
+    save_checkpoint(
+        out,
+        {
+            "kind": "personalized",
+            "config": ckpt["config"],
+            "frames": model.frames,
+            "model": ckpt["model"],
+            "c_mu": post.mu,
+            "c_logvar": post.logvar,
+            "subject": observations.subject,
+            "context_sites": torch.as_tensor(np.asarray(observations.sites, np.int64)),
+            "points": torch.as_tensor(observations.mesh.points),
+            "cells": torch.as_tensor(observations.mesh.cells),
+            "times": torch.as_tensor(np.asarray(observations.times, np.float64)),
+        },
+    )
     return {"embed_seconds": seconds, "context_size": len(observations.sites), "out": str(out)}
 
 

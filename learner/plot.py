@@ -20,7 +20,10 @@ _VIEWS = ((12.0, 0.0), (12.0, 180.0))
 
 
 def plot_activation_panels(
-    points: NDArray, rows: Sequence[tuple[str, Sequence[tuple[str, NDArray]]]], path: str | Path, vmax: float | None = None
+    points: NDArray,
+    rows: Sequence[tuple[str, Sequence[tuple[str, NDArray]]]],
+    path: str | Path,
+    vmax: float | None = None,
 ) -> Path:
     """A grid of activation-time maps: one row per case, one column per map, front and back views.
 
@@ -38,8 +41,9 @@ def plot_activation_panels(
                 ax = fig.add_subplot(len(rows), n_cols, r * n_cols + c * len(_VIEWS) + v + 1, projection="3d")
                 finite = np.isfinite(values)
                 ax.scatter(*points[~finite].T, s=2, c="0.75", depthshade=False)
-                sc = ax.scatter(*points[finite].T, s=3, c=values[finite], cmap="turbo_r", vmin=0, vmax=top,
-                                depthshade=False)  # fmt: skip
+                sc = ax.scatter(
+                    *points[finite].T, s=3, c=values[finite], cmap="turbo_r", vmin=0, vmax=top, depthshade=False
+                )
                 ax.view_init(elev, azim)
                 ax.set_axis_off()
                 ax.set_box_aspect(np.ptp(points, axis=0))

@@ -8,12 +8,11 @@ from pathlib import Path
 import numpy as np
 import zarr
 
+from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
 from shared.errors import InputError, SchemaError
 from shared.mesh import Mesh
 from shared.reader import check_store, read_mesh, read_sites, read_split, subject_attrs, subject_ids
 from shared.schema import subject_path
-
-from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
 
 __all__ = ["StoreView"]
 

@@ -23,9 +23,18 @@ from shared.errors import InputError
 __all__ = ["PATH_ERRNOS", "fail", "path_error", "parse_ids"]
 
 #: errno values of a file system refusing a path: bad input, not a bug.
-PATH_ERRNOS = frozenset({
-    errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EISDIR, errno.ENOTDIR, errno.EEXIST,
-})  # fmt: skip
+PATH_ERRNOS = frozenset(
+    {
+        errno.EACCES,
+        errno.EPERM,
+        errno.EROFS,
+        errno.ENOSPC,
+        errno.EDQUOT,
+        errno.EISDIR,
+        errno.ENOTDIR,
+        errno.EEXIST,
+    }
+)
 
 # simgen and learner make folders with exist_ok=True: EEXIST means a file stands where a folder is to be made.
 _HINTS = {

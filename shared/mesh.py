@@ -73,9 +73,7 @@ class Mesh:
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise MeshError(f"mesh {self.name!r}: points must have shape (N, 3), got {pts.shape}")
         if cells.ndim != 2 or cells.shape[1] not in (3, 4):
-            raise MeshError(
-                f"mesh {self.name!r}: cells must have shape (M, 3) or (M, 4), got {cells.shape}"
-            )
+            raise MeshError(f"mesh {self.name!r}: cells must have shape (M, 3) or (M, 4), got {cells.shape}")
         if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
             raise MeshError(f"mesh {self.name!r}: cell node index out of range [0, {len(pts)})")
         sets = {k: np.asarray(v, dtype=np.int32) for k, v in self.node_sets.items()}
@@ -103,9 +101,7 @@ class Mesh:
         try:
             return self.node_sets[name]
         except KeyError:
-            raise MeshError(
-                f"mesh {self.name!r} has no node set {name!r} (has: {sorted(self.node_sets)})"
-            ) from None
+            raise MeshError(f"mesh {self.name!r} has no node set {name!r} (has: {sorted(self.node_sets)})") from None
 
     def edges(self) -> NDArray[np.int32]:
         """Unique undirected edges (E, 2), sorted, lower index first."""

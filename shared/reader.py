@@ -77,9 +77,12 @@ def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
     axis = g.attrs.get("axis")
     sets = {name: g[name][...] for name in MESH_INDEX_SETS if name != "electrodes" and g[name].shape[0]}
     return Mesh(
-        points=g["points"][...], cells=g["cells"][...], node_sets=sets, name=g.attrs["name"],
+        points=g["points"][...],
+        cells=g["cells"][...],
+        node_sets=sets,
+        name=g.attrs["name"],
         axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
-    )  # fmt: skip
+    )
 
 
 def read_index_set(path: str | Path, mesh_id: str, name: str) -> NDArray[np.int64]:
@@ -106,8 +109,9 @@ def read_statistics(path: str | Path, subject_id: str | None = None) -> dict | N
     ``{"u": {"count", "mean", "std", "min", "max"}, "activation": {...}}`` over the
     finite values; ``None`` while chunks are pending, and in version-1 stores.
     """
-    group = zarr.open_group(str(path), mode="r", path=subject_path(subject_id) if subject_id else "",
-                            use_consolidated=False)  # fmt: skip
+    group = zarr.open_group(
+        str(path), mode="r", path=subject_path(subject_id) if subject_id else "", use_consolidated=False
+    )
     return group.attrs.get("statistics")
 
 

@@ -29,8 +29,9 @@ never written: see :func:`check_schema_version`.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 from shared.errors import SchemaError
 from shared.units import TIME_UNITS
@@ -81,8 +82,9 @@ MESH_ARRAYS: dict[str, ArraySpec] = {
     "points": ArraySpec("float64", ("node", "xyz"), "mm", "node coordinates"),
     "cells": ArraySpec("int32", ("cell", "vertex"), "1", "node ids of each cell's vertices"),
     "stim_nodes": ArraySpec("int32", ("site",), "1", "stimulated node id of each site"),
-    **{name: ArraySpec("int32", (f"{name}_node",), "1", f"node ids of the {name} node set")
-       for name in MESH_INDEX_SETS},
+    **{
+        name: ArraySpec("int32", (f"{name}_node",), "1", f"node ids of the {name} node set") for name in MESH_INDEX_SETS
+    },
 }
 
 #: Variables and moments of a subject's ``moments`` array (its last two dimensions).
@@ -93,20 +95,32 @@ SUBJECT_ARRAYS: dict[str, ArraySpec] = {
     "a": ArraySpec("float32", ("node",), "1", "excitability threshold a of the Aliev-Panfilov model"),
     "D": ArraySpec("float32", ("node",), "1", "diffusivity scale (conductivity = solver diffusivity x D)"),
     "label": ArraySpec("int8", ("node",), "1", "tissue label: 0 healthy, 1 border zone, 2 scar core"),
-    "u": ArraySpec("float32", ("site", "time", "node"), "1",
-                   "transmembrane potential u, dimensionless (V = 100 u - 80 mV)"),
-    "activation": ArraySpec("float32", ("site", "node"), TIME_UNITS,
-                            "activation time: first crossing of the activation threshold (NaN = never)"),
+    "u": ArraySpec(
+        "float32", ("site", "time", "node"), "1", "transmembrane potential u, dimensionless (V = 100 u - 80 mV)"
+    ),
+    "activation": ArraySpec(
+        "float32",
+        ("site", "node"),
+        TIME_UNITS,
+        "activation time: first crossing of the activation threshold (NaN = never)",
+    ),
     "times": ArraySpec("float64", ("time",), TIME_UNITS, "frame time in model time units", coordinate=True),
     "done": ArraySpec("uint8", ("chunk",), "1", "chunk done flag: 1 once the chunk's data are written"),
     "site": ArraySpec("int32", ("site",), "1", "stimulated node id", coordinate=True, since=2),
     "time_ms": ArraySpec("float64", ("time",), "ms", "frame time", coordinate=True, since=2),
-    **{axis: ArraySpec("float64", ("node",), "mm", f"node {axis} coordinate", coordinate=True, since=2)
-       for axis in "xyz"},
-    "moments": ArraySpec("float64", ("chunk", "variable", "moment"), "1",
-                         "per-chunk count, sum, sum of squares, min and max of the finite values of u "
-                         "(dimensionless) and activation (model time units)", since=2),
-}  # fmt: skip
+    **{
+        axis: ArraySpec("float64", ("node",), "mm", f"node {axis} coordinate", coordinate=True, since=2)
+        for axis in "xyz"
+    },
+    "moments": ArraySpec(
+        "float64",
+        ("chunk", "variable", "moment"),
+        "1",
+        "per-chunk count, sum, sum of squares, min and max of the finite values of u "
+        "(dimensionless) and activation (model time units)",
+        since=2,
+    ),
+}
 
 
 class SchemaWarning(UserWarning):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, NoReturn, Optional
+from typing import Annotated, NoReturn
 
 import numpy as np
 import typer
@@ -29,7 +29,7 @@ console = Console()
 MeshOpt = Annotated[str, typer.Option("--mesh", help="'lv', 'biv' or a mesh file (any meshio format).")]
 NodesOpt = Annotated[int, typer.Option("--nodes", min=1, help="Target node count of a procedural mesh.")]
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
-SchedulerOpt = Annotated[Optional[str], typer.Option(help="Address of an existing Dask scheduler.")]
+SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler.")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]
 ThreadsOpt = Annotated[int, typer.Option(min=1, help="Solver threads.")]
 # A string, not a Path: Path("s3://bucket/x.zarr") would collapse the "//" of a URL.
@@ -56,9 +56,11 @@ def mesh(
         _fail(exc, out)
     table = Table(title=f"{m.name} -> {out}")
     for key, value in [
-        ("nodes", m.n_nodes), ("cells", f"{m.n_cells} {m.cell_type}"), ("mean edge (mm)", f"{m.mean_edge_length():.2f}"),
+        ("nodes", m.n_nodes),
+        ("cells", f"{m.n_cells} {m.cell_type}"),
+        ("mean edge (mm)", f"{m.mean_edge_length():.2f}"),
         *[(f"node set {k}", len(v)) for k, v in m.node_sets.items()],
-    ]:  # fmt: skip
+    ]:
         table.add_row(key, str(value))
     console.print(table)
 
@@ -82,10 +84,12 @@ def simulate(
     source: MeshOpt = "lv",
     nodes: NodesOpt = 2000,
     kind: KindOpt = "tetra",
-    tissue: Annotated[str, typer.Option(help="Default setting name (see `simgen tissues`) or a TOML file.")] = "healthy",
+    tissue: Annotated[
+        str, typer.Option(help="Default setting name (see `simgen tissues`) or a TOML file.")
+    ] = "healthy",
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")] = "0",
     threads: ThreadsOpt = 2,
-    dt: Annotated[Optional[float], typer.Option(help="Time step; automatic when omitted.")] = None,
+    dt: Annotated[float | None, typer.Option(help="Time step; automatic when omitted.")] = None,
 ) -> None:
     """Simulate stimulation SITES on one mesh + tissue and save u, activation times and a figure."""
     from simgen.plot import plot_activation_maps
@@ -99,11 +103,13 @@ def simulate(
     except (InputError, ValueError) as exc:
         _fail(exc)
     out.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out / "simulation.npz", u=result.u, activation=result.activation, times=result.times,
-                        sites=result.sites)  # fmt: skip
+    np.savez_compressed(
+        out / "simulation.npz", u=result.u, activation=result.activation, times=result.times, sites=result.sites
+    )
     act_ms = result.activation * MS_PER_TIME_UNIT
-    plot_activation_maps(m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png",
-                         stim_nodes=site_ids)  # fmt: skip
+    plot_activation_maps(
+        m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png", stim_nodes=site_ids
+    )
     console.print(
         f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), dt={sim.dt:.4g}, "
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
@@ -147,16 +153,26 @@ def build(
     from simgen.build import load_spec
     from simgen.build.runner import build as run_build
 
-    _run_with_progress(store, lambda on_start, on_done: run_build(
-        load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done))  # fmt: skip
+    _run_with_progress(
+        store,
+        lambda on_start, on_done: run_build(
+            load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done
+        ),
+    )
 
 
 def _run_with_progress(store: str, job) -> None:
     """Run ``job(on_start, on_done)`` behind a progress bar and print what it did."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    bar = Progress(TextColumn("[bold]simulating"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                   TextColumn("{task.description}"), console=console)  # fmt: skip
+    bar = Progress(
+        TextColumn("[bold]simulating"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.description}"),
+        console=console,
+    )
     state: dict = {}
 
     def on_start(n: int, dashboard: str | None) -> None:
@@ -198,8 +214,15 @@ def add_subject(
 
     def job(on_start, on_done):
         specs = [_tissue_spec(t) for t in tissue]
-        return run_add(store, MeshEntry(mesh_id, mesh_file, nodes), specs, scheduler=scheduler, workers=workers,
-                       on_start=on_start, on_done=on_done)  # fmt: skip
+        return run_add(
+            store,
+            MeshEntry(mesh_id, mesh_file, nodes),
+            specs,
+            scheduler=scheduler,
+            workers=workers,
+            on_start=on_start,
+            on_done=on_done,
+        )
 
     _run_with_progress(store, job)
 
@@ -208,7 +231,7 @@ def add_subject(
 def regenerate(
     store: StoreArg,
     subjects: Annotated[str, typer.Option(help="Comma-separated subject ids (see `simgen status`).")],
-    sites: Annotated[Optional[str], typer.Option(help="Comma-separated site indices; all when omitted.")] = None,
+    sites: Annotated[str | None, typer.Option(help="Comma-separated site indices; all when omitted.")] = None,
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
 ) -> None:
@@ -217,8 +240,15 @@ def regenerate(
 
     def job(on_start, on_done):
         site_ids = None if sites is None else parse_ids(sites, "--sites")
-        return run_regenerate(store, [s.strip() for s in subjects.split(",") if s.strip()], site_ids,
-                              scheduler=scheduler, workers=workers, on_start=on_start, on_done=on_done)  # fmt: skip
+        return run_regenerate(
+            store,
+            [s.strip() for s in subjects.split(",") if s.strip()],
+            site_ids,
+            scheduler=scheduler,
+            workers=workers,
+            on_start=on_start,
+            on_done=on_done,
+        )
 
     _run_with_progress(store, job)
 
@@ -285,7 +315,7 @@ def verify(
 @app.command()
 def card(
     store: StoreArg,
-    out: Annotated[Optional[Path], typer.Option(help="Markdown file to write; printed when omitted.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Markdown file to write; printed when omitted.")] = None,
 ) -> None:
     """Write the Markdown dataset card of STORE: model, parameters, sizes, cost, statistics, provenance, citation."""
     from simgen.build.card import dataset_card

@@ -99,8 +99,6 @@ def _write_summary(out: Path, rows: list[DemoRow]) -> None:
     ]
     for r in rows:
         acts = ", ".join(f"{t:.0f}" for t in r.total_activation_ms)
-        lines.append(
-            f"| {r.mesh} | {r.setting} | {r.scar_fraction:.1%} | {len(r.sites)} | {r.seconds:.2f} | {acts} |"
-        )
+        lines.append(f"| {r.mesh} | {r.setting} | {r.scar_fraction:.1%} | {len(r.sites)} | {r.seconds:.2f} | {acts} |")
     lines += ["", "Figures: " + ", ".join(f"[{r.figure}]({r.figure})" for r in rows), ""]
     (out / "summary.md").write_text("\n".join(lines))

@@ -35,8 +35,12 @@ VIEWS: tuple[tuple[float, float], ...] = ((12.0, 0.0), (12.0, 180.0))
 _NAN_COLOUR = (0.72, 0.72, 0.72, 1.0)
 _TISSUE_COLOURS = {0: ("healthy", "#efd3c4"), 1: ("border zone", "#f28e2b"), 2: ("scar core", "#7a0b0b")}
 # Surface parts in drawing priority: a face takes the first set holding all its nodes.
-_PART_COLOURS = {"base": ("base rim", "#9a9a9a"), "rv_endocardium": ("RV endocardium", "#4e79a7"),
-                 "endocardium": ("LV endocardium", "#e15759"), "epicardium": ("epicardium", "#efd3c4")}  # fmt: skip
+_PART_COLOURS = {
+    "base": ("base rim", "#9a9a9a"),
+    "rv_endocardium": ("RV endocardium", "#4e79a7"),
+    "endocardium": ("LV endocardium", "#e15759"),
+    "epicardium": ("epicardium", "#efd3c4"),
+}
 _PANEL_INCHES = (3.0, 3.4)
 _KEY_INCHES = 1.6
 _DPI = 120
@@ -98,8 +102,16 @@ def _mark_node(ax: Axes3D, mesh: Mesh, node: int, view: tuple[float, float]) -> 
     a = np.radians(view[1])
     if p[0] * np.cos(a) + p[1] * np.sin(a) < -0.1 * np.ptp(mesh.points[:, :2], axis=0).max() / 2:
         return
-    ax.scatter(*mesh.points[node], marker="*", s=220, c="white", edgecolors="black", linewidths=1.0,
-               zorder=10, depthshade=False)
+    ax.scatter(
+        *mesh.points[node],
+        marker="*",
+        s=220,
+        c="white",
+        edgecolors="black",
+        linewidths=1.0,
+        zorder=10,
+        depthshade=False,
+    )
 
 
 def _grid(n_rows: int, n_cols: int) -> tuple[Figure, list[list[Axes3D]]]:
@@ -108,12 +120,15 @@ def _grid(n_rows: int, n_cols: int) -> tuple[Figure, list[list[Axes3D]]]:
     fig = Figure(figsize=(width, height))
     FigureCanvasAgg(fig)
     axes = [
-        [fig.add_subplot(n_rows, n_cols, r * n_cols + c + 1, projection="3d", computed_zorder=False)
-         for c in range(n_cols)]
+        [
+            fig.add_subplot(n_rows, n_cols, r * n_cols + c + 1, projection="3d", computed_zorder=False)
+            for c in range(n_cols)
+        ]
         for r in range(n_rows)
     ]
-    fig.subplots_adjust(left=0.0, right=1 - _KEY_INCHES / width, bottom=0.02, top=1 - 0.45 / height,
-                        wspace=0.0, hspace=0.12)
+    fig.subplots_adjust(
+        left=0.0, right=1 - _KEY_INCHES / width, bottom=0.02, top=1 - 0.45 / height, wspace=0.0, hspace=0.12
+    )
     return fig, axes
 
 
@@ -131,8 +146,7 @@ def _check_nodal(mesh: Mesh, values: NDArray, what: str, ndim: int) -> None:
     if values.ndim != ndim or values.shape[-1] != mesh.n_nodes:
         expected = "(S, N)" if ndim == 2 else "(N,)"
         raise InputError(
-            f"{what} must have shape {expected} with N = {mesh.n_nodes} nodes of mesh {mesh.name!r}, "
-            f"got {values.shape}"
+            f"{what} must have shape {expected} with N = {mesh.n_nodes} nodes of mesh {mesh.name!r}, got {values.shape}"
         )
 
 
@@ -190,8 +204,13 @@ def plot_activation_maps(
     cax = fig.add_axes((_key_x(fig, 0.15), 0.25, 0.2 / fig.get_figwidth(), 0.5))
     fig.colorbar(colour_map, cax=cax, label=f"activation time ({units})")
     if np.isnan(act).any():
-        fig.legend(handles=[Patch(color=_NAN_COLOUR, label="not activated")], loc="upper left",
-                   bbox_to_anchor=(_key_x(fig, 0.0), 0.24), fontsize=8, frameon=False)
+        fig.legend(
+            handles=[Patch(color=_NAN_COLOUR, label="not activated")],
+            loc="upper left",
+            bbox_to_anchor=(_key_x(fig, 0.0), 0.24),
+            fontsize=8,
+            frameon=False,
+        )
     _save(fig, path)
 
 
@@ -214,8 +233,12 @@ def plot_tissue(mesh: Mesh, label: ArrayLike, path: str | PathLike[str], title: 
         _draw_surface(ax, mesh, faces, rgba, view)
         ax.set_title(f"azimuth {view[1]:g}\N{DEGREE SIGN}", fontsize=9, pad=-4)
     fig.suptitle(title, fontsize=11)
-    fig.legend(handles=[Patch(color=c, label=n) for n, c in _TISSUE_COLOURS.values()],
-               loc="center right", fontsize=8, frameon=False)
+    fig.legend(
+        handles=[Patch(color=c, label=n) for n, c in _TISSUE_COLOURS.values()],
+        loc="center right",
+        fontsize=8,
+        frameon=False,
+    )
     _save(fig, path)
 
 
@@ -236,8 +259,9 @@ def plot_surfaces(
     """
     if len(titles) != len(meshes) or not meshes:
         raise InputError(f"got {len(titles)} titles for {len(meshes)} meshes (need one per mesh, at least one)")
-    bounds = np.stack([np.min([m.points.min(axis=0) for m in meshes], axis=0),
-                       np.max([m.points.max(axis=0) for m in meshes], axis=0)])  # fmt: skip
+    bounds = np.stack(
+        [np.min([m.points.min(axis=0) for m in meshes], axis=0), np.max([m.points.max(axis=0) for m in meshes], axis=0)]
+    )
     n_cols = min(n_cols, len(meshes))
     fig, axes = _grid(-(-len(meshes) // n_cols), n_cols)
     panels = [ax for row in axes for ax in row]
@@ -252,8 +276,12 @@ def plot_surfaces(
             rgba[part], unset[part] = to_rgba(colour), False
         _draw_surface(ax, mesh, faces, rgba, view, bounds)
         ax.set_title(title, fontsize=8, pad=-4)
-    for ax in panels[len(meshes):]:
+    for ax in panels[len(meshes) :]:
         ax.set_axis_off()
-    fig.legend(handles=[Patch(color=c, label=n) for n, c in _PART_COLOURS.values()],
-               loc="center right", fontsize=8, frameon=False)
+    fig.legend(
+        handles=[Patch(color=c, label=n) for n, c in _PART_COLOURS.values()],
+        loc="center right",
+        fontsize=8,
+        frameon=False,
+    )
     _save(fig, path)

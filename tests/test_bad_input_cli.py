@@ -43,8 +43,9 @@ as_root = os.geteuid() == 0  # root writes into read-only folders
 
 def run_cli(package: str, *args: object) -> tuple[int, str]:
     """Exit code and stdout + stderr of ``python -m package args``."""
-    proc = subprocess.run([sys.executable, "-m", package, *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", package, *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
     return proc.returncode, proc.stdout + proc.stderr
 
 
@@ -95,26 +96,40 @@ CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "retries -1": ((*BUILD, "--retries", "-1"), (usage("--retries"),)),
     "threads 0": (("simgen", "simulate", "{d}/o", "--threads", "0"), (usage("--threads"),)),
     "duplicate sites": (("simgen", "simulate", "{d}/o", "--sites", "3,0,3"), ("--sites: [3] given more than once",)),
-    "frames 0": (("simgen", "build", "{d}/frames0.toml", "--store", "{d}/f.zarr"),
-                 ("frames must be a positive integer, got 0",)),
-    "unlock a running build": (("simgen", "unlock", "{held}"),
-                               ("still running (pid {pid} on this host): stop it with Ctrl-C", "kill -INT {pid}")),
-    "unlock another host": (("simgen", "unlock", "{d}/other.zarr"),
-                            ("cannot check (host elsewhere.example, pid 7)", "simgen unlock --force")),
+    "frames 0": (
+        ("simgen", "build", "{d}/frames0.toml", "--store", "{d}/f.zarr"),
+        ("frames must be a positive integer, got 0",),
+    ),
+    "unlock a running build": (
+        ("simgen", "unlock", "{held}"),
+        ("still running (pid {pid} on this host): stop it with Ctrl-C", "kill -INT {pid}"),
+    ),
+    "unlock another host": (
+        ("simgen", "unlock", "{d}/other.zarr"),
+        ("cannot check (host elsewhere.example, pid 7)", "simgen unlock --force"),
+    ),
     "build store is a file": (("simgen", "build", "{d}/spec.toml", "--store", "{d}/afile"), A_FILE),
     "unlock store is a file": (("simgen", "unlock", "{d}/afile"), A_FILE),
-    "build in a read-only folder": (("simgen", "build", "{d}/spec.toml", "--store", "{d}/readonly/s.zarr"),
-                                    ("readonly/s.zarr", "Permission denied")),
-    "unlock in a read-only store": (("simgen", "unlock", "{d}/readonly/gone.zarr"),
-                                    ("gone.zarr/.lock", "Permission denied")),
+    "build in a read-only folder": (
+        ("simgen", "build", "{d}/spec.toml", "--store", "{d}/readonly/s.zarr"),
+        ("readonly/s.zarr", "Permission denied"),
+    ),
+    "unlock in a read-only store": (
+        ("simgen", "unlock", "{d}/readonly/gone.zarr"),
+        ("gone.zarr/.lock", "Permission denied"),
+    ),
     "epochs 0": (("learner", "train", "{d}/train.toml", "--epochs", "0"), (usage("--epochs"),)),
     "train out is a file": (("learner", "train", "{d}/train.toml", "--out", "{d}/afile"), A_FILE),
-    "train out in a read-only folder": (("learner", "train", "{d}/train.toml", "--out", "{d}/readonly/run"),
-                                        ("readonly/run", "Permission denied")),
-    "samples 1": (("learner", "predict", "{d}/p.pt", "--sites", "1", "--samples", "1"),
-                  (usage("--samples"), "one draw gives no spread")),
+    "train out in a read-only folder": (
+        ("learner", "train", "{d}/train.toml", "--out", "{d}/readonly/run"),
+        ("readonly/run", "Permission denied"),
+    ),
+    "samples 1": (
+        ("learner", "predict", "{d}/p.pt", "--sites", "1", "--samples", "1"),
+        (usage("--samples"), "one draw gives no spread"),
+    ),
     "samples -1": (("learner", "predict", "{d}/p.pt", "--sites", "1", "--samples", "-1"), (usage("--samples"),)),
-}  # fmt: skip
+}
 READ_ONLY = {case for case in CASES if "read-only" in case}  # root writes there all the same
 
 

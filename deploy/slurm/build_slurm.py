@@ -114,12 +114,12 @@ def main(argv: list[str] | None = None) -> int:
         cluster.adapt(minimum_jobs=args.min_jobs, maximum_jobs=args.jobs)
         try:
             report = build(spec, args.store, scheduler=cluster.scheduler_address, retries=args.retries,
-                           on_start=lambda n, _: print(f"{n} tasks to run", flush=True))  # fmt: skip
+                           on_start=lambda n, _: print(f"{n} tasks to run", flush=True))
         except InputError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     print(f"{report.store}: {report.tasks_run}/{report.tasks_total} chunks, {report.simulations} simulations "
-          f"in {report.seconds:.0f} s")  # fmt: skip
+          f"in {report.seconds:.0f} s")
     return 0
 
 

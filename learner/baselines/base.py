@@ -29,13 +29,12 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from learner.baselines.bo import BOSettings, bayes_minimise
+from learner.personalize import Observations
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.simulator import SimulatorBackend, load_simulator
 from shared.tissue import LABEL_BORDER, LABEL_CORE, LABEL_HEALTHY, TissueFields
-
-from learner.baselines.bo import BOSettings, bayes_minimise
-from learner.personalize import Observations
 
 __all__ = [
     "A_HEALTHY",
@@ -192,10 +191,16 @@ class PersonalisationBaseline(ABC):
         best = trace.x[trace.best]
         self._mesh, self._solver = mesh, solver
         self.result = FitResult(
-            tissue=self.tissue_at(best), params=best, objective=float(trace.f[trace.best]), history=trace.f,
-            calls=len(trace.f), sequences=len(trace.f) * len(sites), seconds=time.perf_counter() - start,
-            setup_seconds=setup, simulate_seconds=spent[0],
-        )  # fmt: skip
+            tissue=self.tissue_at(best),
+            params=best,
+            objective=float(trace.f[trace.best]),
+            history=trace.f,
+            calls=len(trace.f),
+            sequences=len(trace.f) * len(sites),
+            seconds=time.perf_counter() - start,
+            setup_seconds=setup,
+            simulate_seconds=spent[0],
+        )
         return self.result
 
     def predict(self, sites: Sequence[int] | NDArray[np.integer]) -> NDArray[np.float32]:

@@ -34,9 +34,8 @@ from botorch.optim import optimize_acqf
 from gpytorch.mlls import ExactMarginalLogLikelihood
 from numpy.typing import ArrayLike, NDArray
 
-from shared.errors import InputError
-
 from learner.baselines.threads import torch_threads
+from shared.errors import InputError
 
 __all__ = ["BOSettings", "BOTrace", "bayes_minimise"]
 

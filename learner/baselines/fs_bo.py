@@ -16,12 +16,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from learner.baselines.base import A_HEALTHY, A_SCAR, PersonalisationBaseline, fields_from_excitability
+from learner.baselines.regions import DEFAULT_REGIONS, mesh_regions
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
-
-from learner.baselines.base import A_HEALTHY, A_SCAR, PersonalisationBaseline, fields_from_excitability
-from learner.baselines.regions import DEFAULT_REGIONS, mesh_regions
 
 __all__ = ["FSBO"]
 

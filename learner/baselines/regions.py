@@ -13,10 +13,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
+from learner.graph.hierarchy import _adjacency, _cluster, _undirected
 from shared.errors import InputError, MeshError
 from shared.mesh import Mesh
-
-from learner.graph.hierarchy import _adjacency, _cluster, _undirected
 
 __all__ = ["mesh_regions", "region_sizes"]
 

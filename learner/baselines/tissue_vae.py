@@ -23,9 +23,8 @@ from numpy.typing import ArrayLike, NDArray
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from shared.errors import InputError
-
 from learner.baselines.threads import torch_threads
+from shared.errors import InputError
 
 __all__ = ["TissueVAE", "train_tissue_vae"]
 

@@ -17,13 +17,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from shared.errors import InputError
-from shared.mesh import Mesh
-from shared.tissue import TissueFields
-
 from learner.baselines.base import PersonalisationBaseline, fields_from_excitability
 from learner.baselines.tissue_library import scar_library
 from learner.baselines.tissue_vae import TissueVAE, train_tissue_vae
+from shared.errors import InputError
+from shared.mesh import Mesh
+from shared.tissue import TissueFields
 
 __all__ = ["VAEBO"]
 

@@ -216,9 +216,16 @@ def _subject_meta(
     if done.shape[0] != n_chunks:
         raise SchemaError(f"subject {subject_id!r}: {done.shape[0]} done flags for {n_chunks} chunks")
     return _SubjectMeta(
-        subject_id, str(mesh_id), int(n_sites), int(n_frames), int(n_nodes), int(chunk_sites),
-        stim_nodes, observed, done,
-    )  # fmt: skip
+        subject_id,
+        str(mesh_id),
+        int(n_sites),
+        int(n_frames),
+        int(n_nodes),
+        int(chunk_sites),
+        stim_nodes,
+        observed,
+        done,
+    )
 
 
 def _refuse_missing(meta: _SubjectMeta, chunks: NDArray[np.int64] | None = None) -> None:
@@ -476,9 +483,7 @@ class EpisodeDataset(IterableDataset):
             raise InputError(f"subject index {subject!r} outside [0, {len(self.subjects)})")
         return int(subject)
 
-    def _draw(
-        self, i: int, k: int
-    ) -> tuple[tuple[NDArray[np.int64], NDArray[np.int64]], np.random.Generator]:
+    def _draw(self, i: int, k: int) -> tuple[tuple[NDArray[np.int64], NDArray[np.int64]], np.random.Generator]:
         if not _is_int(k) or not 0 <= k < self.episodes_per_subject:
             raise InputError(f"episode index k={k!r} outside [0, {self.episodes_per_subject})")
         meta, spec = self._meta[i], self.spec

@@ -98,9 +98,7 @@ class Graph:
 
     def to(self, device: torch.device | str) -> Graph:
         """A copy with every tensor on ``device``."""
-        return Graph(
-            self.edge_index.to(device), self.pseudo.to(device), self.num_nodes, self.positions.to(device)
-        )
+        return Graph(self.edge_index.to(device), self.pseudo.to(device), self.num_nodes, self.positions.to(device))
 
     def __repr__(self) -> str:
         return f"Graph(num_nodes={self.num_nodes}, num_edges={self.num_edges})"

@@ -121,8 +121,9 @@ class MetaPNS(PNS):
 
     def __init__(self, config: ModelConfig, frames: int) -> None:
         super().__init__(config, frames)
-        self.context_encoder = ContextEncoder(frames, config.channels, config.hidden, config.latent,
-                                              config.context_stride)
+        self.context_encoder = ContextEncoder(
+            frames, config.channels, config.hidden, config.latent, config.context_stride
+        )
 
     def embed(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Posterior:
         """q(c | Y) from observed sequences ``obs`` (K, T, N) and the observation mask (N,)."""

@@ -54,7 +54,7 @@ _BSR_MIN_BATCH = 32  # inference on square blocks: block-CSR from this many colu
 
 # interpolation matrices per graph: the basis costs more than the kernel matmul, and graphs are reused
 _INTERPOLATION_CACHE: weakref.WeakKeyDictionary[Graph, dict[tuple, Tensor]] = weakref.WeakKeyDictionary()
-_PATTERN_CACHE: weakref.WeakKeyDictionary[Graph, dict[tuple, "_BlockPattern"]] = weakref.WeakKeyDictionary()
+_PATTERN_CACHE: weakref.WeakKeyDictionary[Graph, dict[tuple, _BlockPattern]] = weakref.WeakKeyDictionary()
 
 
 def spline_basis(pseudo: Tensor, kernel_size: int = 3, degree: int = 1) -> tuple[Tensor, Tensor]:
@@ -166,9 +166,16 @@ def _block_pattern(graph: Graph, cin: int, cout: int, root: bool) -> _BlockPatte
     row, col = keys // (n * cin), keys % (n * cin)
     order_t = torch.argsort(col * (n * cout) + row)
     pattern = _BlockPattern(
-        n, cin, cout, degree, inverse,
-        crow=_row_pointers(row, n * cout).to(index), col=col.to(index),
-        crow_t=_row_pointers(col, n * cin).to(index), col_t=row[order_t].to(index), order_t=order_t,
+        n,
+        cin,
+        cout,
+        degree,
+        inverse,
+        crow=_row_pointers(row, n * cout).to(index),
+        col=col.to(index),
+        crow_t=_row_pointers(col, n * cin).to(index),
+        col_t=row[order_t].to(index),
+        order_t=order_t,
     )
     cache[key] = pattern
     return pattern

@@ -37,8 +37,10 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]
     except Exception as exc:  # unpickling errors have many types
         raise InputError(f"{path} is not a readable learner checkpoint: {exc}") from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
-        raise InputError(f"{path}: checkpoint format {data.get('format') if isinstance(data, dict) else '?'}, "
-                         f"this code reads format {CHECKPOINT_FORMAT}")
+        raise InputError(
+            f"{path}: checkpoint format {data.get('format') if isinstance(data, dict) else '?'}, "
+            f"this code reads format {CHECKPOINT_FORMAT}"
+        )
     if kind is not None and data.get("kind") != kind:
         raise InputError(f"{path} holds a {data.get('kind')!r}, expected a {kind!r}")
     return data

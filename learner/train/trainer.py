@@ -13,15 +13,13 @@ import json
 import math
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import torch
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
-
-from shared.errors import InputError
 
 from learner.config import LearnerConfig, config_from_mapping
 from learner.data.episodes import Episode, EpisodeDataset
@@ -31,6 +29,7 @@ from learner.runtime import set_threads, tune_allocator
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.loss import LossTerms, episode_loss
+from shared.errors import InputError
 
 __all__ = ["TrainingDiverged", "TrainResult", "Trainer", "train", "load_model"]
 
@@ -152,12 +151,26 @@ class Trainer:
         sums: dict[str, float] = {}
         norms: list[float] = []
         loader = self._episodes(self.splits["train"], self.epoch)
-        bar = tqdm(loader, total=len(self.splits["train"]), disable=not self.progress, leave=False,
-                   desc=f"epoch {self.epoch + 1}/{cfg.epochs}")  # fmt: skip
+        bar = tqdm(
+            loader,
+            total=len(self.splits["train"]),
+            disable=not self.progress,
+            leave=False,
+            desc=f"epoch {self.epoch + 1}/{cfg.epochs}",
+        )
         for n, ep in enumerate(bar, start=1):
             hier = self.view.hierarchy(ep.mesh_id, self.config.model.levels, self.config.model.coarsest)
-            terms = episode_loss(m, ep, hier, cfg.lambda1, cfg.lambda2, self._kl_weight(), self._frames(),
-                                 self.generator, cfg.posterior_targets or None)  # fmt: skip
+            terms = episode_loss(
+                m,
+                ep,
+                hier,
+                cfg.lambda1,
+                cfg.lambda2,
+                self._kl_weight(),
+                self._frames(),
+                self.generator,
+                cfg.posterior_targets or None,
+            )
             self.optimizer.zero_grad(set_to_none=True)
             terms.total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(m.parameters(), cfg.grad_clip)
@@ -182,8 +195,13 @@ class Trainer:
         subjects = self.splits["validation"] or self.splits["train"]
         self.model.eval()
         total, n = 0.0, 0
-        ds = EpisodeDataset(self.config.data.store, subjects, self.config.data.episodes,
-                            seed=self.config.train.seed, epoch=VALIDATION_EPOCH)  # fmt: skip
+        ds = EpisodeDataset(
+            self.config.data.store,
+            subjects,
+            self.config.data.episodes,
+            seed=self.config.train.seed,
+            epoch=VALIDATION_EPOCH,
+        )
         for ep in ds:
             hier = self.view.hierarchy(ep.mesh_id, self.config.model.levels, self.config.model.coarsest)
             c = self.model.embed(ep.context_obs, ep.observed, hier).mu if self.model.conditioned else None
@@ -231,8 +249,19 @@ class Trainer:
 
     def _log(self, row: dict) -> None:
         path = self.out / "log.csv"
-        keys = ["epoch", "lr", "total", "target_mse", "context_mse", "kl_posterior", "kl_prior", "grad_norm_median",
-                "grad_norm_max", "val_target_mse", "seconds"]
+        keys = [
+            "epoch",
+            "lr",
+            "total",
+            "target_mse",
+            "context_mse",
+            "kl_posterior",
+            "kl_prior",
+            "grad_norm_median",
+            "grad_norm_max",
+            "val_target_mse",
+            "seconds",
+        ]
         new = not path.exists()
         with path.open("a", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
@@ -253,8 +282,9 @@ def _resumable(config: dict) -> dict:
     return {**config, "train": train}
 
 
-def train(config: LearnerConfig, fresh: bool = False, progress: bool = True,
-          on_epoch: Callable[[dict], None] | None = None) -> TrainResult:  # fmt: skip
+def train(
+    config: LearnerConfig, fresh: bool = False, progress: bool = True, on_epoch: Callable[[dict], None] | None = None
+) -> TrainResult:
     """Train per ``config``; resumes from ``<out>/last.pt`` unless ``fresh``."""
     trainer = Trainer(config, progress)
     last = Path(config.out) / "last.pt"

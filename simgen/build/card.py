@@ -34,6 +34,7 @@ CITATIONS = (
     "Bayesian meta-learning*, MICCAI 2022 (the data setting and the surrogate).",
 )
 
+
 @dataclass(frozen=True)
 class MeshFacts:
     """Sizes of one mesh group."""
@@ -72,9 +73,10 @@ def store_facts(store: str | Path) -> StoreFacts:
     store = location.store_location(store)
     attrs = check_store(store)
     root = zarr.open_group(store, mode="r", use_consolidated=False)
-    meshes = {mesh_id: MeshFacts(g["points"].shape[0], g["cells"].shape[0], g.attrs["cell_type"],
-                                 g["stim_nodes"].shape[0])
-              for mesh_id, g in sorted(root["meshes"].groups())}  # fmt: skip
+    meshes = {
+        mesh_id: MeshFacts(g["points"].shape[0], g["cells"].shape[0], g.attrs["cell_type"], g["stim_nodes"].shape[0])
+        for mesh_id, g in sorted(root["meshes"].groups())
+    }
     subjects = {subject_id: dict(g.attrs) for subject_id, g in sorted(root["subjects"].groups())}
     return StoreFacts(attrs, meshes, subjects)
 
@@ -95,31 +97,40 @@ def short_card(facts: StoreFacts) -> str:
         written = f"Written by {prov['software']} {version} (commit {commit}) on {prov['created']}"
     else:
         written = "Provenance not recorded"
-    return "\n".join([
-        f"{name}: {len(facts.subjects)} subjects on {len(meshes)} mesh(es) of {_span([m.nodes for m in meshes])} "
-        f"nodes, {_span([m.sites for m in meshes])} stimulation sites each, {sim['frames']} frames every "
-        f"{interval:g} time units ({interval * MS_PER_TIME_UNIT:.3g} ms).",
-        f"Aliev-Panfilov model ({sim['constants']['variant']}, k = {sim['constants']['k']:g}); u dimensionless "
-        f"(V = 100 u - 80 mV), times in units of {TIME_UNITS}, lengths in mm.",
-        f"{written}; schema version {facts.version}. Full card: `simgen card STORE`.",
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            f"{name}: {len(facts.subjects)} subjects on {len(meshes)} mesh(es) of {_span([m.nodes for m in meshes])} "
+            f"nodes, {_span([m.sites for m in meshes])} stimulation sites each, {sim['frames']} frames every "
+            f"{interval:g} time units ({interval * MS_PER_TIME_UNIT:.3g} ms).",
+            f"Aliev-Panfilov model ({sim['constants']['variant']}, k = {sim['constants']['k']:g}); u dimensionless "
+            f"(V = 100 u - 80 mV), times in units of {TIME_UNITS}, lengths in mm.",
+            f"{written}; schema version {facts.version}. Full card: `simgen card STORE`.",
+        ]
+    )
 
 
 def _size(n_bytes: float) -> str:
     """Bytes in kB, MB, GB or TB (powers of 1000), three significant digits."""
-    scale, unit = next((10.0**e, u) for e, u in ((12, "TB"), (9, "GB"), (6, "MB"), (3, "kB"), (0, "B"))
-                       if n_bytes >= 10.0**e or e == 0)  # fmt: skip
+    scale, unit = next(
+        (10.0**e, u) for e, u in ((12, "TB"), (9, "GB"), (6, "MB"), (3, "kB"), (0, "B")) if n_bytes >= 10.0**e or e == 0
+    )
     return f"{n_bytes / scale:.3g} {unit}"
 
 
 def _table(header: tuple[str, ...], rows: list[tuple]) -> list[str]:
-    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
-            *("| " + " | ".join(str(c) for c in row) + " |" for row in rows)]  # fmt: skip
+    return [
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *("| " + " | ".join(str(c) for c in row) + " |" for row in rows),
+    ]
 
 
 def _scar_text(scar: dict) -> str:
-    where = (f"AHA segments {','.join(map(str, scar['segments']))}" if scar["region"] == "segments"
-             else f"sphere of {scar['radius']:g} mm")  # fmt: skip
+    where = (
+        f"AHA segments {','.join(map(str, scar['segments']))}"
+        if scar["region"] == "segments"
+        else f"sphere of {scar['radius']:g} mm"
+    )
     border = f", border {scar['border_width']:g} mm (a {scar['border']['a']:g}, D {scar['border']['D']:g})"
     return f"{where}: core a {scar['core']['a']:g}, D {scar['core']['D']:g}" + (border if scar["border_width"] else "")
 
@@ -127,10 +138,21 @@ def _scar_text(scar: dict) -> str:
 def _model(facts: StoreFacts) -> list[str]:
     sim = facts.simulation
     units = sim["units"]
-    return ["## Model", "", sim["model"] + ".", "", "```", *sim["equations"], "```", "",
-            *_table(("constant", "value"), list(sim["constants"].items())), "",
-            f"Units: lengths in {units['length']}, time in units of {units['time']}, {units['potential']}, "
-            f"diffusivity in {units['diffusivity']}.", ""]  # fmt: skip
+    return [
+        "## Model",
+        "",
+        sim["model"] + ".",
+        "",
+        "```",
+        *sim["equations"],
+        "```",
+        "",
+        *_table(("constant", "value"), list(sim["constants"].items())),
+        "",
+        f"Units: lengths in {units['length']}, time in units of {units['time']}, {units['potential']}, "
+        f"diffusivity in {units['diffusivity']}.",
+        "",
+    ]
 
 
 def _parameters(store: str, facts: StoreFacts) -> list[str]:
@@ -141,14 +163,19 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         return _span([s[key] for s in solvers]) if solvers else facts.missing()
 
     radius = sim["stimulus_radius"]
-    rows = [("diffusivity (mm2 per time unit)", f"{sim['diffusivity']:g}"),
-            ("time step dt (time units, per subject)", resolved("dt")),
-            ("solver steps per frame", resolved("steps_per_frame")),
-            ("stimulus radius (mm, per mesh)", resolved("stimulus_radius") + (" (1.5 mean edge lengths)"
-                                                                              if solvers and radius is None else "")),
-            ("stimulus duration (time units)", f"{sim['stimulus_duration']:g}"),
-            ("activation threshold (u)", f"{sim['activation_threshold']:g}"),
-            ("output interval (time units)", f"{sim['output_interval']:g}"), ("frames", sim["frames"])]  # fmt: skip
+    rows = [
+        ("diffusivity (mm2 per time unit)", f"{sim['diffusivity']:g}"),
+        ("time step dt (time units, per subject)", resolved("dt")),
+        ("solver steps per frame", resolved("steps_per_frame")),
+        (
+            "stimulus radius (mm, per mesh)",
+            resolved("stimulus_radius") + (" (1.5 mean edge lengths)" if solvers and radius is None else ""),
+        ),
+        ("stimulus duration (time units)", f"{sim['stimulus_duration']:g}"),
+        ("activation threshold (u)", f"{sim['activation_threshold']:g}"),
+        ("output interval (time units)", f"{sim['output_interval']:g}"),
+        ("frames", sim["frames"]),
+    ]
     settings: dict[str, list[str]] = {}
     for subject_id, attrs in facts.subjects.items():
         settings.setdefault(attrs["tissue"]["name"], []).append(subject_id)
@@ -160,9 +187,14 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         D = [float(f(g["D"][...])) for g in groups for f in (np.min, np.max)]
         scars = "; ".join(_scar_text(s) for s in tissue["scars"]) or "none"
         tissue_rows.append((name, len(ids), f"{tissue['healthy']['a']:g}", scars, _span(a), _span(D)))
-    return ["## Parameters", "", *_table(("setting", "value"), rows), "",
-            *_table(("tissue setting", "subjects", "healthy a", "scars", "a (nodes)", "D scale (nodes)"), tissue_rows),
-            ""]  # fmt: skip
+    return [
+        "## Parameters",
+        "",
+        *_table(("setting", "value"), rows),
+        "",
+        *_table(("tissue setting", "subjects", "healthy a", "scars", "a (nodes)", "D scale (nodes)"), tissue_rows),
+        "",
+    ]
 
 
 def _sizes(store: str, facts: StoreFacts) -> list[str]:
@@ -171,15 +203,22 @@ def _sizes(store: str, facts: StoreFacts) -> list[str]:
     values = sum(m.sites * m.nodes * (frames + 1) for m, _ in per_subject)
     steps = [m.sites * m.nodes * frames * s["solver"]["steps_per_frame"] for m, s in per_subject if "solver" in s]
     mesh_rows = [(mesh_id, m.nodes, m.cells, m.cell_type, m.sites) for mesh_id, m in facts.meshes.items()]
-    return ["## Sizes", "",
-            f"{len(facts.subjects)} subjects, {sum(m.sites for m, _ in per_subject)} simulations of {frames} frames; "
-            f"{values:,} values of u and activation ({_size(4 * values)} as float32), "
-            f"{_size(location.size(store))} on disk.", "",
-            *_table(("mesh", "nodes", "cells", "cell type", "sites"), mesh_rows), "",
-            "## Cost", "",
-            f"Solver work: {f'{sum(steps):.3g} node-steps' if len(steps) == len(per_subject) else facts.missing()}"
-            " (sites x nodes x time steps). Wall-clock build time is not stored: it would make two builds of one "
-            "spec differ.", ""]  # fmt: skip
+    return [
+        "## Sizes",
+        "",
+        f"{len(facts.subjects)} subjects, {sum(m.sites for m, _ in per_subject)} simulations of {frames} frames; "
+        f"{values:,} values of u and activation ({_size(4 * values)} as float32), "
+        f"{_size(location.size(store))} on disk.",
+        "",
+        *_table(("mesh", "nodes", "cells", "cell type", "sites"), mesh_rows),
+        "",
+        "## Cost",
+        "",
+        f"Solver work: {f'{sum(steps):.3g} node-steps' if len(steps) == len(per_subject) else facts.missing()}"
+        " (sites x nodes x time steps). Wall-clock build time is not stored: it would make two builds of one "
+        "spec differ.",
+        "",
+    ]
 
 
 def _statistics(facts: StoreFacts) -> list[str]:
@@ -187,11 +226,23 @@ def _statistics(facts: StoreFacts) -> list[str]:
     if stats is None:
         return ["## Statistics", "", facts.missing("not available while chunks are pending") + ".", ""]
     units = {"u": "1 (V = 100 u - 80 mV)", "activation": TIME_UNITS}
-    rows = [(name, units[name], s["count"], *(f"{s[k]:.6g}" if s[k] is not None else "-"
-                                            for k in ("mean", "std", "min", "max")))
-            for name, s in stats.items()]  # fmt: skip
-    return ["## Statistics", "", "Over every finite value of the store (per subject: subject attribute `statistics`).",
-            "", *_table(("variable", "units", "count", "mean", "std", "min", "max"), rows), ""]  # fmt: skip
+    rows = [
+        (
+            name,
+            units[name],
+            s["count"],
+            *(f"{s[k]:.6g}" if s[k] is not None else "-" for k in ("mean", "std", "min", "max")),
+        )
+        for name, s in stats.items()
+    ]
+    return [
+        "## Statistics",
+        "",
+        "Over every finite value of the store (per subject: subject attribute `statistics`).",
+        "",
+        *_table(("variable", "units", "count", "mean", "std", "min", "max"), rows),
+        "",
+    ]
 
 
 def _split(facts: StoreFacts) -> list[str]:
@@ -200,17 +251,25 @@ def _split(facts: StoreFacts) -> list[str]:
         return ["## Canonical split", "", facts.missing() + ".", ""]
     rule = facts.attrs["split"]
     counts = ", ".join(f"{part} {parts.count(part)}" for part in rule["fractions"])
-    return ["## Canonical split", "", f"Subjects: {counts}. Rule: {rule['method']}; fractions {rule['fractions']}.",
-            ""]  # fmt: skip
+    return ["## Canonical split", "", f"Subjects: {counts}. Rule: {rule['method']}; fractions {rule['fractions']}.", ""]
 
 
 def _provenance(facts: StoreFacts) -> list[str]:
     prov = facts.attrs.get("provenance")
-    rows = ([("software", f"{prov['software']} {prov['version'] or '(version unknown)'}"),
-             ("git commit", prov["git_commit"] or "unknown"),
-             ("created", prov["created"])] if prov else [("provenance", facts.missing())])  # fmt: skip
-    rows += [("schema version", facts.version), ("spec hash", facts.attrs["spec_hash"]),
-             ("complete", facts.attrs.get("complete"))]  # fmt: skip
+    rows = (
+        [
+            ("software", f"{prov['software']} {prov['version'] or '(version unknown)'}"),
+            ("git commit", prov["git_commit"] or "unknown"),
+            ("created", prov["created"]),
+        ]
+        if prov
+        else [("provenance", facts.missing())]
+    )
+    rows += [
+        ("schema version", facts.version),
+        ("spec hash", facts.attrs["spec_hash"]),
+        ("complete", facts.attrs.get("complete")),
+    ]
     for entry in facts.attrs.get("added", []):
         when = (entry.get("provenance") or {}).get("created", "date not recorded")
         rows.append((f"added mesh {entry['mesh']['id']}", f"{', '.join(entry['subjects'])} ({when})"))
@@ -219,8 +278,10 @@ def _provenance(facts: StoreFacts) -> list[str]:
 
 def _citation(facts: StoreFacts) -> list[str]:
     prov = facts.attrs.get("provenance") or {}
-    dataset = (f"The dataset: \"{facts.attrs['spec']['name']}\", generated by metaPNS simgen "
-               f"{prov.get('version') or ''} (spec hash {facts.attrs['spec_hash'][:12]}).")  # fmt: skip
+    dataset = (
+        f'The dataset: "{facts.attrs["spec"]["name"]}", generated by metaPNS simgen '
+        f"{prov.get('version') or ''} (spec hash {facts.attrs['spec_hash'][:12]})."
+    )
     return ["## How to cite", "", *(f"- {c}" for c in (*CITATIONS, dataset)), ""]
 
 
@@ -228,6 +289,18 @@ def dataset_card(store: str | Path) -> str:
     """The Markdown dataset card of ``store`` (a folder or an fsspec URL)."""
     store = location.store_location(store)
     facts = store_facts(store)
-    return "\n".join([f"# Dataset card: {facts.attrs['spec']['name']}", "", short_card(facts), "",
-                      *_model(facts), *_parameters(store, facts), *_sizes(store, facts), *_statistics(facts),
-                      *_split(facts), *_provenance(facts), *_citation(facts)])  # fmt: skip
+    return "\n".join(
+        [
+            f"# Dataset card: {facts.attrs['spec']['name']}",
+            "",
+            short_card(facts),
+            "",
+            *_model(facts),
+            *_parameters(store, facts),
+            *_sizes(store, facts),
+            *_statistics(facts),
+            *_split(facts),
+            *_provenance(facts),
+            *_citation(facts),
+        ]
+    )

@@ -34,8 +34,8 @@ from __future__ import annotations
 import hashlib
 import re
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import zarr
@@ -50,8 +50,8 @@ from simgen.build.metadata import provenance
 from simgen.build.runner import BuildReport, run_pending
 from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection, spec_from_mapping
 from simgen.build.store import (
-    consolidate_metadata,
     check_store,
+    consolidate_metadata,
     remove_partials,
     spec_dict_of,
     write_mesh_group,
@@ -196,8 +196,11 @@ def add_subject(
         electrodes = sock_electrodes(m, spec.output.sock_electrodes)
         subjects = [Subject(sid, mesh.id, s) for sid, s in zip(new_ids, settings)]
         size = spec.output.chunk_sites
-        tasks = [Task(s.id, k, a, min(a + size, len(site_nodes)))
-                 for s in subjects for k, a in enumerate(range(0, len(site_nodes), size))]  # fmt: skip
+        tasks = [
+            Task(s.id, k, a, min(a + size, len(site_nodes)))
+            for s in subjects
+            for k, a in enumerate(range(0, len(site_nodes), size))
+        ]
         plan = Plan(spec, {mesh.id: m}, {mesh.id: site_nodes}, {mesh.id: electrodes}, subjects, tasks)
         setups = validate_plan(plan)
         record = {
@@ -287,4 +290,3 @@ def regenerate(
         consolidate_metadata(store)  # in case an interrupted edit left groups unlisted there
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=subjects)
         return _finish(report, start)
-

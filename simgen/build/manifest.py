@@ -192,9 +192,7 @@ def validate_plan(plan: Plan) -> dict[str, SubjectSetup]:
         for what, ids in (("stimulation node", plan.sites[mesh_id]), ("electrode", plan.electrodes[mesh_id])):
             bad = ids[(ids < 0) | (ids >= mesh.n_nodes)]
             if bad.size:
-                raise StimulusError(
-                    f"{what} {int(bad[0])} is out of range for mesh {mesh_id!r} ({mesh.n_nodes} nodes)"
-                )
+                raise StimulusError(f"{what} {int(bad[0])} is out of range for mesh {mesh_id!r} ({mesh.n_nodes} nodes)")
     per_mesh = {}  # what every subject of a mesh shares: element gradients, edge graph
     setups = {}
     solver = plan.spec.solver

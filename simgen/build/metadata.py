@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import subprocess
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -49,8 +49,9 @@ def _version() -> str | None:
 def _git_commit() -> str | None:
     """HEAD of the git checkout holding this package, or ``None`` (no git, not a checkout)."""
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                             text=True, timeout=10)  # fmt: skip
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=10
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() if out.returncode == 0 else None
@@ -60,9 +61,9 @@ def _created() -> str:
     """Now, or ``SOURCE_DATE_EPOCH`` (seconds since 1970) when set, as ``YYYY-MM-DDTHH:MM:SS+00:00``."""
     epoch = os.environ.get("SOURCE_DATE_EPOCH")
     if epoch is None:
-        when = datetime.now(timezone.utc)
+        when = datetime.now(UTC)
     elif epoch.isdigit():
-        when = datetime.fromtimestamp(int(epoch), timezone.utc)
+        when = datetime.fromtimestamp(int(epoch), UTC)
     else:
         raise ConfigError(f"SOURCE_DATE_EPOCH must be a whole number of seconds since 1970, got {epoch!r}")
     return when.isoformat(timespec="seconds")
@@ -80,9 +81,14 @@ def simulation_attrs(solver: SolverConfig) -> dict:
         "activation_threshold": solver.activation_threshold,
         "output_interval": solver.output_interval,
         "frames": solver.frames,
-        "units": {"length": "mm", "time": TIME_UNITS, "ms_per_time_unit": MS_PER_TIME_UNIT,
-                  "potential": "u dimensionless, V = 100 u - 80 mV", "diffusivity": f"mm2 / ({TIME_UNITS})"},
-    }  # fmt: skip
+        "units": {
+            "length": "mm",
+            "time": TIME_UNITS,
+            "ms_per_time_unit": MS_PER_TIME_UNIT,
+            "potential": "u dimensionless, V = 100 u - 80 mV",
+            "diffusivity": f"mm2 / ({TIME_UNITS})",
+        },
+    }
 
 
 def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:

@@ -13,10 +13,10 @@ from __future__ import annotations
 import os
 import time
 from collections import Counter
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
 
 from distributed import Client, LocalCluster, as_completed
 
@@ -30,7 +30,15 @@ from simgen.build.store import chunk_tasks, consolidate, create_layout, pending_
 from simgen.build.worker import flush_writes, run_task
 from simgen.solver.simulate import SolverConfig
 
-__all__ = ["BuildFailed", "BuildReport", "build", "run_pending", "dask_client", "single_thread_env", "SINGLE_THREAD_ENV"]
+__all__ = [
+    "BuildFailed",
+    "BuildReport",
+    "build",
+    "run_pending",
+    "dask_client",
+    "single_thread_env",
+    "SINGLE_THREAD_ENV",
+]
 
 #: Environment for worker processes: one thread each for BLAS and numba.
 SINGLE_THREAD_ENV = {
@@ -80,8 +88,11 @@ def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
         with Client(scheduler) as client:
             yield client
         return
-    with single_thread_env(), LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0") as cluster, Client(cluster) as client:  # fmt: skip
+    with (
+        single_thread_env(),
+        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
         yield client
 
 
@@ -149,11 +160,22 @@ def _run_round(
     """
     home = subject_workers(tasks, list(client.scheduler_info()["workers"]))
     futures = {
-        client.submit(run_task, store, t.subject_id, t.chunk, t.start, t.stop, solver,
-                      key=f"simgen-{t.subject_id}-{t.chunk}", retries=retries, pure=False,
-                      workers=home.get(t.subject_id), allow_other_workers=t.subject_id in home): t
+        client.submit(
+            run_task,
+            store,
+            t.subject_id,
+            t.chunk,
+            t.start,
+            t.stop,
+            solver,
+            key=f"simgen-{t.subject_id}-{t.chunk}",
+            retries=retries,
+            pure=False,
+            workers=home.get(t.subject_id),
+            allow_other_workers=t.subject_id in home,
+        ): t
         for t in tasks
-    }  # fmt: skip
+    }
     errors = {}
     for future in as_completed(futures):
         task = futures[future]

@@ -16,17 +16,17 @@ Example (TOML)::
 
     [[meshes]]
     id = "lv"
-    source = "lv"      # or "biv", or a mesh file (relative to the spec file)
+    source = "lv"  # or "biv", or a mesh file (relative to the spec file)
     nodes = 1000
 
-    [[meshes]]         # 12 random BiV anatomies, ids "biv-000" .. "biv-011"
+    [[meshes]]  # 12 random BiV anatomies, ids "biv-000" .. "biv-011"
     id = "biv"
     source = "biv"
-    shape = "random"   # or "default" (shape_params, if any, override the defaults)
+    shape = "random"  # or "default" (shape_params, if any, override the defaults)
     count = 12
     seed = 3
     [meshes.shape_params]
-    wall_thickness = 9.0   # fixed; the others are drawn (docs/anatomies.md)
+    wall_thickness = 9.0  # fixed; the others are drawn (docs/anatomies.md)
 
     [sites]
     count = 20

@@ -54,8 +54,13 @@ def combine(moments: NDArray[np.float64]) -> dict:
         return {"count": 0, "mean": None, "std": None, "min": None, "max": None}
     mean = math.fsum(col["sum"]) / count
     variance = max(math.fsum(col["sum_sq"]) / count - mean * mean, 0.0)
-    return {"count": count, "mean": mean, "std": math.sqrt(variance), "min": float(col["min"].min()),
-            "max": float(col["max"].max())}  # fmt: skip
+    return {
+        "count": count,
+        "mean": mean,
+        "std": math.sqrt(variance),
+        "min": float(col["min"].min()),
+        "max": float(col["max"].max()),
+    }
 
 
 def statistics(moments: NDArray[np.float64]) -> dict[str, dict]:

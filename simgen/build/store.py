@@ -27,6 +27,7 @@ from zarr.storage import MemoryStore
 from shared.config import to_mapping
 from shared.errors import InputError
 from shared.mesh import Mesh
+from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from shared.schema import (
     MESH_ARRAYS,
     MESH_INDEX_SETS,
@@ -40,7 +41,6 @@ from shared.schema import (
     mesh_path,
     subject_path,
 )
-from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from shared.split import canonical_part, split_rule
 from shared.units import MS_PER_TIME_UNIT
 from simgen.build import location
@@ -93,8 +93,15 @@ def _compressors(kind: str, level: int) -> tuple[Any, ...]:
 
 def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...], chunks=None, **kw) -> zarr.Array:
     spec = spec_table[name]
-    return group.create_array(name, shape=shape, chunks=chunks or shape, dtype=spec.dtype, dimension_names=spec.dims,
-                              attributes=array_attributes(spec_table, name), **kw)  # fmt: skip
+    return group.create_array(
+        name,
+        shape=shape,
+        chunks=chunks or shape,
+        dtype=spec.dtype,
+        dimension_names=spec.dims,
+        attributes=array_attributes(spec_table, name),
+        **kw,
+    )
 
 
 def create_layout(
@@ -127,17 +134,28 @@ def create_layout(
             remove_partials(path)
             return False
         if not force:
-            why = (f"was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
-                   f"this spec {spec_hash[:12]}...)" if attrs.get("spec_hash") != spec_hash else
-                   f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}")  # fmt: skip
+            why = (
+                f"was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
+                f"this spec {spec_hash[:12]}...)"
+                if attrs.get("spec_hash") != spec_hash
+                else f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}"
+            )
             raise StoreMismatch(f"store {path} {why}; use a new store path or --force to replace it")
         location.clear(path, keep={LOCK_NAME})  # the lock stays: this build still holds the store
     elif any(name != LOCK_NAME for name in location.entries(path)):
         raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
     root = zarr.open_group(path, mode="a", zarr_format=3)
-    root.attrs.update({"schema_version": SCHEMA_VERSION, "spec": spec_dict, "spec_hash": spec_hash, "complete": False,
-                       "provenance": provenance(), "simulation": simulation_attrs(plan.spec.solver),
-                       "split": split_rule()})  # fmt: skip
+    root.attrs.update(
+        {
+            "schema_version": SCHEMA_VERSION,
+            "spec": spec_dict,
+            "spec_hash": spec_hash,
+            "complete": False,
+            "provenance": provenance(),
+            "simulation": simulation_attrs(plan.spec.solver),
+            "split": split_rule(),
+        }
+    )
     shape_params = {m.id: m.shape_params for m in plan.spec.meshes}
     for mesh_id, mesh in plan.meshes.items():
         group = write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
@@ -188,20 +206,36 @@ def write_subject_groups(
     """
     nodes: dict[str, Any] = {}
     for s in subjects:
-        attrs = {"mesh_id": s.mesh_id, "tissue": spec_dict_of(s.tissue), "chunk_sites": output.chunk_sites,
-                 "solver": solver_attrs(setups[s.id], solver), "split": canonical_part(s.id)}  # fmt: skip
+        attrs = {
+            "mesh_id": s.mesh_id,
+            "tissue": spec_dict_of(s.tissue),
+            "chunk_sites": output.chunk_sites,
+            "solver": solver_attrs(setups[s.id], solver),
+            "split": canonical_part(s.id),
+        }
         nodes[subject_path(s.id)] = GroupMetadata(attributes=attrs)
-        for name, (shape, chunks) in subject_shapes(meshes[s.mesh_id].n_nodes, len(sites[s.mesh_id]), output,
-                                                     solver).items():  # fmt: skip
-            nodes[f"{subject_path(s.id)}/{name}"] = _subject_metadata(name, shape, chunks, output.compressor,
-                                                                      output.level)  # fmt: skip
+        for name, (shape, chunks) in subject_shapes(
+            meshes[s.mesh_id].n_nodes, len(sites[s.mesh_id]), output, solver
+        ).items():
+            nodes[f"{subject_path(s.id)}/{name}"] = _subject_metadata(
+                name, shape, chunks, output.compressor, output.level
+            )
     arrays = dict(zarr.create_hierarchy(store=root.store, nodes=nodes))
     times = solver.output_interval * np.arange(1, solver.frames + 1)
 
     def write_fields(s: Subject) -> None:
         f, points = setups[s.id].fields, meshes[s.mesh_id].points
-        values = {"a": f.a, "D": f.D, "label": f.label, "times": times, "time_ms": times * MS_PER_TIME_UNIT,
-                  "site": sites[s.mesh_id], "x": points[:, 0], "y": points[:, 1], "z": points[:, 2]}  # fmt: skip
+        values = {
+            "a": f.a,
+            "D": f.D,
+            "label": f.label,
+            "times": times,
+            "time_ms": times * MS_PER_TIME_UNIT,
+            "site": sites[s.mesh_id],
+            "x": points[:, 0],
+            "y": points[:, 1],
+            "z": points[:, 2],
+        }
         for name, value in values.items():
             arrays[f"{subject_path(s.id)}/{name}"][...] = np.asarray(value, SUBJECT_ARRAYS[name].dtype)
 
@@ -216,11 +250,21 @@ def subject_shapes(
     chunk, n_chunks = min(output.chunk_sites, n_sites), -(-n_sites // output.chunk_sites)
     field, frames = ((n_nodes,), (n_nodes,)), ((solver.frames,), (solver.frames,))
     moments = (len(MOMENT_VARIABLES), len(MOMENTS))
-    return {"a": field, "D": field, "label": field, "x": field, "y": field, "z": field,
-            "u": ((n_sites, solver.frames, n_nodes), (chunk, solver.frames, n_nodes)),
-            "activation": ((n_sites, n_nodes), (chunk, n_nodes)),
-            "done": ((n_chunks,), (1,)), "moments": ((n_chunks, *moments), (1, *moments)),
-            "times": frames, "time_ms": frames, "site": ((n_sites,), (n_sites,))}  # fmt: skip
+    return {
+        "a": field,
+        "D": field,
+        "label": field,
+        "x": field,
+        "y": field,
+        "z": field,
+        "u": ((n_sites, solver.frames, n_nodes), (chunk, solver.frames, n_nodes)),
+        "activation": ((n_sites, n_nodes), (chunk, n_nodes)),
+        "done": ((n_chunks,), (1,)),
+        "moments": ((n_chunks, *moments), (1, *moments)),
+        "times": frames,
+        "time_ms": frames,
+        "site": ((n_sites,), (n_sites,)),
+    }
 
 
 @lru_cache(maxsize=64)
@@ -338,8 +382,10 @@ def chunk_tasks(path: str | Path, subjects: list[str] | None = None) -> dict[Tas
     def chunks(subject_id: str) -> dict[Task, bool]:
         g = root[subject_path(subject_id)]
         n_sites, size = g["u"].shape[0], int(g.attrs["chunk_sites"])
-        return {Task(subject_id, k, k * size, min((k + 1) * size, n_sites)): bool(flag)
-                for k, flag in enumerate(g["done"][...])}  # fmt: skip
+        return {
+            Task(subject_id, k, k * size, min((k + 1) * size, n_sites)): bool(flag)
+            for k, flag in enumerate(g["done"][...])
+        }
 
     with ThreadPoolExecutor(IO_THREADS) as pool:
         found = pool.map(chunks, subjects if subjects is not None else subject_ids(path))

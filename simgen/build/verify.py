@@ -14,9 +14,9 @@ the spec produces.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import zarr
@@ -87,8 +87,11 @@ def _layout_problems(root: zarr.Group, subject_id: str, spec: BuildSpec, version
         if version == SCHEMA_VERSION:
             found["attributes"] = {k: arr.attrs.get(k) for k in ("units", "long_name", "coordinates")}
             expected["attributes"] = {"coordinates": None, **array_attributes(SUBJECT_ARRAYS, name)}
-        problems += [f"subject {subject_id}: {name} has {key} {found[key]}, schema expects {expected[key]}"
-                     for key in expected if found[key] != expected[key]]  # fmt: skip
+        problems += [
+            f"subject {subject_id}: {name} has {key} {found[key]}, schema expects {expected[key]}"
+            for key in expected
+            if found[key] != expected[key]
+        ]
     if version == SCHEMA_VERSION and not problems:
         problems += _metadata_problems(g, m, subject_id)
     return problems
@@ -97,13 +100,21 @@ def _layout_problems(root: zarr.Group, subject_id: str, spec: BuildSpec, version
 def _metadata_problems(g: zarr.Group, m: zarr.Group, subject_id: str) -> list[str]:
     """Coordinates that disagree with the mesh, a wrong canonical split part, missing solver settings."""
     points = m["points"][...]
-    expected = {"site": m["stim_nodes"][...], "time_ms": g["times"][...] * MS_PER_TIME_UNIT,
-                **{axis: points[:, i] for i, axis in enumerate("xyz")}}  # fmt: skip
-    problems = [f"subject {subject_id}: coordinate {name} disagrees with the mesh and times"
-                for name, values in expected.items() if not np.array_equal(g[name][...], values)]  # fmt: skip
+    expected = {
+        "site": m["stim_nodes"][...],
+        "time_ms": g["times"][...] * MS_PER_TIME_UNIT,
+        **{axis: points[:, i] for i, axis in enumerate("xyz")},
+    }
+    problems = [
+        f"subject {subject_id}: coordinate {name} disagrees with the mesh and times"
+        for name, values in expected.items()
+        if not np.array_equal(g[name][...], values)
+    ]
     if g.attrs.get("split") != canonical_part(subject_id):
-        problems.append(f"subject {subject_id}: split attribute {g.attrs.get('split')!r}, the canonical split "
-                        f"assigns {canonical_part(subject_id)!r}")  # fmt: skip
+        problems.append(
+            f"subject {subject_id}: split attribute {g.attrs.get('split')!r}, the canonical split "
+            f"assigns {canonical_part(subject_id)!r}"
+        )
     if not {"dt", "steps_per_frame", "stimulus_radius"} <= set(g.attrs.get("solver") or {}):
         problems.append(f"subject {subject_id}: solver attribute missing or incomplete")
     return problems
@@ -130,8 +141,9 @@ def _value_problems(ref: ChunkRef, u: NDArray, activation: NDArray) -> list[str]
     with np.errstate(invalid="ignore"):
         outside = int(((u < lo) | (u > hi)).sum())
     if outside:
-        problems.append(f"{ref}: u has {outside} values outside [{lo}, {hi}] "
-                        f"(min {np.nanmin(u):.3g}, max {np.nanmax(u):.3g})")  # fmt: skip
+        problems.append(
+            f"{ref}: u has {outside} values outside [{lo}, {hi}] (min {np.nanmin(u):.3g}, max {np.nanmax(u):.3g})"
+        )
     if np.isinf(activation).any():
         problems.append(f"{ref}: activation has {int(np.isinf(activation).sum())} infinite values")
     return problems

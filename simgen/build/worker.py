@@ -26,7 +26,7 @@ from simgen.solver.simulate import Simulator, SolverConfig
 
 __all__ = ["Prepared", "prepare", "run_task", "BackgroundWriter", "flush_writes"]
 
-_CACHE: OrderedDict[tuple, "Prepared"] = OrderedDict()
+_CACHE: OrderedDict[tuple, Prepared] = OrderedDict()
 _CACHE_SIZE = 4
 
 

@@ -19,8 +19,9 @@ prisms whose vertical edges collapsed become pyramids or tetrahedra
 (zero-volume pieces are dropped). RV walls thinner than 0.45 spacings are
 collapsed (or thickened to that where they border the cavity), so no RV
 element is flatter than that; cavities shallower than 0.15 spacings are
-filled, so the two cavity surfaces never nearly touch. Where a cavity column would still pinch the boundary (non-manifold edge or
-vertex), the cavity columns around it are filled and the mesh rebuilt.
+filled, so the two cavity surfaces never nearly touch. Where a cavity column
+would still pinch the boundary (non-manifold edge or vertex), the cavity
+columns around it are filled and the mesh rebuilt.
 
 The LV deformations (:meth:`LVGeometry.column_shift`: apex offset, bumps)
 translate every node of a column, RV nodes included, once the mesh is built.
@@ -173,9 +174,7 @@ def _rv_columns(
     return endo, d, length, start, wall, cavity
 
 
-def _columns(
-    geom: BiVGeometry, spacing: float, layers: int, rv_layers: int, demoted: NDArray | None
-) -> _Columns:
+def _columns(geom: BiVGeometry, spacing: float, layers: int, rv_layers: int, demoted: NDArray | None) -> _Columns:
     """Nodes: ``L + 1`` LV layers, then RV cavity-side nodes, then RV layers 1..L_rv."""
     lv = geom.lv
     st, tris, ring = parametric_triangulation(lv, spacing)

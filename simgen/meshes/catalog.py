@@ -39,6 +39,4 @@ def get_mesh(
     path = Path(source)
     if path.suffix and path.exists():
         return load_mesh(path, name=name or path.stem)
-    raise MeshError(
-        f"unknown mesh {source!r}: use one of {sorted(GENERATORS)} or the path of an existing mesh file"
-    )
+    raise MeshError(f"unknown mesh {source!r}: use one of {sorted(GENERATORS)} or the path of an existing mesh file")

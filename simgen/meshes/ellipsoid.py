@@ -173,13 +173,15 @@ def parametric_triangulation(geom: LVGeometry, spacing: float) -> tuple[NDArray,
     grid = np.linspace(0.0, 1.0, 2001)
     density = geom.mid_area_density(grid)
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(grid))])
-    area = cdf[-1]
     cell_area = np.sqrt(3.0) / 2.0 * spacing**2
     # Interior points stop half a spacing short of the base ring to avoid slivers.
-    length_per_s = np.linalg.norm(
-        geom.surface_point(np.array(1.0), np.array(0.0), 0.5)
-        - geom.surface_point(np.array(0.99), np.array(0.0), 0.5)
-    ) / 0.01
+    length_per_s = (
+        np.linalg.norm(
+            geom.surface_point(np.array(1.0), np.array(0.0), 0.5)
+            - geom.surface_point(np.array(0.99), np.array(0.0), 0.5)
+        )
+        / 0.01
+    )
     s_gap = 0.5 * spacing / length_per_s
     area_inner = np.interp(1.0 - s_gap, grid, cdf)
     n_inner = max(int(round(area_inner / cell_area)), 8)

@@ -72,9 +72,7 @@ def mesh_problems(mesh: Mesh) -> list[str]:
     diag = float(np.linalg.norm(np.ptp(points, axis=0)))
     pairs = cKDTree(points).query_pairs(DUPLICATE_NODE_RTOL * max(diag, 1e-300), output_type="ndarray")
     if len(pairs):
-        problems.append(
-            f"{len(pairs)} duplicate node pair(s) (coincident coordinates), first {pairs[:_SHOW].tolist()}"
-        )
+        problems.append(f"{len(pairs)} duplicate node pair(s) (coincident coordinates), first {pairs[:_SHOW].tolist()}")
 
     size = _cell_sizes(points, cells)
     ratio = _size_ratio(points, cells, size)
@@ -167,10 +165,7 @@ def _manifold_defects(cells: NDArray[np.int64]) -> list[tuple[str, NDArray[np.in
                 f"two boundary triangles, first {e[:_SHOW].tolist()}"
             )
         else:
-            message = (
-                f"{len(e)} edge(s) shared by more than two triangles (non-manifold), "
-                f"first {e[:_SHOW].tolist()}"
-            )
+            message = f"{len(e)} edge(s) shared by more than two triangles (non-manifold), first {e[:_SHOW].tolist()}"
         return defects + [(message, e)]
     pinched = _pinched_vertices(surface, inverse, counts)
     if len(pinched):

@@ -42,9 +42,7 @@ def make_observation(kind: str, **kwargs: Any) -> ObservationOperator:
     try:
         cls = OBSERVATION_KINDS[kind]
     except (KeyError, TypeError):
-        raise InputError(
-            f"unknown observation kind {kind!r}; allowed kinds: {', '.join(OBSERVATION_KINDS)}"
-        ) from None
+        raise InputError(f"unknown observation kind {kind!r}; allowed kinds: {', '.join(OBSERVATION_KINDS)}") from None
     try:
         return cls(**kwargs)
     except TypeError as exc:

@@ -36,9 +36,7 @@ class ObservationOperator(ABC):
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.noise_std) or self.noise_std < 0:
-            raise InputError(
-                f"observation {self.name!r}: noise_std must be finite and >= 0, got {self.noise_std}"
-            )
+            raise InputError(f"observation {self.name!r}: noise_std must be finite and >= 0, got {self.noise_std}")
 
     @abstractmethod
     def indices(self, mesh: Mesh) -> NDArray[np.int32]:
@@ -50,9 +48,7 @@ class ObservationOperator(ABC):
         out[self.indices(mesh)] = True
         return out
 
-    def observe(
-        self, mesh: Mesh, u: ArrayLike, rng: np.random.Generator | None = None
-    ) -> NDArray[np.float32]:
+    def observe(self, mesh: Mesh, u: ArrayLike, rng: np.random.Generator | None = None) -> NDArray[np.float32]:
         """Observed values ``u[..., indices]`` (float32) plus noise.
 
         Parameters

@@ -46,9 +46,7 @@ class APParams:
             raise InputError(f"Aliev-Panfilov parameter mu1={self.mu1} must be finite and >= 0")
 
 
-def reaction(
-    u: NDArray, v: NDArray, a: NDArray | float, p: APParams = APParams()
-) -> tuple[NDArray, NDArray]:
+def reaction(u: NDArray, v: NDArray, a: NDArray | float, p: APParams = APParams()) -> tuple[NDArray, NDArray]:
     """Right-hand sides of the cell model (without diffusion)."""
     du = p.k * u * (1.0 - u) * (u - a) - u * v
     eps = p.eps0 + p.mu1 * v / (u + p.mu2) if p.variant == "standard" else p.eps_simple
@@ -59,4 +57,3 @@ def reaction(
 def front_speed(D: float, a: float, k: float = 8.0) -> float:
     """Planar front speed of the excitation (recovery neglected): ``sqrt(2kD)(1/2 - a)``."""
     return float(np.sqrt(2.0 * k * D) * (0.5 - a))
-

@@ -119,8 +119,25 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
 
 @njit(cache=True, **_FAST)
 def _run_block(
-    indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, perm,
-    frames, act,
+    indptr,
+    indices,
+    data,
+    diag,
+    a,
+    u_init,
+    stim,
+    stim_steps,
+    n_steps,
+    out_every,
+    dt,
+    k,
+    eps0,
+    mu1,
+    mu2,
+    thr,
+    perm,
+    frames,
+    act,
 ):  # pragma: no cover - compiled
     n, b = u_init.shape
     u = u_init.copy()
@@ -156,8 +173,25 @@ def _run_block(
 # nogil: a build worker's writer thread (simgen.build.worker.BackgroundWriter) runs while a chunk simulates
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def run_blocks(
-    indptr, indices, data, diag, a, u_init, stim, stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2, thr, perm,
-    frames, act,
+    indptr,
+    indices,
+    data,
+    diag,
+    a,
+    u_init,
+    stim,
+    stim_steps,
+    n_steps,
+    out_every,
+    dt,
+    k,
+    eps0,
+    mu1,
+    mu2,
+    thr,
+    perm,
+    frames,
+    act,
 ):  # pragma: no cover - compiled
     """Integrate ``n_steps`` steps for every block of sites.
 
@@ -177,6 +211,23 @@ def run_blocks(
     """
     for blk in prange(u_init.shape[0]):
         _run_block(
-            indptr, indices, data, diag, a, u_init[blk], stim[blk], stim_steps, n_steps, out_every, dt, k, eps0, mu1, mu2,
-            thr, perm, frames[blk], act[blk],
+            indptr,
+            indices,
+            data,
+            diag,
+            a,
+            u_init[blk],
+            stim[blk],
+            stim_steps,
+            n_steps,
+            out_every,
+            dt,
+            k,
+            eps0,
+            mu1,
+            mu2,
+            thr,
+            perm,
+            frames[blk],
+            act[blk],
         )

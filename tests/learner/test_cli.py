@@ -10,9 +10,8 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from shared.reader import read_sites
-
 from learner.cli import app
+from shared.reader import read_sites
 
 runner = CliRunner()
 
@@ -49,8 +48,9 @@ epochs = 2
 
 
 def test_train_takes_a_seed_and_curves_plot_the_runs(trained):
-    result = runner.invoke(app, ["train", str(trained / "train.toml"), "--seed", "3", "--epochs", "1",
-                                 "--out", str(trained / "seed3")])  # fmt: skip
+    result = runner.invoke(
+        app, ["train", str(trained / "train.toml"), "--seed", "3", "--epochs", "1", "--out", str(trained / "seed3")]
+    )
     assert result.exit_code == 0, result.output
     assert json.loads((trained / "seed3" / "config.json").read_text())["train"]["seed"] == 3
     png = trained / "curves.png"
@@ -63,8 +63,20 @@ def test_train_takes_a_seed_and_curves_plot_the_runs(trained):
 
 def test_evaluate_writes_json_and_markdown(trained, tiny_store):
     out = trained / "eval"
-    result = runner.invoke(app, ["evaluate", str(trained / "run" / "best.pt"), str(tiny_store), "--out", str(out),
-                                 "--sets", "2", "--max-targets", "3"])  # fmt: skip
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            str(trained / "run" / "best.pt"),
+            str(tiny_store),
+            "--out",
+            str(out),
+            "--sets",
+            "2",
+            "--max-targets",
+            "3",
+        ],
+    )
     assert result.exit_code == 0, result.output
     report = json.loads((out / "evaluation.json").read_text())
     assert set(report["overall"]) == {"context", "target"}
@@ -76,14 +88,39 @@ def test_evaluate_writes_json_and_markdown(trained, tiny_store):
 def test_personalize_then_predict_with_vtk(trained, tiny_store):
     sites = read_sites(tiny_store, "lv")
     person = trained / "p.pt"
-    result = runner.invoke(app, ["personalize", str(trained / "run" / "best.pt"), "--out", str(person),
-                                 "--store", str(tiny_store), "--subject", "lv-scar-apex",
-                                 "--sites", f"{sites[0]},{sites[3]}"])  # fmt: skip
+    result = runner.invoke(
+        app,
+        [
+            "personalize",
+            str(trained / "run" / "best.pt"),
+            "--out",
+            str(person),
+            "--store",
+            str(tiny_store),
+            "--subject",
+            "lv-scar-apex",
+            "--sites",
+            f"{sites[0]},{sites[3]}",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert torch.load(person, weights_only=True)["kind"] == "personalized"
     out = trained / "pred.npz"
-    result = runner.invoke(app, ["predict", str(person), "--sites", f"{sites[5]}", "--out", str(out),
-                                 "--vtk", str(trained / "vtk"), "--samples", "3"])  # fmt: skip
+    result = runner.invoke(
+        app,
+        [
+            "predict",
+            str(person),
+            "--sites",
+            f"{sites[5]}",
+            "--out",
+            str(out),
+            "--vtk",
+            str(trained / "vtk"),
+            "--samples",
+            "3",
+        ],
+    )
     assert result.exit_code == 0, result.output
     data = np.load(out)
     assert data["u"].shape == (1, 12, 520) and data["spread"].shape == (1, 12, 520)
@@ -100,8 +137,18 @@ def test_personalize_then_predict_with_vtk(trained, tiny_store):
     ],
 )
 def test_personalize_refuses_bad_input(trained, tiny_store, args, message):
-    result = runner.invoke(app, ["personalize", str(trained / "run" / "best.pt"), "--out", str(trained / "x.pt"),
-                                 "--store", str(tiny_store), *args])  # fmt: skip
+    result = runner.invoke(
+        app,
+        [
+            "personalize",
+            str(trained / "run" / "best.pt"),
+            "--out",
+            str(trained / "x.pt"),
+            "--store",
+            str(tiny_store),
+            *args,
+        ],
+    )
     assert result.exit_code == 2 and message in result.output.replace("\n", " ")
     assert not (trained / "x.pt").exists()
 
@@ -109,7 +156,20 @@ def test_personalize_refuses_bad_input(trained, tiny_store, args, message):
 def test_predict_refuses_unknown_nodes(trained, tiny_store):
     person = trained / "p2.pt"
     sites = read_sites(tiny_store, "lv")
-    runner.invoke(app, ["personalize", str(trained / "run" / "best.pt"), "--out", str(person),
-                        "--store", str(tiny_store), "--subject", "lv-healthy", "--sites", f"{sites[1]}"])  # fmt: skip
+    runner.invoke(
+        app,
+        [
+            "personalize",
+            str(trained / "run" / "best.pt"),
+            "--out",
+            str(person),
+            "--store",
+            str(tiny_store),
+            "--subject",
+            "lv-healthy",
+            "--sites",
+            f"{sites[1]}",
+        ],
+    )
     result = runner.invoke(app, ["predict", str(person), "--sites", "100000"])
     assert result.exit_code == 2 and "not nodes of the" in result.output

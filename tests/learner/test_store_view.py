@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import zarr
 
-from shared.schema import subject_path
-
 from learner.store_view import StoreView
+from shared.schema import subject_path
 
 
 def test_frame_means_average_every_site_and_node(tiny_store):

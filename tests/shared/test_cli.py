@@ -27,16 +27,26 @@ def test_filesystem_refusals_become_input_errors_naming_the_path(exc, message):
     assert isinstance(error, InputError) and message in str(error)
 
 
-@pytest.mark.parametrize("exc", [OSError("no errno"), OSError(errno.EBADF, "Bad file descriptor"),
-                                 ConnectionRefusedError(errno.ECONNREFUSED, "Connection refused")])  # fmt: skip
+@pytest.mark.parametrize(
+    "exc",
+    [
+        OSError("no errno"),
+        OSError(errno.EBADF, "Bad file descriptor"),
+        ConnectionRefusedError(errno.ECONNREFUSED, "Connection refused"),
+    ],
+)
 def test_other_os_errors_are_not_input_errors(exc):
     assert path_error(exc, "/given") is None
 
 
 @pytest.mark.parametrize(
     "text, message",
-    [("", "at least one"), ("1,x", "comma-separated integers"), ("3,-1", "[-1] must be >= 0"),
-     ("4,2,4,2,5", "[2, 4] given more than once")],  # fmt: skip
+    [
+        ("", "at least one"),
+        ("1,x", "comma-separated integers"),
+        ("3,-1", "[-1] must be >= 0"),
+        ("4,2,4,2,5", "[2, 4] given more than once"),
+    ],
 )
 def test_bad_id_lists_name_the_option(text, message):
     with pytest.raises(InputError, match="^--sites: ") as info:

@@ -52,7 +52,10 @@ def test_unknown_or_missing_version_is_refused(attrs, match):
 def test_canonical_split_is_a_fixed_function_of_the_id():
     # pinned: a change of the rule would move the subjects of every store built since
     assert [canonical_part(s) for s in ("lv-healthy", "lv-b-healthy", "patient-scar-apex")] == [
-        "train", "validation", "test"]  # fmt: skip
+        "train",
+        "validation",
+        "test",
+    ]
     counts = Counter(canonical_part(f"subject-{i}") for i in range(20000))
     for part, fraction in SPLIT_FRACTIONS.items():
         assert abs(counts[part] / 20000 - fraction) < 0.01, part

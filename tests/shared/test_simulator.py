@@ -25,8 +25,13 @@ def test_backend_reproduces_the_stored_simulations(tmp_path):
     from simgen.build import spec_from_mapping
     from simgen.build.runner import build
 
-    spec = {"meshes": [{"id": "lv", "source": "lv", "nodes": 500}], "tissue": ["scar-apex"],
-            "sites": {"count": 4}, "solver": {"frames": 6}, "output": {"chunk_sites": 4, "sock_electrodes": 0}}
+    spec = {
+        "meshes": [{"id": "lv", "source": "lv", "nodes": 500}],
+        "tissue": ["scar-apex"],
+        "sites": {"count": 4},
+        "solver": {"frames": 6},
+        "output": {"chunk_sites": 4, "sock_electrodes": 0},
+    }
     store = tmp_path / "s.zarr"
     build(spec_from_mapping(spec), store, workers=1)
     solver = dict(zarr.open_group(str(store), mode="r").attrs["spec"])["solver"]

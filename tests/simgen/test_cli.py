@@ -32,8 +32,9 @@ def test_mesh_command_writes_a_loadable_mesh(tmp_path):
 
 
 def test_simulate_command_writes_outputs(tmp_path):
-    result = runner.invoke(app, ["simulate", str(tmp_path), "--nodes", "500", "--sites", "0,7",
-                                 "--tissue", "scar-apex"])  # fmt: skip
+    result = runner.invoke(
+        app, ["simulate", str(tmp_path), "--nodes", "500", "--sites", "0,7", "--tissue", "scar-apex"]
+    )
     assert result.exit_code == 0, result.output
     data = np.load(tmp_path / "simulation.npz")
     assert data["u"].shape[:2] == (2, 55)
@@ -111,13 +112,29 @@ def test_add_subject_and_regenerate_commands(tmp_path):
     _, store, built = tiny_build(tmp_path)
     assert built.exit_code == 0
     patient = save_mesh(lv_ellipsoid(600), tmp_path / "patient.vtu")
-    added = runner.invoke(app, ["add-subject", str(store), "--mesh", str(patient), "--id", "patient",
-                                "--tissue", "healthy", "--tissue", "scar-apex", "--workers", "1"])  # fmt: skip
+    added = runner.invoke(
+        app,
+        [
+            "add-subject",
+            str(store),
+            "--mesh",
+            str(patient),
+            "--id",
+            "patient",
+            "--tissue",
+            "healthy",
+            "--tissue",
+            "scar-apex",
+            "--workers",
+            "1",
+        ],
+    )
     assert added.exit_code == 0, added.output
     status = text(runner.invoke(app, ["status", str(store)]))
     assert "patient-scar-apex" in status and "6/6 chunks done" in status
-    regen = runner.invoke(app, ["regenerate", str(store), "--subjects", "patient-healthy", "--sites", "3",
-                                "--workers", "1"])  # fmt: skip
+    regen = runner.invoke(
+        app, ["regenerate", str(store), "--subjects", "patient-healthy", "--sites", "3", "--workers", "1"]
+    )
     assert regen.exit_code == 0 and "1/" in text(regen)
     unknown = runner.invoke(app, ["regenerate", str(store), "--subjects", "nobody"])
     assert unknown.exit_code == 2 and "nobody" in text(unknown)

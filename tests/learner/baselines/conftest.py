@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 import zarr
 
+from learner.personalize import Observations
 from shared.mesh import Mesh
 from shared.reader import read_mesh, read_sites
 from shared.simulator import SimulatorBackend, load_simulator
 from shared.tissue import TissueFields
-
-from learner.personalize import Observations
 
 
 @dataclass

@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 
 import learner
-from shared.errors import InputError
-
 from learner.baselines import FSBO, VAEBO, diffusivity_from_excitability, fields_from_excitability
 from learner.personalize import Observations
+from shared.errors import InputError
 
 FAST = {"restarts": 4, "raw_samples": 64}
 

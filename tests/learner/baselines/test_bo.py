@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from shared.errors import InputError
-
 from learner.baselines.bo import BOSettings, bayes_minimise
+from shared.errors import InputError
 
 FAST = {"restarts": 4, "raw_samples": 64}
 
@@ -40,9 +39,14 @@ def test_is_reproducible_and_leaves_torch_global_state_alone():
 
 @pytest.mark.parametrize(
     ("kwargs", "message"),
-    [({"budget": 0}, "budget must be >= 1"), ({"budget": 4, "initial": 5}, "smaller than the initial design"),
-     ({"initial": 0}, "initial design size"), ({"seed": -1}, "seed"), ({"restarts": 0}, "restarts")],
-)  # fmt: skip
+    [
+        ({"budget": 0}, "budget must be >= 1"),
+        ({"budget": 4, "initial": 5}, "smaller than the initial design"),
+        ({"initial": 0}, "initial design size"),
+        ({"seed": -1}, "seed"),
+        ({"restarts": 0}, "restarts"),
+    ],
+)
 def test_settings_refuse_bad_values(kwargs, message):
     with pytest.raises(InputError, match=message):
         BOSettings(**kwargs)

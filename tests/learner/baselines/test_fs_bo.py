@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from shared.tissue import LABEL_BORDER, LABEL_CORE, TissueFields
-
 from learner.baselines import FSBO, fields_from_excitability, geodesic_scar, mesh_regions
+from shared.tissue import LABEL_BORDER, LABEL_CORE, TissueFields
 
 
 def _data_like_scar(a: np.ndarray) -> TissueFields:
     """The data's materials (core a 0.5 D 0.1, border a 0.3 D 0.5), not FS-BO's D(a) line."""
     core, border = a == 0.5, a == 0.3
     return TissueFields(
-        a=a, D=np.where(core, 0.1, np.where(border, 0.5, 1.0)),
+        a=a,
+        D=np.where(core, 0.1, np.where(border, 0.5, 1.0)),
         label=np.where(core, LABEL_CORE, np.where(border, LABEL_BORDER, 0)).astype(np.int8),
-    )  # fmt: skip
+    )
 
 
 def test_recovers_the_scarred_region_and_beats_healthy_on_targets(lv):
@@ -35,7 +35,8 @@ def test_recovers_the_scarred_region_and_beats_healthy_on_targets(lv):
     assert 2 * (fitted & true).sum() / (fitted.sum() + true.sum()) > 0.5
 
     u_true = lv.simulator.simulate(lv.mesh, truth, targets, lv.solver)
-    u_healthy = lv.simulator.simulate(lv.mesh, fields_from_excitability(np.full(lv.mesh.n_nodes, 0.15)), targets,
-                                      lv.solver)  # fmt: skip
+    u_healthy = lv.simulator.simulate(
+        lv.mesh, fields_from_excitability(np.full(lv.mesh.n_nodes, 0.15)), targets, lv.solver
+    )
     fitted_mse = np.mean((baseline.predict(targets) - u_true) ** 2)
     assert fitted_mse < 0.5 * np.mean((u_healthy - u_true) ** 2)

@@ -7,9 +7,8 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from shared.errors import InputError
-
 from learner.baselines.regions import mesh_regions, region_sizes
+from shared.errors import InputError
 
 
 def test_seven_connected_regions_of_similar_size(lv):

@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
-from shared.errors import InputError
-
 from learner.baselines.tissue_library import A_BORDER, A_CORE, geodesic_diameter, geodesic_scar, scar_library
 from learner.graph.hierarchy import _adjacency, _undirected
+from shared.errors import InputError
 
 
 def test_a_scar_is_a_geodesic_disc_with_a_border_band(lv):

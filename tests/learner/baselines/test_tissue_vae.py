@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from shared.errors import InputError
-
 from learner.baselines.tissue_library import scar_library
 from learner.baselines.tissue_vae import TissueVAE, train_tissue_vae
+from shared.errors import InputError
 
 
 @pytest.fixture(scope="module")

@@ -20,8 +20,9 @@ def test_recovers_a_held_out_library_like_scar_and_beats_healthy_on_targets(lv):
     assert 2 * (fitted & true).sum() / (fitted.sum() + true.sum()) > 0.5
 
     u_true = lv.simulator.simulate(lv.mesh, truth, targets, lv.solver)
-    u_healthy = lv.simulator.simulate(lv.mesh, fields_from_excitability(np.full(lv.mesh.n_nodes, 0.15)), targets,
-                                      lv.solver)  # fmt: skip
+    u_healthy = lv.simulator.simulate(
+        lv.mesh, fields_from_excitability(np.full(lv.mesh.n_nodes, 0.15)), targets, lv.solver
+    )
     assert np.mean((baseline.predict(targets) - u_true) ** 2) < 0.25 * np.mean((u_healthy - u_true) ** 2)
 
 

@@ -82,8 +82,9 @@ def test_stored_split_takes_the_parts_the_store_records():
     assert parts["validation"] == sorted(s for s in IDS if s.endswith("1") and MESH_OF[s] != "m2")
     assert parts["test"] == sorted(s for s in IDS if s.endswith("0") or MESH_OF[s] == "m2")
     other = SplitSpec(source="store", seed=5, test=0.5)  # seed and fractions do not apply
-    assert split_subjects(IDS, MESH_OF, other, stored) == split_subjects(IDS, MESH_OF, SplitSpec(source="store"),
-                                                                        stored)  # fmt: skip
+    assert split_subjects(IDS, MESH_OF, other, stored) == split_subjects(
+        IDS, MESH_OF, SplitSpec(source="store"), stored
+    )
 
 
 @pytest.mark.parametrize(

@@ -157,7 +157,7 @@ def test_pool_gradient_is_the_transposed_matrix(hier):
 def test_pool_rejects_bad_input(hier):
     with pytest.raises(InputError, match="level"):
         hier.pool(torch.zeros(1, hier.sizes[0], 1), LEVELS - 1)
-    with pytest.raises(InputError, match=r"\(B, %d, C\)" % hier.sizes[0]):
+    with pytest.raises(InputError, match=rf"\(B, {hier.sizes[0]}, C\)"):
         hier.pool(torch.zeros(1, hier.sizes[1], 1), 0)
     with pytest.raises(InputError, match="expects"):
         hier.unpool(torch.zeros(hier.sizes[1], 1), 0)

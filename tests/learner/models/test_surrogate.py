@@ -101,7 +101,9 @@ def test_context_stride_encodes_every_kth_frame(setup):
     changed[:, 1] += 1.0  # frame 1 is skipped with stride 3
     assert torch.equal(model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
     changed[:, 3] += 1.0  # frame 3 is encoded
-    assert not torch.equal(model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
+    assert not torch.equal(
+        model.embed(changed, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu
+    )
 
 
 def test_inference_layout_gives_the_training_paths_result(setup):

@@ -1,4 +1,5 @@
-"""ConditionalGatedTransition against its defining equations (numpy, float64), initialisation, bounded state and errors."""
+"""ConditionalGatedTransition against its defining equations (numpy, float64), initialisation,
+bounded state and errors."""
 
 from __future__ import annotations
 

@@ -190,8 +190,12 @@ def test_graph_without_edges(method):
 def test_methods_agree_in_values_and_gradients_with_repeated_edges():
     base = _random_graph(20, 60, seed=10, isolated=2)
     repeated = base.edge_index[:, :5]
-    graph = Graph(torch.cat([base.edge_index, repeated], 1), torch.cat([base.pseudo, base.pseudo[:5]]),
-                  base.num_nodes, base.positions)
+    graph = Graph(
+        torch.cat([base.edge_index, repeated], 1),
+        torch.cat([base.pseudo, base.pseudo[:5]]),
+        base.num_nodes,
+        base.positions,
+    )
     x = torch.randn(4, 20, 3, dtype=torch.float64, requires_grad=True)
     results = []
     for method in METHODS:

@@ -39,10 +39,12 @@ def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_c
     hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
     torch.manual_seed(0)
     model = build_model(cfg.model, view.frames)
-    terms = episode_loss(model, ep, hier, lambda1=0.3, lambda2=0.7, kl_weight=0.5,
-                         generator=torch.Generator().manual_seed(0))  # fmt: skip
+    terms = episode_loss(
+        model, ep, hier, lambda1=0.3, lambda2=0.7, kl_weight=0.5, generator=torch.Generator().manual_seed(0)
+    )
     c = model.embed_prior_and_posterior(ep.context_obs, ep.target_u * ep.observed, ep.observed, hier)[1].sample(
-        torch.Generator().manual_seed(0))  # fmt: skip
+        torch.Generator().manual_seed(0)
+    )
     pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c)
     truth = torch.cat([ep.context_u, ep.target_u])
     summed = ((pred - truth) ** 2).sum(dim=(1, 2))  # the reference's reconstruction: summed over nodes and frames

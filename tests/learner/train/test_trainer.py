@@ -1,4 +1,5 @@
-"""Training: every seed learns, a tiny model overfits one subject, resume is exact, NaN stops cleanly, checkpoints are safe."""
+"""Training: every seed learns, a tiny model overfits one subject, resume is exact, NaN stops
+cleanly, checkpoints are safe."""
 
 from __future__ import annotations
 
@@ -8,11 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from shared.errors import ConfigError, InputError
-
 from learner.data.episodes import EpisodeDataset, load_episode
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import VALIDATION_EPOCH, Trainer, TrainingDiverged, load_model, train
+from shared.errors import ConfigError, InputError
 
 
 def _episode_mse(model, trainer, ep) -> float:
@@ -26,8 +26,13 @@ def _episode_mse(model, trainer, ep) -> float:
 def _frame_mean_mse(trainer: Trainer) -> float:
     """Validation target MSE of the per-frame mean of the training data: a predictor that ignores site and context."""
     frame_mean = torch.from_numpy(trainer.view.frame_means(trainer.splits["train"])).float()[None, :, None]
-    episodes = EpisodeDataset(trainer.config.data.store, trainer.splits["validation"], trainer.config.data.episodes,
-                              seed=trainer.config.train.seed, epoch=VALIDATION_EPOCH)  # fmt: skip
+    episodes = EpisodeDataset(
+        trainer.config.data.store,
+        trainer.splits["validation"],
+        trainer.config.data.episodes,
+        seed=trainer.config.train.seed,
+        epoch=VALIDATION_EPOCH,
+    )
     return float(np.mean([float(((ep.target_u - frame_mean) ** 2).mean()) for ep in episodes]))
 
 
@@ -161,8 +166,8 @@ def test_warm_start_copies_matching_parameters_and_refuses_other_splits(tiny_sto
     assert (tmp_path / "fine" / "warm_start.json").exists()
 
     other = tiny_config(tiny_store, tmp_path / "other", init=str(tmp_path / "pre" / "last.pt"))
-    other = dataclasses.replace(other, data=dataclasses.replace(other.data, split=dataclasses.replace(
-        other.data.split, seed=1)))  # fmt: skip
+    other = dataclasses.replace(
+        other, data=dataclasses.replace(other.data, split=dataclasses.replace(other.data.split, seed=1))
+    )
     with pytest.raises(InputError, match="other subject splits"):
         Trainer(other, progress=False)
-

@@ -30,9 +30,7 @@ def tiny_spec(**patch) -> BuildSpec:
 def store_bytes(store: Path) -> dict[str, bytes]:
     """Every file of a store (relative path -> bytes), the lock file excepted."""
     return {
-        str(p.relative_to(store)): p.read_bytes()
-        for p in sorted(store.rglob("*"))
-        if p.is_file() and p.name != ".lock"
+        str(p.relative_to(store)): p.read_bytes() for p in sorted(store.rglob("*")) if p.is_file() and p.name != ".lock"
     }
 
 

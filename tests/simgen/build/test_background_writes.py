@@ -73,4 +73,3 @@ def test_a_write_that_keeps_failing_is_named_and_the_rest_kept(tmp_path, monkeyp
     assert "lv-healthy" not in str(info.value)
     assert {s.subject_id: s.chunks_done for s in store_status(store)} == {"lv-healthy": 2, "lv-scar-apex": 1}
     assert zarr.open_group(str(store), mode="r").attrs["complete"] is False
-

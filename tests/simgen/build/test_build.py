@@ -16,8 +16,8 @@ from simgen.build import make_plan, spec_hash
 from simgen.build.inspect import store_status
 from simgen.build.lock import StoreLock, StoreLocked
 from simgen.build.runner import BuildFailed, build
-from simgen.build.store import StoreMismatch, check_store, create_layout, read_mesh, read_tissue
 from simgen.build.spec import spec_from_mapping, spec_to_dict
+from simgen.build.store import StoreMismatch, check_store, create_layout, read_mesh, read_tissue
 from simgen.solver.simulate import Simulator
 
 
@@ -31,8 +31,9 @@ def test_store_contents_match_direct_simulation(reference_store, tiny_spec):
         assert g["done"][...].all()
         assert g["u"].metadata.dimension_names == ("site", "time", "node")
         sites = root["meshes/lv/stim_nodes"][...]
-        direct = Simulator(read_mesh(reference_store, "lv"), read_tissue(reference_store, subject.id),
-                           plan.spec.solver).run(sites)  # fmt: skip
+        direct = Simulator(
+            read_mesh(reference_store, "lv"), read_tissue(reference_store, subject.id), plan.spec.solver
+        ).run(sites)
         assert np.array_equal(g["u"][...], direct.u)  # bitwise: chunking and workers do not matter
         assert np.array_equal(g["activation"][...], direct.activation, equal_nan=True)
 
@@ -113,8 +114,15 @@ def test_failing_task_is_named_and_finished_chunks_kept(tmp_path, tiny_spec):
     "patch, error, match",
     [
         ({"meshes": [{"id": "lv", "source": "heart.xyz"}]}, MeshError, "unknown mesh"),
-        ({"custom_tissue": [{"name": "bad", "scars": [{"region": "sphere", "node": 3, "radius": 5.0,
-                                                        "core": {"a": 0.9}}]}]}, TissueError, "excitability"),
+        (
+            {
+                "custom_tissue": [
+                    {"name": "bad", "scars": [{"region": "sphere", "node": 3, "radius": 5.0, "core": {"a": 0.9}}]}
+                ]
+            },
+            TissueError,
+            "excitability",
+        ),
         ({"sites": {"nodes": [3, 100000]}}, StimulusError, "100000"),
         ({"solver": {"frames": 8, "dt": 10.0}}, TimeStepError, "unstable"),
         ({"solver": {"frames": 8, "dtt": 0.1}}, ConfigError, "dtt"),

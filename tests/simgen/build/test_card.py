@@ -10,8 +10,17 @@ from simgen.build.card import dataset_card, short_card, store_facts
 def test_card_describes_model_parameters_sizes_statistics_split_provenance(reference_store):
     card = dataset_card(reference_store)
     root = zarr.open_group(str(reference_store), mode="r")
-    for heading in ("# Dataset card: dataset", "## Model", "## Parameters", "## Sizes", "## Cost", "## Statistics",
-                    "## Canonical split", "## Provenance", "## How to cite"):  # fmt: skip
+    for heading in (
+        "# Dataset card: dataset",
+        "## Model",
+        "## Parameters",
+        "## Sizes",
+        "## Cost",
+        "## Statistics",
+        "## Canonical split",
+        "## Provenance",
+        "## How to cite",
+    ):
         assert heading in card
     assert "du/dt = div(D grad u) + k u (1 - u)(u - a) - u v" in card and "| k | 8.0 |" in card
     dt = root["subjects/lv-healthy"].attrs["solver"]["dt"]
@@ -29,6 +38,8 @@ def test_card_describes_model_parameters_sizes_statistics_split_provenance(refer
 def test_build_stores_the_short_card(reference_store):
     summary = zarr.open_group(str(reference_store), mode="r").attrs["summary"]
     assert summary == short_card(store_facts(reference_store))
-    assert summary.splitlines()[0] == ("dataset: 2 subjects on 1 mesh(es) of 520 nodes, 6 stimulation sites each, "
-                                       "8 frames every 0.6 time units (7.74 ms).")  # fmt: skip
+    assert summary.splitlines()[0] == (
+        "dataset: 2 subjects on 1 mesh(es) of 520 nodes, 6 stimulation sites each, "
+        "8 frames every 0.6 time units (7.74 ms)."
+    )
     assert len(summary.splitlines()) == 3 and "on 2024-01-01T00:00:00+00:00; schema version 2" in summary

@@ -112,8 +112,14 @@ def test_checksummed_chunk_files_are_byte_for_byte_zarrs(tmp_path, monkeypatch, 
     values = values[:sites] if aligned else values[1:]
     assert (values.ctypes.data % chunk_files.ALIGN == 0) is aligned
     for name in ("plain.zarr", "ours.zarr"):
-        zarr.create_array(str(tmp_path / name), shape=shape, chunks=(4, *shape[1:]), dtype="f4", fill_value=np.nan,
-                          compressors=(Crc32cCodec(),))  # fmt: skip
+        zarr.create_array(
+            str(tmp_path / name),
+            shape=shape,
+            chunks=(4, *shape[1:]),
+            dtype="f4",
+            fill_value=np.nan,
+            compressors=(Crc32cCodec(),),
+        )
     zarr.open_array(str(tmp_path / "plain.zarr"), mode="r+")[4 : 4 + sites] = values
     ours = zarr.open_array(DirectLocalStore(tmp_path / "ours.zarr"), mode="r+")
     file = chunk_file(ours, (1, 0, 0))
@@ -130,8 +136,9 @@ def test_checksummed_chunk_files_are_byte_for_byte_zarrs(tmp_path, monkeypatch, 
 
 def test_only_uncompressed_checksummed_arrays_in_a_direct_store_get_chunk_files(tmp_path):
     def array(name, store=None, dtype="f4", **kw):
-        return zarr.create_array(store or DirectLocalStore(tmp_path / name), shape=(4, 8), chunks=(2, 8),
-                                 dtype=dtype, **kw)  # fmt: skip
+        return zarr.create_array(
+            store or DirectLocalStore(tmp_path / name), shape=(4, 8), chunks=(2, 8), dtype=dtype, **kw
+        )
 
     assert chunk_file(array("flags.zarr", dtype="u1", compressors=(Crc32cCodec(),)), (1, 0)) is not None
     assert chunk_file(array("f4.zarr", compressors=(Crc32cCodec(),)), (1, 0)) == tmp_path / "f4.zarr/c/1/0"

@@ -61,8 +61,9 @@ def wait_for(predicate, timeout: float = 120.0, what: str = "condition") -> None
 
 
 def store_bytes(store: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(store)): p.read_bytes() for p in sorted(store.rglob("*"))
-            if p.is_file() and p.name != ".lock"}  # fmt: skip
+    return {
+        str(p.relative_to(store)): p.read_bytes() for p in sorted(store.rglob("*")) if p.is_file() and p.name != ".lock"
+    }
 
 
 @pytest.fixture(scope="module")
@@ -81,8 +82,7 @@ def reference(spec_file, tmp_path_factory) -> Path:
 
 def _spawn(*args: str) -> subprocess.Popen:
     env = {**os.environ, **SINGLE_THREAD_ENV}
-    return subprocess.Popen(args, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)  # fmt: skip
+    return subprocess.Popen(args, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def _kill(proc: subprocess.Popen) -> None:
@@ -95,14 +95,38 @@ def _kill(proc: subprocess.Popen) -> None:
 def cluster(tmp_path):
     """A scheduler and two single-threaded workers, started as the deploy files do."""
     sched_file = tmp_path / "scheduler.json"
-    procs = [_spawn(str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0",
-                    "--no-dashboard", "--scheduler-file", str(sched_file))]  # fmt: skip
+    procs = [
+        _spawn(
+            str(BIN / "dask"),
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--no-dashboard",
+            "--scheduler-file",
+            str(sched_file),
+        )
+    ]
     try:
         wait_for(sched_file.exists, 60, "the scheduler file")
         time.sleep(0.2)
         address = json.loads(sched_file.read_text())["address"]
-        workers = [_spawn(str(BIN / "dask"), "worker", address, "--nthreads", "1", "--nworkers", "1",
-                          "--name", f"w{i}", "--no-dashboard") for i in range(2)]  # fmt: skip
+        workers = [
+            _spawn(
+                str(BIN / "dask"),
+                "worker",
+                address,
+                "--nthreads",
+                "1",
+                "--nworkers",
+                "1",
+                "--name",
+                f"w{i}",
+                "--no-dashboard",
+            )
+            for i in range(2)
+        ]
         procs += workers
         from distributed import Client
 

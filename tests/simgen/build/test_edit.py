@@ -75,7 +75,8 @@ def test_add_subject_from_mesh_file(store, patient, tiny_spec):
     g = root["subjects/patient-scar-apex"]
     assert g.attrs["mesh_id"] == "patient" and g["u"].shape == (6, 8, mesh.n_nodes)
     direct = Simulator(mesh, read_tissue(store, "patient-scar-apex"), tiny_spec().solver).run(
-        read_sites(store, "patient"))  # fmt: skip
+        read_sites(store, "patient")
+    )
     assert np.array_equal(g["u"][...], direct.u)
     # with consolidated metadata too (plain zarr readers)
     assert "patient-healthy" in dict(zarr.open_consolidated(str(store))["subjects"].groups())
@@ -126,8 +127,12 @@ def test_regenerate_site_subset_rewrites_only_that_chunk(store, store_bytes, ref
     assert store_bytes(store) == store_bytes(reference_store)
     after = snapshot(store)
     rewritten = {k for k in before if before[k][1] != after[k][1]}
-    chunk1 = {"subjects/lv-healthy/u/c/1/0/0", "subjects/lv-healthy/activation/c/1/0",
-              "subjects/lv-healthy/moments/c/1/0/0", "subjects/lv-healthy/done/c/1"}  # fmt: skip
+    chunk1 = {
+        "subjects/lv-healthy/u/c/1/0/0",
+        "subjects/lv-healthy/activation/c/1/0",
+        "subjects/lv-healthy/moments/c/1/0/0",
+        "subjects/lv-healthy/done/c/1",
+    }
     assert rewritten - {"zarr.json"} == chunk1  # the subject's statistics are the same: not rewritten
 
 

@@ -35,9 +35,12 @@ def test_export_writes_a_readable_time_series(reference_store, tmp_path):
 
 @pytest.mark.parametrize(
     "subject, site, match",
-    [("lv-nope", 0, "unknown subject 'lv-nope'"), ("lv-healthy", 6, "out of range"),
-     ("lv-healthy", -1, "out of range")],
-)  # fmt: skip
+    [
+        ("lv-nope", 0, "unknown subject 'lv-nope'"),
+        ("lv-healthy", 6, "out of range"),
+        ("lv-healthy", -1, "out of range"),
+    ],
+)
 def test_bad_subject_or_site_is_refused(reference_store, tmp_path, subject, site, match):
     with pytest.raises(InputError, match=match):
         export_vtk(reference_store, subject, site, tmp_path / "out")

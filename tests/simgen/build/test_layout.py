@@ -29,8 +29,11 @@ def test_layout_groups_arrays_and_fields(tmp_path, tiny_spec):
         g = root[f"subjects/{subject.id}"]
         assert (g.attrs["mesh_id"], g.attrs["chunk_sites"], g.attrs["tissue"]["name"]) == ("lv", 4, subject.tissue.name)
         u, act, done = g["u"], g["activation"], g["done"]
-        assert (u.shape, u.chunks, u.metadata.dimension_names) == ((6, frames, n), (4, frames, n),
-                                                                   ("site", "time", "node"))  # fmt: skip
+        assert (u.shape, u.chunks, u.metadata.dimension_names) == (
+            (6, frames, n),
+            (4, frames, n),
+            ("site", "time", "node"),
+        )
         assert (act.shape, act.chunks) == ((6, n), (4, n))
         assert np.isnan(u.fill_value) and np.isnan(act.fill_value)
         assert isinstance(u.compressors[0], BloscCodec) and isinstance(u.compressors[-1], Crc32cCodec)
@@ -47,8 +50,12 @@ def test_chunk_tasks_lists_every_chunk_with_its_flag(tmp_path, tiny_spec):
     store = tmp_path / "s.zarr"
     create_layout(store, make_plan(spec), spec_to_dict(spec), spec_hash(spec))
     zarr.open_group(str(store), path="subjects/lv-scar-apex", mode="r+")["done"][1] = 1
-    expected = {Task("lv-healthy", 0, 0, 3): False, Task("lv-healthy", 1, 3, 6): False,
-                Task("lv-scar-apex", 0, 0, 3): False, Task("lv-scar-apex", 1, 3, 6): True}  # fmt: skip
+    expected = {
+        Task("lv-healthy", 0, 0, 3): False,
+        Task("lv-healthy", 1, 3, 6): False,
+        Task("lv-scar-apex", 0, 0, 3): False,
+        Task("lv-scar-apex", 1, 3, 6): True,
+    }
     assert list(chunk_tasks(store).items()) == list(expected.items())  # subject then chunk order
     assert chunk_tasks(store, ["lv-scar-apex"]) == {t: d for t, d in expected.items() if t.subject_id == "lv-scar-apex"}
     assert pending_tasks(store) == [t for t, d in expected.items() if not d]

@@ -33,8 +33,13 @@ def plan():
 def test_plan_contents(plan) -> None:
     assert list(plan.meshes) == ["lv", "biv"]
     assert [s.id for s in plan.subjects] == [
-        "lv-healthy", "lv-scar-apex", "lv-sphere", "biv-healthy", "biv-scar-apex", "biv-sphere",
-    ]  # fmt: skip
+        "lv-healthy",
+        "lv-scar-apex",
+        "lv-sphere",
+        "biv-healthy",
+        "biv-scar-apex",
+        "biv-sphere",
+    ]
     assert len({s.id for s in plan.subjects}) == len(plan.subjects)
     assert all(plan.meshes[s.mesh_id].name == s.mesh_id for s in plan.subjects)
     assert plan.subject("biv-sphere").tissue.name == "sphere"
@@ -114,7 +119,7 @@ def test_mesh_file_without_epicardium(tmp_path: Path) -> None:
     spec_file = tmp_path / "spec.toml"
     spec_file.write_text(
         'tissue = ["healthy"]\n[[meshes]]\nid = "slab"\nsource = "slab.vtu"\n'
-        "[sites]\ncount = 4\nnode_set = \"all\"\n[output]\nchunk_sites = 3\n"
+        '[sites]\ncount = 4\nnode_set = "all"\n[output]\nchunk_sites = 3\n'
     )
     plan = make_plan(load_spec(spec_file))
     assert plan.meshes["slab"].name == "slab" and plan.electrodes["slab"].shape == (0,)

@@ -70,8 +70,14 @@ def test_root_and_subject_attributes_record_model_solver_and_provenance(referenc
     assert prov["created"] == "2024-01-01T00:00:00+00:00"  # SOURCE_DATE_EPOCH of the build tests
     assert prov["git_commit"] is None or len(prov["git_commit"]) == 40
     sim = root.attrs["simulation"]
-    assert sim["constants"] == {"variant": "standard", "k": 8.0, "eps0": 0.002, "mu1": 0.2, "mu2": 0.3,
-                                "eps_simple": 0.01}  # fmt: skip
+    assert sim["constants"] == {
+        "variant": "standard",
+        "k": 8.0,
+        "eps0": 0.002,
+        "mu1": 0.2,
+        "mu2": 0.3,
+        "eps_simple": 0.01,
+    }
     assert (sim["stimulus_duration"], sim["frames"], sim["units"]["time"]) == (1.0, 8, "12.9 ms")
     assert "du/dt" in sim["equations"][0]
     assert root.attrs["split"]["fractions"] == {"train": 0.7, "validation": 0.1, "test": 0.2}
@@ -80,8 +86,12 @@ def test_root_and_subject_attributes_record_model_solver_and_provenance(referenc
     for subject in plan.subjects:
         g = root[f"subjects/{subject.id}"]
         sim = Simulator(read_mesh(reference_store, "lv"), read_tissue(reference_store, subject.id), plan.spec.solver)
-        assert g.attrs["solver"] == {"dt": sim.dt, "steps_per_frame": sim.steps_per_frame,
-                                     "stimulus_radius": sim.stimulus_radius, "stimulus_duration": 1.0}  # fmt: skip
+        assert g.attrs["solver"] == {
+            "dt": sim.dt,
+            "steps_per_frame": sim.steps_per_frame,
+            "stimulus_radius": sim.stimulus_radius,
+            "stimulus_duration": 1.0,
+        }
         assert g.attrs["split"] == canonical_part(subject.id)
 
 
@@ -103,7 +113,8 @@ def _described(values: np.ndarray) -> dict:
 
 def _close(stats: dict, expected: dict) -> bool:
     return stats["count"] == expected["count"] and all(
-        np.isclose(stats[k], expected[k], rtol=1e-12, atol=1e-12) for k in ("mean", "std", "min", "max"))
+        np.isclose(stats[k], expected[k], rtol=1e-12, atol=1e-12) for k in ("mean", "std", "min", "max")
+    )
 
 
 def test_statistics_describe_the_data(reference_store):

@@ -44,10 +44,18 @@ def s3_endpoint():
     """A moto S3 server on 127.0.0.1 with one bucket; the AWS_* variables point at it."""
     port = _free_port()
     endpoint = f"http://127.0.0.1:{port}"
-    proc = subprocess.Popen([str(Path(sys.executable).parent / "moto_server"), "-H", "127.0.0.1", "-p", str(port)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
-    env = {"AWS_ENDPOINT_URL": endpoint, "AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing",
-           "AWS_DEFAULT_REGION": "us-east-1"}  # fmt: skip
+    proc = subprocess.Popen(
+        [str(Path(sys.executable).parent / "moto_server"), "-H", "127.0.0.1", "-p", str(port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    env = {
+        "AWS_ENDPOINT_URL": endpoint,
+        "AWS_ACCESS_KEY_ID": "testing",
+        "AWS_SECRET_ACCESS_KEY": "testing",
+        "AWS_DEFAULT_REGION": "us-east-1",
+    }
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)
     try:
@@ -91,8 +99,10 @@ def cluster(s3_endpoint):
 
     from simgen.build.runner import single_thread_env
 
-    with single_thread_env(), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                           dashboard_address=None) as c:  # fmt: skip
+    with (
+        single_thread_env(),
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c,
+    ):
         yield c.scheduler_address
 
 
@@ -124,7 +134,9 @@ def test_s3_build_is_byte_identical_to_a_local_build(s3_store, local_store, stor
 
 def test_s3_store_reads_back_verifies_and_resumes(s3_store, tiny_spec):
     assert [(r.subject_id, r.chunks_done, r.chunks) for r in store_status(s3_store)] == [
-        ("lv-healthy", 2, 2), ("lv-scar-apex", 2, 2)]  # fmt: skip
+        ("lv-healthy", 2, 2),
+        ("lv-scar-apex", 2, 2),
+    ]
     report = verify_store(s3_store, sample=1)
     assert report.ok and report.chunks_checked == 4 and report.chunks_recomputed == 1
     assert build(tiny_spec(), s3_store).tasks_run == 0  # resume: nothing left, no cluster started

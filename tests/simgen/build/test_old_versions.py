@@ -47,10 +47,15 @@ def test_version_1_store_is_read_with_a_note(old_store, reference_store):
 
 def test_version_1_store_is_not_written(old_store, tmp_path, tiny_spec):
     entry = MeshEntry(id="more", source="lv", nodes=500)
-    for edit in (lambda: add_subject(old_store, entry, ["healthy"], workers=1),
-                 lambda: regenerate(old_store, ["lv-healthy"], workers=1)):  # fmt: skip
-        with pytest.raises(SchemaError, match=f"schema_version 1, this simgen writes version {SCHEMA_VERSION} only"
-                                              r".*simgen build SPEC --store .* --force"):  # fmt: skip
+    for edit in (
+        lambda: add_subject(old_store, entry, ["healthy"], workers=1),
+        lambda: regenerate(old_store, ["lv-healthy"], workers=1),
+    ):
+        with pytest.raises(
+            SchemaError,
+            match=f"schema_version 1, this simgen writes version {SCHEMA_VERSION} only"
+            r".*simgen build SPEC --store .* --force",
+        ):
             edit()
     with pytest.raises(StoreMismatch, match=f"schema version 1, this simgen writes version {SCHEMA_VERSION}.*--force"):
         build(tiny_spec(), old_store, workers=1)
@@ -60,6 +65,9 @@ def test_version_1_store_is_not_written(old_store, tmp_path, tiny_spec):
 
 def test_unknown_version_is_refused_with_the_rebuild_command(old_store):
     zarr.open_group(str(old_store), mode="r+").attrs["schema_version"] = 99
-    with pytest.raises(SchemaError, match=r"schema_version 99, this code reads versions 1, 2; rebuild it with "
-                                          r"`simgen build SPEC --store .*old.zarr --force`"):  # fmt: skip
+    with pytest.raises(
+        SchemaError,
+        match=r"schema_version 99, this code reads versions 1, 2; rebuild it with "
+        r"`simgen build SPEC --store .*old.zarr --force`",
+    ):
         check_store(old_store)

@@ -15,8 +15,15 @@ from simgen.meshes.catalog import get_mesh
 
 SPECS = Path(__file__).resolve().parents[3] / "specs"
 
-RANDOM_BIV = {"id": "biv", "source": "biv", "nodes": 600, "shape": "random", "count": 3, "seed": 3,
-              "shape_params": {"wall_thickness": 9.0}}  # fmt: skip
+RANDOM_BIV = {
+    "id": "biv",
+    "source": "biv",
+    "nodes": 600,
+    "shape": "random",
+    "count": 3,
+    "seed": 3,
+    "shape_params": {"wall_thickness": 9.0},
+}
 
 
 def spec(*meshes: dict, **extra):
@@ -62,8 +69,11 @@ def test_fixed_shape_without_random_is_completed():
         ({"shape": "random", "count": 0}, ConfigError, "count must be an integer >= 1"),
         ({"shape": "random", "count": 1001}, ConfigError, "count must be at most 1000"),
         ({"shape": "random", "seed": -1}, ConfigError, "seed must be an integer >= 0"),
-        ({"shape": "random", "shape_params": {"wall_thickness": 20.0}}, MeshError,
-         r"mesh 'x': LV shape: wall_thickness = 20.0 mm is outside the physiological range 7\.\.14 mm"),
+        (
+            {"shape": "random", "shape_params": {"wall_thickness": 20.0}},
+            MeshError,
+            r"mesh 'x': LV shape: wall_thickness = 20.0 mm is outside the physiological range 7\.\.14 mm",
+        ),
         ({"shape": "random", "shape_params": {"rv_width": 20.0}}, ConfigError, r"unknown key\(s\) \['rv_width'\]"),
         ({"shape_params": {"length": 200.0}}, MeshError, "mesh 'x': LV shape: length = 200.0 mm"),
         ({"source": "heart.vtu", "shape_params": {}}, MeshError, "procedural source"),

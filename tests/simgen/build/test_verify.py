@@ -91,8 +91,9 @@ def test_altered_valid_data_is_caught_by_recomputation(store):
     stats = dict(g.attrs["statistics"])
     g.attrs["statistics"] = statistics(g["moments"][...])
     root = zarr.open_group(str(store), mode="r+")
-    root.attrs["statistics"] = statistics(np.concatenate([_subject(store, s)["moments"][...]
-                                                          for s in ("lv-healthy", "lv-scar-apex")]))  # fmt: skip
+    root.attrs["statistics"] = statistics(
+        np.concatenate([_subject(store, s)["moments"][...] for s in ("lv-healthy", "lv-scar-apex")])
+    )
     assert g.attrs["statistics"] != stats
     assert verify_store(store, sample=0).ok
     problem = _only_problem(store, sample=10)

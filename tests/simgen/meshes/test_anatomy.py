@@ -143,8 +143,10 @@ def test_bumps_keep_heights_and_wall_thickness():
     moved = np.linalg.norm(bumpy.points - smooth.points, axis=1)
     assert moved.max() > 2.0  # a few mm, not a no-op
     # Endocardial node i and epicardial node i are the ends of one transmural column.
-    thickness = [np.linalg.norm(m.points[m.node_sets["epicardium"]] - m.points[m.node_sets["endocardium"]], axis=1)
-                 for m in (smooth, bumpy)]
+    thickness = [
+        np.linalg.norm(m.points[m.node_sets["epicardium"]] - m.points[m.node_sets["endocardium"]], axis=1)
+        for m in (smooth, bumpy)
+    ]
     np.testing.assert_allclose(thickness[1], thickness[0], rtol=1e-12)
 
 

@@ -63,8 +63,16 @@ def test_params_round_trip_and_strict_parsing():
 
 
 def test_lv_geometry_follows_the_parameters():
-    shape = LVShape(length=92.0, endo_radius=22.0, wall_thickness=12.0, apex_thickness=6.0, base_height=20.0,
-                    eccentricity_index=1.2, apex_offset=5.0, apex_offset_angle=90.0)
+    shape = LVShape(
+        length=92.0,
+        endo_radius=22.0,
+        wall_thickness=12.0,
+        apex_thickness=6.0,
+        base_height=20.0,
+        eccentricity_index=1.2,
+        apex_offset=5.0,
+        apex_offset_angle=90.0,
+    )
     geom = shape.geometry()
     assert geom.epi_long + geom.base_z == 92.0 and geom.base_z == 20.0
     assert geom.epi_short - geom.endo_short == 12.0 and geom.epi_long - geom.endo_long == 6.0
@@ -98,8 +106,11 @@ def insertion_angle(geom: BiVGeometry) -> float:
 
 @pytest.mark.parametrize(
     "params",
-    [{}, dict(rv_width=26.0, rv_wrap_angle=185.0, eccentricity_index=1.2),
-     dict(rv_width=14.0, rv_wrap_angle=140.0, rv_length=0.7, length=72.0, rv_wall_thickness=3.0)],
+    [
+        {},
+        dict(rv_width=26.0, rv_wrap_angle=185.0, eccentricity_index=1.2),
+        dict(rv_width=14.0, rv_wrap_angle=140.0, rv_length=0.7, length=72.0, rv_wall_thickness=3.0),
+    ],
 )
 def test_rv_geometry_follows_the_parameters(params):
     shape = BiVShape(**params)
@@ -112,9 +123,11 @@ def test_rv_geometry_follows_the_parameters(params):
 
 @pytest.mark.parametrize(
     "kwargs, match",
-    [(dict(eccentricity_index=0.0), "eccentricity_index must be positive"),
-     (dict(bumps=(1.0, 2.0)), "do not fill whole degrees"),
-     (dict(apex_offset=(1.0,)), "apex_offset must be")],
+    [
+        (dict(eccentricity_index=0.0), "eccentricity_index must be positive"),
+        (dict(bumps=(1.0, 2.0)), "do not fill whole degrees"),
+        (dict(apex_offset=(1.0,)), "apex_offset must be"),
+    ],
 )
 def test_lv_geometry_checks_its_deformations(kwargs, match):
     with pytest.raises(MeshError, match=match):

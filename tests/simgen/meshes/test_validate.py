@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
@@ -121,7 +120,9 @@ def test_disconnected_components():
 def test_edge_shared_by_three_triangles():
     points = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]])
     cells = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
-    with pytest.raises(MeshError, match=r"edge\(s\) shared by more than two triangles \(non-manifold\), first \[\[0, 1"):
+    with pytest.raises(
+        MeshError, match=r"edge\(s\) shared by more than two triangles \(non-manifold\), first \[\[0, 1"
+    ):
         validate_mesh(Mesh(points, cells))
 
 

@@ -72,9 +72,7 @@ def test_sock_is_spread_out(mesh: Mesh) -> None:
     # Random subsets hit neighbouring mesh nodes; the sock never does. (The gap is
     # bounded on a coarse mesh, where 247 electrodes are a third of the epicardium.)
     rng = np.random.default_rng(0)
-    random_min = np.mean(
-        [pdist(mesh.points[rng.choice(epi, 247, replace=False)]).min() for _ in range(20)]
-    )
+    random_min = np.mean([pdist(mesh.points[rng.choice(epi, 247, replace=False)]).min() for _ in range(20)])
     assert sock_min > 1.4 * random_min
     assert sock_min > 1.5 * pdist(mesh.points[epi]).min()
     # Near-uniform coverage: spacing close to the paper's 6.5 mm on an adult-sized LV.

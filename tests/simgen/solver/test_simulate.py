@@ -172,8 +172,9 @@ def test_unstable_user_time_step_is_refused_with_the_limit(lv):
     assert sim.dt < limit
 
 
-@pytest.mark.parametrize("sites, match", [([10_000], "unknown stimulation node"), ([-1], "unknown"),
-                                          ([1.5], "integer"), ([], "non-empty")])
+@pytest.mark.parametrize(
+    "sites, match", [([10_000], "unknown stimulation node"), ([-1], "unknown"), ([1.5], "integer"), ([], "non-empty")]
+)
 def test_bad_sites_are_refused(lv, sites, match):
     with pytest.raises(StimulusError, match=match):
         Simulator(lv, config=SHORT).run(np.array(sites))

@@ -67,9 +67,7 @@ def test_defaults_valid_on_lv(lv: Mesh) -> None:
 def test_mapping_example() -> None:
     data = {
         "name": "x",
-        "scars": [
-            {"region": "sphere", "node": 12, "radius": 15.0, "border_width": 5.0, "core": {"a": 0.5, "D": 0.1}}
-        ],
+        "scars": [{"region": "sphere", "node": 12, "radius": 15.0, "border_width": 5.0, "core": {"a": 0.5, "D": 0.1}}],
     }
     spec = tissue_spec_from_mapping(data)
     scar = ScarSpec(region="sphere", node=12, radius=15.0, border_width=5.0, core=Material(0.5, 0.1))

@@ -94,13 +94,21 @@ def test_segment_scar(lv: Mesh) -> None:
 def test_overlap_rules(lv: Mesh) -> None:
     node = _equator_node(lv)
     big = ScarSpec(
-        region="sphere", node=node, radius=10.0, border_width=8.0,
-        core=Material(a=0.5, D=0.1), border=Material(a=0.3, D=0.5),
-    )  # fmt: skip
+        region="sphere",
+        node=node,
+        radius=10.0,
+        border_width=8.0,
+        core=Material(a=0.5, D=0.1),
+        border=Material(a=0.3, D=0.5),
+    )
     small = ScarSpec(
-        region="sphere", node=node, radius=5.0, border_width=15.0,
-        core=Material(a=0.45, D=0.0), border=Material(a=0.35, D=0.6),
-    )  # fmt: skip
+        region="sphere",
+        node=node,
+        radius=5.0,
+        border_width=15.0,
+        core=Material(a=0.45, D=0.0),
+        border=Material(a=0.35, D=0.6),
+    )
     f = tissue_fields(lv, TissueSpec(scars=(big, small)))
     g = tissue_fields(lv, TissueSpec(scars=(small, big)))
     for name in ("a", "D", "label"):
