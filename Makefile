@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/solver.py --out report/bench
 	$(BIN)/python bench/conduction.py --out report/bench
 	$(BIN)/python bench/build.py --out report/bench
+	$(BIN)/python bench/store_read.py --out report/bench
 	$(BIN)/python bench/surrogate.py --out report/bench
 	$(BIN)/python bench/scaling.py --out report/bench
 

@@ -19,12 +19,12 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import zarr
 from torch import Tensor
 
 from learner.baselines import FSBO, VAEBO, PersonalisationBaseline
@@ -34,11 +34,14 @@ from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, mse, spatial_cc, temporal_cc
 from learner.personalize import Observations
 from learner.plot import plot_activation_panels, plot_context_curves
+from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError, InputError
+from shared.location import resolve_location
 from shared.mesh import Mesh
+from shared.reader import read_solver_settings, read_tissue
 from shared.simulator import load_simulator
 from shared.units import MS_PER_TIME_UNIT
 
@@ -100,11 +103,7 @@ def load_benchmark_config(path: str | Path) -> BenchmarkConfig:
     """Read a benchmark TOML; relative paths are resolved against its folder."""
     path = Path(path)
     cfg = from_mapping(BenchmarkConfig, load_toml(path))
-    base = path.parent
-
-    def rel(p: str) -> str:
-        return p if not p or "://" in p else str((base / p).resolve())
-
+    rel = partial(resolve_location, base=path.parent)
     for name in ("store", "metapns", "pns"):
         if not getattr(cfg, name):
             raise ConfigError(f"{path}: `{name}` is required")
@@ -178,19 +177,19 @@ def calibration(
       ``NOISE_DRAWS`` noise draws per ``c``.
     """
     tally = {"noise": np.zeros(2), "c": np.zeros(2)}  # values inside the band, summed band width
-    n = 0
+    n, device = 0, next(model.parameters()).device
     g = torch.Generator().manual_seed(cfg.seed)
     for si, subject in enumerate(subjects):
         mesh_id = view.mesh_of[subject]
-        hier = view.hierarchy(mesh_id, levels, coarsest)
+        hier = on_device(view.hierarchy(mesh_id, levels, coarsest), device)
         rng = np.random.default_rng([cfg.seed, si, 99])
         perm = rng.permutation(len(view.sites(mesh_id)))
         ep = load_episode(view.store, subject, perm[:3], np.sort(perm[3:8]), observe)
         k = len(ep.context_sites)
         sites = torch.cat([ep.context_sites, ep.target_sites])
         with torch.no_grad():
-            post = model.embed(ep.context_obs, ep.observed, hier)
-            draws = torch.stack([model.generate(sites, hier, post.sample(g)) for _ in range(cfg.samples)])
+            post = model.embed(ep.context_obs.to(device), ep.observed.to(device), hier)
+            draws = torch.stack([model.generate(sites, hier, post.sample(g)) for _ in range(cfg.samples)]).cpu()
         residual = draws[:, :k][..., ep.observed] - ep.context_obs[..., ep.observed]
         noise_scale = residual.pow(2).mean().sqrt()
         targets = draws[:, k:]
@@ -223,10 +222,10 @@ def real_data(model, config, cfg: BenchmarkConfig) -> dict:
     view = StoreView(spec.store)
     if view.frames != model.frames:
         raise InputError(f"{spec.store} has {view.frames} frames per simulation, the model expects {model.frames}")
-    rows = []
+    rows, device = [], next(model.parameters()).device
     for si, subject in enumerate(view.subjects):
         mesh_id = view.mesh_of[subject]
-        hier = view.hierarchy(mesh_id, config.model.levels, config.model.coarsest)
+        hier = on_device(view.hierarchy(mesh_id, config.model.levels, config.model.coarsest), device)
         n_sites = min(spec.sites, len(view.sites(mesh_id)))
         for left in range(n_sites):
             rng = np.random.default_rng([cfg.seed, si, left])
@@ -234,8 +233,9 @@ def real_data(model, config, cfg: BenchmarkConfig) -> dict:
             ep = load_episode(view.store, subject, ctx, [left], spec.observe, spec.noise_std, rng)
             noisy_target = ep.target_u[0].numpy() + rng.normal(0, spec.noise_std, ep.target_u[0].shape)
             with torch.no_grad():
-                c = model.embed(ep.context_obs, ep.observed, hier).mu if model.conditioned else None
-                pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c).numpy()
+                dev = ep.to(device)
+                c = model.embed(dev.context_obs, dev.observed, hier).mu if model.conditioned else None
+                pred = model.generate(torch.cat([ep.context_sites, ep.target_sites]), hier, c).cpu().numpy()
             obs_nodes = ep.observed.numpy()
             for j, role in enumerate(["context"] * len(ctx) + ["target"]):
                 truth = ep.context_obs[j].numpy() if role == "context" else noisy_target
@@ -263,9 +263,7 @@ def real_data(model, config, cfg: BenchmarkConfig) -> dict:
 def _timing(view: StoreView, meta_report: EvalReport, pns_report: EvalReport, base_reports: dict) -> dict:
     subject = view.subjects[0]
     mesh = view.mesh(view.mesh_of[subject])
-    solver = dict(zarr.open_group(view.store, mode="r").attrs["spec"])["solver"]
-    from shared.reader import read_tissue
-
+    solver = read_solver_settings(view.store)
     tissue, site = read_tissue(view.store, subject), view.sites(view.mesh_of[subject])[:1]
     sim = load_simulator()
     sim.simulate(mesh, tissue, site, solver)  # JIT warm-up
@@ -294,12 +292,13 @@ def _maps_per_mesh(view: StoreView, rows: list, subjects: list[str], path: Path)
     return paths
 
 
-def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
-    """Run everything of the module docstring; returns the numbers written to ``benchmark.json``."""
+def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> dict[str, Any]:
+    """Run everything of the module docstring, the neural models on ``device``; returns the benchmark.json numbers."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    meta, meta_cfg, meta_ckpt = load_model(cfg.metapns)
-    pns, pns_cfg, _ = load_model(cfg.pns)
+    placed = resolve_device(device)
+    meta, meta_cfg, meta_ckpt = load_model(cfg.metapns, placed)
+    pns, pns_cfg, _ = load_model(cfg.pns, placed)
     if not meta.conditioned or pns.conditioned:
         raise InputError("`metapns` must be a metaPNS checkpoint and `pns` a PNS checkpoint")
     view = StoreView(cfg.store, cache_dir=out / "hierarchies")
@@ -322,7 +321,7 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print) -> dict[str, Any]:
     reports = evaluate_methods(neural, view, test, spec, observe, noise, levels, coarsest, step("Table 1"))
     results["table1_all_test"] = {name: _stats(r) for name, r in reports.items()}
 
-    solver = dict(zarr.open_group(view.store, mode="r").attrs["spec"])["solver"]
+    solver = read_solver_settings(view.store)
     b = cfg.baselines
     make = {
         "fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from shared.cli import fail, parse_ids
+from shared.cli import fail, finite, parse_ids
 from shared.errors import InputError
 
 if TYPE_CHECKING:
@@ -23,6 +23,7 @@ app = typer.Typer(
 console = Console()
 
 SeedOpt = Annotated[int, typer.Option(min=0, help="Random seed.")]
+DeviceOpt = Annotated[str, typer.Option(help="auto (CUDA where available), cpu, cuda or cuda:N.")]
 
 
 def _fail(exc: Exception, path: str | Path | None = None) -> NoReturn:
@@ -53,32 +54,58 @@ def train(
     config: Annotated[Path, typer.Argument(help="Training config (TOML).")],
     fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
     epochs: Annotated[int | None, typer.Option(min=1, help="Override train.epochs.")] = None,
-    max_minutes: Annotated[float | None, typer.Option(min=0, help="Override train.max_minutes (0: none).")] = None,
+    max_minutes: Annotated[
+        float | None, typer.Option(min=0, callback=finite, help="Override train.max_minutes (0: none).")
+    ] = None,
     seed: Annotated[int | None, typer.Option(min=0, help="Override train.seed.")] = None,
     store: Annotated[Path | None, typer.Option(help="Override data.store.")] = None,
     out: Annotated[Path | None, typer.Option(help="Override the run directory.")] = None,
     kind: Annotated[str | None, typer.Option(help="Override model.kind (metapns or pns).")] = None,
+    device: Annotated[str | None, typer.Option(help="Override train.device: auto, cpu, cuda or cuda:N.")] = None,
+    nproc: Annotated[
+        int, typer.Option(min=1, help="Training processes on this host (DistributedDataParallel, as torchrun).")
+    ] = 1,
 ) -> None:
-    """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly."""
+    """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly.
+
+    Under ``torchrun --nproc-per-node N -m learner train CFG`` every rank runs
+    this command; rank 0 prints and writes the checkpoints and logs.
+    """
+    import os
+
     from learner.config import load_config
 
     try:
         cfg = _overridden(
-            load_config(config), epochs=epochs, max_minutes=max_minutes, seed=seed, store=store, out=out, kind=kind
+            load_config(config),
+            epochs=epochs,
+            max_minutes=max_minutes,
+            seed=seed,
+            store=store,
+            out=out,
+            kind=kind,
+            device=device,
         )
         Path(cfg.out).mkdir(parents=True, exist_ok=True)  # an unusable run directory fails before torch loads
     except (InputError, OSError) as exc:
         _fail(exc, config)
+    from learner.train.distributed import RankFailed, launch
     from learner.train.trainer import TrainingDiverged
     from learner.train.trainer import train as run
 
-    console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
+    main = os.environ.get("RANK", "0") == "0"
+    if main:
+        console.print(f"training {cfg.model.kind} on {cfg.data.store} -> {cfg.out}")
     try:
-        result = run(cfg, fresh=fresh, on_epoch=_show_epoch)
-    except (InputError, TrainingDiverged, OSError) as exc:
+        if nproc > 1:
+            result = launch(cfg, nproc, fresh=fresh, on_epoch=_show_epoch)
+        else:
+            result = run(cfg, fresh=fresh, progress=main, on_epoch=_show_epoch)
+    except (InputError, TrainingDiverged, RankFailed, OSError) as exc:
         _fail(exc, cfg.out)
     note = " (time budget reached)" if result.stopped_early else ""
-    console.print(f"done: {result.epochs_done} epochs{note}; checkpoints in {result.out}")
+    if main:
+        console.print(f"done: {result.epochs_done} epochs{note}; checkpoints in {result.out}")
 
 
 def _overridden(
@@ -89,13 +116,15 @@ def _overridden(
     store: Path | None,
     out: Path | None,
     kind: str | None,
+    device: str | None = None,
 ) -> LearnerConfig:
     """``cfg`` with the options that were given."""
     from dataclasses import replace
 
     from learner.config import config_from_mapping
 
-    train = {k: v for k, v in (("epochs", epochs), ("max_minutes", max_minutes), ("seed", seed)) if v is not None}
+    given = (("epochs", epochs), ("max_minutes", max_minutes), ("seed", seed), ("device", device))
+    train = {k: v for k, v in given if v is not None}
     cfg = replace(cfg, train=replace(cfg.train, **train))
     if store is not None:
         cfg = replace(cfg, data=replace(cfg.data, store=str(store.resolve())))
@@ -127,6 +156,7 @@ def evaluate(
     sets: Annotated[int, typer.Option(min=1, help="Context sets per subject.")] = 3,
     max_targets: Annotated[int, typer.Option(min=0, help="Targets per context set (0 = all).")] = 40,
     seed: SeedOpt = 0,
+    device: DeviceOpt = "auto",
 ) -> None:
     """Context and target MSE / CC / DC / activation-time error, per subject and overall."""
     from learner.evaluate import EvalSpec
@@ -141,12 +171,31 @@ def evaluate(
         spec = EvalSpec(
             subjects=split, context=_context_range(context), context_sets=sets, max_targets=max_targets, seed=seed
         )
-        report = run(checkpoint, store, spec, progress=lambda i, n, s: console.print(f"[{i}/{n}] {s}"))
+        report = run(checkpoint, store, spec, lambda i, n, s: console.print(f"[{i}/{n}] {s}"), device)
     except (InputError, ValueError) as exc:
         _fail(exc)
-    js, md = report.write(out)
+    try:
+        js, md = report.write(out)
+    except OSError as exc:
+        _fail(exc, out)
     console.print(report.to_markdown().split("### per subject")[0])
     console.print(f"wrote {js} and {md}")
+
+
+def _training_log(run: Path) -> list[dict]:
+    """The rows of ``run/log.jsonl``; a missing log or a line that is not JSON is bad input."""
+    import json
+
+    log = run / "log.jsonl"
+    if not log.is_file():
+        raise InputError(f"{log} not found: is {run} a training run directory?")
+    rows = []
+    for number, line in enumerate(log.read_text().splitlines(), 1):
+        try:
+            rows.extend([json.loads(line)] if line.strip() else [])
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{log}: line {number} is not JSON ({exc.msg})") from None
+    return rows
 
 
 @app.command()
@@ -155,18 +204,17 @@ def curves(
     out: Annotated[Path, typer.Option(help="PNG to write.")] = Path("report/training_curves.png"),
 ) -> None:
     """Plot the validation and training target MSE of one or more training runs against epoch."""
-    import json
-
     from learner.plot import plot_training_curves
 
-    logs = {}
-    for run in runs:
-        log = run / "log.jsonl"
-        if not log.is_file():
-            _fail(InputError(f"{log} not found: is {run} a training run directory?"))
-        logs[run.name] = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    console.print(f"wrote {plot_training_curves(logs, out)}")
+    try:
+        logs = {run.name: _training_log(run) for run in runs}
+    except (InputError, OSError) as exc:
+        _fail(exc)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        console.print(f"wrote {plot_training_curves(logs, out)}")
+    except OSError as exc:
+        _fail(exc, out)
 
 
 @app.command()
@@ -180,6 +228,7 @@ def personalize(
     observations: Annotated[
         Path | None, typer.Option(help=".npz with points, cells, sites, obs, observed, times (instead of --store).")
     ] = None,  # noqa: E501
+    device: DeviceOpt = "auto",
 ) -> None:
     """Embed a subject's few observations into a saved personalised surrogate."""
     from learner.personalize import observations_from_file, observations_from_store
@@ -192,7 +241,7 @@ def personalize(
             obs = observations_from_store(store, subject, parse_ids(sites, "--sites"), observe)
         else:
             raise InputError("give either --observations FILE or --store, --subject and --sites")
-        info = run(checkpoint, obs, out)
+        info = run(checkpoint, obs, out, device)
     except (InputError, OSError) as exc:
         _fail(exc, out)
     console.print(
@@ -211,37 +260,48 @@ def predict(
     samples: Annotated[
         int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
     ] = 0,
+    device: DeviceOpt = "auto",
 ) -> None:
     """Predict full-mesh sequences for new stimulation sites."""
     from learner.personalize import predict as run
     from learner.personalize import write_vtk
 
     try:
-        pred = run(personalized, parse_ids(sites, "--sites"), samples=samples)
+        pred = run(personalized, parse_ids(sites, "--sites"), samples=samples, device=device)
     except InputError as exc:
         _fail(exc)
     arrays = {"sites": pred.sites, "times": pred.times, "u": pred.u}
     if pred.spread is not None:
         arrays["spread"] = pred.spread
-    out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out, **arrays)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(out, **arrays)
+    except OSError as exc:
+        _fail(exc, out)
     console.print(f"{len(pred.sites)} sequence(s) in {1000 * pred.seconds:.1f} ms -> {out}")
     if vtk is not None:
-        paths = write_vtk(pred, vtk)
+        try:
+            paths = write_vtk(pred, vtk)
+        except OSError as exc:
+            _fail(exc, vtk)
         console.print(f"wrote {len(paths)} .vtu file(s) to {vtk}")
 
 
 @app.command()
 def benchmark(
     config: Annotated[Path, typer.Argument(help="Benchmark config (TOML): store, checkpoints, baselines, real data.")],
+    device: DeviceOpt = "auto",
 ) -> None:
     """Table 1 (4 methods), Fig. 3, timings, activation maps, calibration and real-data emulation -> <out>/."""
     from learner.benchmark import load_benchmark_config, run_benchmark
 
     try:
         cfg = load_benchmark_config(config)
-        run_benchmark(cfg, progress=console.print)
-    except InputError as exc:
-        _fail(exc)
+    except (InputError, OSError) as exc:
+        _fail(exc, config)
+    try:
+        run_benchmark(cfg, progress=console.print, device=device)
+    except (InputError, OSError) as exc:
+        _fail(exc, cfg.out)
     console.print((Path(cfg.out) / "benchmark.md").read_text())
     console.print(f"wrote {cfg.out}/benchmark.md, benchmark.json, table1.md, timing.md and figures")

@@ -29,8 +29,10 @@ from typing import Literal
 
 from learner.data.episodes import EpisodeSpec
 from learner.data.split import SplitSpec
+from learner.runtime import PRECISIONS, check_device
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError
+from shared.location import resolve_location
 
 __all__ = ["DataConfig", "ModelConfig", "TrainConfig", "LearnerConfig", "load_config", "config_from_mapping"]
 
@@ -92,12 +94,17 @@ class TrainConfig:
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
     validate_every: int = 5  # epochs between validation passes (best checkpoint kept)
     init: str = ""  # warm start: a checkpoint of the same splits whose matching parameters start this run
+    device: str = "auto"  # auto (CUDA where available), cpu, cuda or cuda:N
+    precision: str = "fp32"  # fp32, or autocast to bf16 / fp16 (docs/training.md measures bf16)
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.lr <= 0 or self.lr_halve_every < 1:
             raise ConfigError("train.epochs, train.lr and train.lr_halve_every must be positive")
         if self.lambda1 < 0 or self.lambda2 < 0 or self.grad_clip <= 0:
             raise ConfigError("train.lambda1/lambda2 must be >= 0 and train.grad_clip > 0")
+        check_device(self.device, "train.device")
+        if self.precision not in PRECISIONS:
+            raise ConfigError(f"train.precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
 
 
 @dataclass(frozen=True)
@@ -120,7 +127,7 @@ def config_from_mapping(data: dict, base: Path | None = None) -> LearnerConfig:
     if not cfg.data.store:
         raise ConfigError("data.store is required: the dataset store built by `simgen build`")
     if base is not None:
-        store = str((base / cfg.data.store).resolve()) if "://" not in cfg.data.store else cfg.data.store
+        store = resolve_location(cfg.data.store, base)
         init = str((base / cfg.train.init).resolve()) if cfg.train.init else ""
         cfg = replace(
             cfg,

@@ -24,6 +24,7 @@ from learner.data.episodes import Episode, load_episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.surrogate import PNS
+from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
 from shared.errors import InputError
@@ -86,9 +87,10 @@ class EvalReport:
         for subject, roles in self.per_subject.items():
             lines += [f"| {subject} | {role} | {fmt(s)} |\n" for role, s in roles.items()]
         t = self.timing
+        fit_ms, device = 1000 * t.get("fit_s", float("nan")), t.get("device", "cpu")
         lines.append(
             f"\nPrediction {1000 * t.get('predict_s_per_sim', float('nan')):.1f} ms per simulation, "
-            f"personalisation {1000 * t.get('fit_s', float('nan')):.1f} ms per context set (CPU).\n"
+            f"personalisation {fit_ms:.1f} ms per context set ({device}).\n"
         )
         return "".join(lines)
 
@@ -120,25 +122,28 @@ class NeuralMethod(Method):
 
     def __init__(self, model: PNS, name: str, batch: int = 16) -> None:
         self.model, self.name, self.batch = model.eval(), name, batch
+        self.device = next(model.parameters()).device
         self._c: Tensor | None = None
         self._hier: MeshHierarchy | None = None
 
     def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
-        self._hier, self._c = hierarchy, None
+        self._hier, self._c = on_device(hierarchy, self.device), None
         if not self.model.conditioned:
             return {"fit_s": 0.0}
         t0 = time.perf_counter()
+        ep = episode.to(self.device)
         with torch.no_grad():
-            self._c = self.model.embed(episode.context_obs, episode.observed, hierarchy).mu
+            self._c = self.model.embed(ep.context_obs, ep.observed, self._hier).mu
         return {"fit_s": time.perf_counter() - t0}
 
     def predict(self, sites: Tensor) -> np.ndarray:
+        sites = sites.to(self.device)
         with torch.no_grad():
             parts = [
                 self.model.generate(sites[i : i + self.batch], self._hier, self._c)
                 for i in range(0, len(sites), self.batch)
             ]
-        return torch.cat(parts).numpy()
+        return torch.cat(parts).cpu().numpy()
 
 
 def _subjects(spec: EvalSpec, splits: dict, view: StoreView) -> list[str]:
@@ -230,13 +235,16 @@ def evaluate_methods(
             "predict_s_per_sim": float(np.sum(c["predict_s"]) / max(n_predicted, 1)),
             "ms_per_time_unit": MS_PER_TIME_UNIT,
             "dc_frame": dc_frame,
+            "device": str(getattr(m, "device", "cpu")),
         }
     return reports
 
 
-def evaluate(checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpec(), progress=None) -> EvalReport:
-    """Evaluate ``checkpoint`` on ``store`` (see :class:`EvalSpec`)."""
-    model, config, ckpt = load_model(checkpoint)
+def evaluate(
+    checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpec(), progress=None, device: str = "cpu"
+) -> EvalReport:
+    """Evaluate ``checkpoint`` on ``store`` (see :class:`EvalSpec`), the model on ``device`` (``auto``, ``cuda``...)."""
+    model, config, ckpt = load_model(checkpoint, resolve_device(device))
     view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
     if view.frames != model.frames:
         raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {model.frames}")

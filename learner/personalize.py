@@ -8,6 +8,8 @@ A personalised surrogate file holds the trained weights, the context embedding
 from __future__ import annotations
 
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +20,7 @@ from learner.config import config_from_mapping
 from learner.data.episodes import load_episode
 from learner.graph.hierarchy import hierarchy_for_mesh
 from learner.models.surrogate import MetaPNS, Posterior, build_model
+from learner.runtime import resolve_device
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
@@ -56,6 +59,8 @@ class Observations:
                 f"observations do not fit together: obs {self.obs.shape}, observed {self.observed.shape}, "
                 f"sites {len(self.sites)}, times {len(self.times)}, mesh nodes {len(self.mesh.points)}"
             )
+        if not self.observed.any():
+            raise InputError("no observed node: observed is false everywhere, so no sequence is observed anywhere")
         if not np.isfinite(self.obs[:, :, self.observed]).all():
             raise InputError("observations contain NaN or inf at observed nodes")
         bad = [int(s) for s in self.sites if not 0 <= s < n]
@@ -79,34 +84,78 @@ def observations_from_store(store: str | Path, subject: str, sites: list[int], o
     )
 
 
+#: Arrays of an observation file: dimensions and admissible dtype kinds (f float, i/u integer, b bool).
+OBSERVATION_ARRAYS = {
+    "points": (2, "fiu"),  # (N, 3) mm
+    "cells": (2, "iu"),  # (M, 4) tetrahedra or (M, 3) triangles
+    "sites": (1, "iu"),  # (K,)
+    "obs": (3, "fiu"),  # (K, T, N)
+    "observed": (1, "biu"),  # (N,) 0/1
+    "times": (1, "fiu"),  # (T,)
+}
+_KINDS = {"f": "float", "i": "integer", "u": "integer", "b": "bool"}
+_UNREADABLE = (ValueError, EOFError, zipfile.BadZipFile, zlib.error)  # what np.load raises for bad bytes
+
+
+def _read_observation_arrays(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of :data:`OBSERVATION_ARRAYS` from ``path``, each checked for dimensions and dtype."""
+    try:
+        data = np.load(path)
+    except _UNREADABLE as exc:
+        raise InputError(f"{path} is not an .npz archive of arrays: {exc}") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise InputError(f"{path} holds a single array, not an .npz archive of {list(OBSERVATION_ARRAYS)}")
+    arrays = {}
+    with data:
+        missing = [name for name in OBSERVATION_ARRAYS if name not in data.files]
+        if missing:
+            raise InputError(f"{path} lacks array(s) {missing}")
+        for name, (ndim, kinds) in OBSERVATION_ARRAYS.items():
+            try:
+                array = data[name]
+            except _UNREADABLE as exc:
+                raise InputError(f"{path}: array {name!r} cannot be read: {exc}") from None
+            if array.ndim != ndim or array.dtype.kind not in kinds:
+                allowed = " or ".join(dict.fromkeys(_KINDS[k] for k in kinds))
+                raise InputError(
+                    f"{path}: {name} must be a {ndim}-D array of {allowed} values, got {array.ndim}-D {array.dtype}"
+                )
+            arrays[name] = array
+    return arrays
+
+
 def observations_from_file(path: str | Path) -> Observations:
-    """Observations from an ``.npz`` with ``points, cells, sites, obs, observed, times``."""
+    """Observations from an ``.npz`` with the arrays of :data:`OBSERVATION_ARRAYS`, checked."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"observation file not found: {path}")
-    data = np.load(path)
-    missing = sorted({"points", "cells", "sites", "obs", "observed", "times"} - set(data.files))
-    if missing:
-        raise InputError(f"{path} lacks array(s) {missing}")
-    mesh = Mesh(points=data["points"], cells=data["cells"], name=path.stem)
+    a = _read_observation_arrays(path)
+    for name in ("points", "times"):
+        if not np.isfinite(a[name]).all():
+            raise InputError(f"{path}: {name} contains NaN or inf")
+    if not np.isin(a["observed"], (0, 1)).all():
+        raise InputError(f"{path}: observed must hold 0/1 (or false/true) per node")
+    mesh = Mesh(points=a["points"], cells=a["cells"], name=path.stem)
     return Observations(
-        mesh, data["sites"], data["obs"].astype(np.float32), data["observed"].astype(bool), data["times"], path.stem
+        mesh, a["sites"], a["obs"].astype(np.float32), a["observed"].astype(bool), a["times"], path.stem
     )
 
 
-def personalize(checkpoint: str | Path, observations: Observations, out: str | Path) -> dict:
-    """Embed the context set and save a personalised surrogate; returns timing and shape facts."""
-    model, config, ckpt = load_model(checkpoint)
+def personalize(checkpoint: str | Path, observations: Observations, out: str | Path, device: str = "cpu") -> dict:
+    """Embed the context set (on ``device``) and save a personalised surrogate; returns timing and shape facts."""
+    placed = resolve_device(device)
+    model, config, ckpt = load_model(checkpoint, placed)
     if not isinstance(model, MetaPNS):
         raise InputError(f"{checkpoint} is a PNS model: it has no context embedding to personalise")
     if observations.obs.shape[1] != model.frames:
         raise InputError(f"observations have {observations.obs.shape[1]} frames, the model expects {model.frames}")
-    hier = hierarchy_for_mesh(observations.mesh, config.model.levels, config.model.coarsest, None)
-    obs = torch.as_tensor(observations.obs, dtype=torch.float32)
-    observed = torch.as_tensor(observations.observed)
+    hier = hierarchy_for_mesh(observations.mesh, config.model.levels, config.model.coarsest, None).to(placed)
+    obs = torch.as_tensor(observations.obs, dtype=torch.float32, device=placed)
+    observed = torch.as_tensor(observations.observed, device=placed)
     t0 = time.perf_counter()
     with torch.no_grad():
         post = model.embed(obs, observed, hier)
+        post = Posterior(post.mu.cpu(), post.logvar.cpu())
     seconds = time.perf_counter() - t0
     save_checkpoint(
         out,
@@ -139,21 +188,24 @@ class Prediction:
     seconds: float = 0.0
 
 
-def predict(personalized: str | Path, sites: list[int], samples: int = 0, seed: int = 0) -> Prediction:
-    """Full-mesh sequences for new stimulation nodes; ``samples > 1`` also draws c for a spread."""
+def predict(
+    personalized: str | Path, sites: list[int], samples: int = 0, seed: int = 0, device: str = "cpu"
+) -> Prediction:
+    """Full-mesh sequences for new stimulation nodes (on ``device``); ``samples > 1`` also draws c for a spread."""
+    placed = resolve_device(device)
     p = load_checkpoint(personalized, kind="personalized")
     config = config_from_mapping(p["config"])
     model = build_model(config.model, p["frames"])
     model.load_state_dict(p["model"])
-    model.eval()
+    model.to(placed).eval()
     mesh = Mesh(points=p["points"].numpy(), cells=p["cells"].numpy(), name=p["subject"] or "mesh")
     n = len(mesh.points)
     bad = [int(s) for s in sites if not 0 <= int(s) < n]
     if bad or not sites:
         raise InputError(f"stimulation nodes {bad or sites} are not nodes of the {n}-node mesh")
-    hier = hierarchy_for_mesh(mesh, config.model.levels, config.model.coarsest, None)
-    s = torch.as_tensor(np.asarray(sites, np.int64))
-    post = Posterior(p["c_mu"], p["c_logvar"])
+    hier = hierarchy_for_mesh(mesh, config.model.levels, config.model.coarsest, None).to(placed)
+    s = torch.as_tensor(np.asarray(sites, np.int64), device=placed)
+    post = Posterior(p["c_mu"].to(placed), p["c_logvar"].to(placed))
     t0 = time.perf_counter()
     with torch.no_grad():
         u = model.generate(s, hier, post.mu)
@@ -162,8 +214,8 @@ def predict(personalized: str | Path, sites: list[int], samples: int = 0, seed: 
         if samples > 1:
             g = torch.Generator().manual_seed(seed)
             draws = torch.stack([model.generate(s, hier, post.sample(g)) for _ in range(samples)])
-            spread = draws.std(dim=0).numpy()
-    return Prediction(np.asarray(sites), u.numpy(), p["times"].numpy(), mesh, spread, seconds)
+            spread = draws.std(dim=0).cpu().numpy()
+    return Prediction(np.asarray(sites), u.cpu().numpy(), p["times"].numpy(), mesh, spread, seconds)
 
 
 def write_vtk(prediction: Prediction, folder: str | Path, threshold: float = 0.5) -> list[Path]:

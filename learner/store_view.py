@@ -6,13 +6,21 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-import zarr
 
 from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
 from shared.errors import InputError, SchemaError
 from shared.mesh import Mesh
-from shared.reader import check_store, read_mesh, read_sites, read_split, subject_attrs, subject_ids
-from shared.schema import subject_path
+from shared.reader import (
+    check_store,
+    read_mesh,
+    read_sites,
+    read_split,
+    read_times,
+    read_u,
+    subject_array,
+    subject_attrs,
+    subject_ids,
+)
 
 __all__ = ["StoreView"]
 
@@ -54,7 +62,7 @@ class StoreView:
     @cached_property
     def frames(self) -> int:
         """Frames per simulation (the same for every subject of a store)."""
-        counts = {zarr.open_group(self.store, path=subject_path(s), mode="r")["u"].shape[1] for s in self.subjects}
+        counts = {subject_array(self.store, s, "u").shape[1] for s in self.subjects}
         if len(counts) != 1:
             raise SchemaError(f"{self.store}: subjects have different frame counts {sorted(counts)}")
         return counts.pop()
@@ -62,14 +70,14 @@ class StoreView:
     @cached_property
     def times(self) -> np.ndarray:
         """Output times (model time units) of the frames."""
-        return zarr.open_group(self.store, path=subject_path(self.subjects[0]), mode="r")["times"][...]
+        return read_times(self.store, self.subjects[0])
 
     def frame_means(self, subjects: list[str]) -> np.ndarray:
         """Mean potential per frame over every site and node of ``subjects``: the predictor that ignores all inputs."""
         total, count = np.zeros(self.frames), 0
         for sid in subjects:
-            u = zarr.open_group(self.store, path=subject_path(sid), mode="r")["u"]
-            total += u[...].sum(axis=(0, 2), dtype=np.float64)
+            u = read_u(self.store, sid)
+            total += u.sum(axis=(0, 2), dtype=np.float64)
             count += u.shape[0] * u.shape[2]
         return total / max(count, 1)
 

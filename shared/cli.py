@@ -10,6 +10,7 @@ and keeps its traceback.
 from __future__ import annotations
 
 import errno
+import math
 from collections import Counter
 from pathlib import Path
 from typing import NoReturn
@@ -20,7 +21,7 @@ from rich.markup import escape
 
 from shared.errors import InputError
 
-__all__ = ["PATH_ERRNOS", "fail", "path_error", "parse_ids"]
+__all__ = ["PATH_ERRNOS", "fail", "finite", "path_error", "parse_ids"]
 
 #: errno values of a file system refusing a path: bad input, not a bug.
 PATH_ERRNOS = frozenset(
@@ -60,6 +61,13 @@ def fail(console: Console, exc: Exception, path: str | Path | None = None) -> No
         raise exc
     console.print(f"[red]error:[/red] {escape(str(error))}", soft_wrap=True)
     raise typer.Exit(code=2)
+
+
+def finite(value: float | None) -> float | None:
+    """Typer callback of a float option: refuse NaN and infinity, which a ``min=`` range lets through."""
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"{value} is not a finite number")
+    return value
 
 
 def parse_ids(text: str, option: str) -> list[int]:

@@ -7,15 +7,18 @@ reader never holds more than one subject's arrays.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import zarr
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from shared.errors import SchemaError
+from shared.errors import InputError, SchemaError
+from shared.location import is_url
 from shared.mesh import LongAxis, Mesh
 from shared.schema import MESH_INDEX_SETS, check_schema_version, mesh_path, subject_path
 from shared.tissue import TissueFields
+from shared.units import MS_PER_TIME_UNIT
 
 __all__ = [
     "check_store",
@@ -28,12 +31,18 @@ __all__ = [
     "read_index_set",
     "read_statistics",
     "read_split",
+    "read_solver_settings",
+    "read_times",
+    "subject_array",
+    "read_rows",
+    "read_u",
+    "read_activation",
 ]
 
 
 def _has_root_metadata(path: str | Path) -> bool:
     """Whether ``zarr.json`` exists in the store: a folder, or an fsspec URL (``s3://bucket/x.zarr``)."""
-    if isinstance(path, str) and "://" in path:
+    if is_url(path):
         import fsspec
 
         fs, root = fsspec.url_to_fs(path)
@@ -60,15 +69,23 @@ def subject_ids(path: str | Path) -> list[str]:
     return sorted(name for name, _ in root["subjects"].groups())
 
 
+def _subject_group(path: str | Path, subject_id: str) -> zarr.Group:
+    """The subject's group; :class:`InputError` naming the subject when the store has none."""
+    try:
+        return zarr.open_group(str(path), path=subject_path(subject_id), mode="r", zarr_format=3)
+    except FileNotFoundError:  # zarr's GroupNotFoundError derives from it
+        raise InputError(f"unknown subject {subject_id!r} in store {path}") from None
+
+
 def subject_attrs(path: str | Path, subject_id: str) -> dict:
     """Attributes of a subject group: ``mesh_id``, ``tissue``, ``chunk_sites`` (and from version 2
     ``solver``, ``split``, ``statistics``)."""
-    return dict(zarr.open_group(str(path), path=subject_path(subject_id), mode="r").attrs)
+    return dict(_subject_group(path, subject_id).attrs)
 
 
 def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:
     """Completion flag of every chunk of a subject."""
-    return zarr.open_group(str(path), path=subject_path(subject_id), mode="r")["done"][...].astype(bool)
+    return _subject_group(path, subject_id)["done"][...].astype(bool)
 
 
 def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
@@ -122,3 +139,67 @@ def read_split(path: str | Path) -> dict[str, str]:
     """
     parts = {sid: subject_attrs(path, sid).get("split") for sid in subject_ids(path)}
     return {sid: part for sid, part in parts.items() if part is not None}
+
+
+def read_solver_settings(path: str | Path) -> dict:
+    """The build spec's ``[solver]`` table: the settings a simulator takes (``dt`` ``None``: chosen per mesh).
+
+    What the solver resolved on a subject's mesh (``dt``, ``stimulus_radius``
+    in mm...) is the subject attribute ``solver`` (:func:`subject_attrs`).
+    """
+    return dict(zarr.open_group(str(path), mode="r").attrs["spec"]["solver"])
+
+
+def read_times(path: str | Path, subject_id: str, unit: Literal["time", "ms"] = "time") -> NDArray[np.float64]:
+    """Frame times ``(time,)`` of a subject in model time units (``"time"``) or in ms (``"ms"``)."""
+    g = _subject_group(path, subject_id)
+    if unit == "time":
+        return g["times"][...]
+    if unit == "ms":  # a version-1 store has no time_ms coordinate
+        return g["time_ms"][...] if "time_ms" in g else g["times"][...] * MS_PER_TIME_UNIT
+    raise InputError(f"unknown time unit {unit!r}; choose 'time' (model units) or 'ms'")
+
+
+def subject_array(path: str | Path, subject_id: str, name: str) -> zarr.Array:
+    """Lazy handle on one array of a subject (``u``, ``activation``...): metadata only, until read.
+
+    Keep it to read many rows of one subject (:func:`read_rows`) without
+    opening the subject's group each time.
+    """
+    return _subject_group(path, subject_id)[name]
+
+
+def read_rows(array: zarr.Array, rows: ArrayLike) -> NDArray:
+    """``array[rows]`` along the site axis, decoding only the chunks that hold ``rows``, one chunk at a time.
+
+    In a sharded store (schema version 3) a chunk is one site's inner chunk, so
+    each row decodes alone (4x faster than ``array.oindex[rows]``, measured);
+    in an older store a chunk holds a build task's sites, and a chunk-aligned
+    slice per chunk measured ~20 % faster than ``oindex`` and bounds the extra
+    memory to one chunk.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    step = array.chunks[0]
+    out = np.empty((rows.size, *array.shape[1:]), dtype=array.dtype)
+    chunk_of = rows // step
+    for c in np.unique(chunk_of):
+        pick = np.flatnonzero(chunk_of == c)
+        start = int(c) * step
+        block = array[start : min(start + step, array.shape[0])]
+        out[pick] = block[rows[pick] - start]
+    return out
+
+
+def read_u(path: str | Path, subject_id: str, rows: ArrayLike | None = None) -> NDArray[np.float32]:
+    """Potential ``u`` ``(site, time, node)`` of the site rows ``rows`` (default: every site).
+
+    Rows of a chunk whose ``done`` flag is 0 hold NaN (:func:`done_flags`).
+    """
+    u = subject_array(path, subject_id, "u")
+    return u[...] if rows is None else read_rows(u, rows)
+
+
+def read_activation(path: str | Path, subject_id: str, rows: ArrayLike | None = None) -> NDArray[np.float32]:
+    """Activation times ``(site, node)`` in model time units (NaN: never activated) of ``rows`` (default: all)."""
+    activation = subject_array(path, subject_id, "activation")
+    return activation[...] if rows is None else read_rows(activation, rows)

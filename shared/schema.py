@@ -1,6 +1,6 @@
 """The dataset store contract (Zarr v3), shared by simgen (writer) and learner (reader).
 
-Layout of one store (one dataset), version 2::
+Layout of one store (one dataset), version 3::
 
     <store>/                      attrs: schema_version, spec, spec_hash, complete, provenance,
                                          simulation, split, statistics, summary (and added: edits)
@@ -10,10 +10,13 @@ Layout of one store (one dataset), version 2::
         stim_nodes (site,) i4     stimulation sites of every subject on this mesh
       subjects/<subject_id>/      attrs: mesh_id, tissue, chunk_sites, solver, split, statistics
         a, D (node,) f4           label (node,) i1
-        u (site, time, node) f4   chunked along site: one chunk = one build task
-        activation (site, node) f4  first crossing of the activation threshold (NaN = never), time units
+        u (site, time, node) f4   sharded along site: one shard = one build task's sites,
+                                  one inner chunk = one site (a simulation decodes alone)
+        activation (site, node) f4  first crossing of the activation threshold (NaN = never), time units;
+                                    sharded as u
         done (chunk,) u1          1 once a chunk's u, activation and moments are written
         moments (chunk, variable, moment) f8   per-chunk count, sum, sum of squares, min, max of u, activation
+        fingerprint (chunk,) u8   per chunk: hash of its subject id, chunk index, sites and data (0 = not written)
         coordinates: site (site,) i4 stimulated node ids, times (time,) f8 in time units,
                      time_ms (time,) f8, x / y / z (node,) f8 in mm
 
@@ -21,9 +24,12 @@ Every array carries CF-style ``units`` and ``long_name`` attributes, and a
 data array lists the coordinates along its dimensions in ``coordinates``, so
 ``xarray.open_zarr(store, group="subjects/<id>")`` labels sites, frames and
 nodes. Rules: ``done[k]`` is written only after chunk ``k``'s data; readers
-must treat a chunk with ``done == 0`` as missing. Version-1 stores (no
-coordinates, moments, units or the attributes of version 2) are still read,
-never written: see :func:`check_schema_version`.
+must treat a chunk with ``done == 0`` as missing. Every chunk of every array
+ends in a CRC32C checksum (version 3). Stores of versions 1 (no coordinates,
+moments, units or the attributes of version 2) and 2 (``u`` and ``activation``
+unsharded: one chunk per build task; no checksum on mesh, tissue and coordinate
+arrays; no fingerprints) are still read, never written: see
+:func:`check_schema_version`.
 """
 
 from __future__ import annotations
@@ -38,7 +44,9 @@ from shared.units import TIME_UNITS
 
 __all__ = [
     "SCHEMA_VERSION",
+    "METADATA_VERSION",
     "READABLE_VERSIONS",
+    "SHARDED_ARRAYS",
     "ArraySpec",
     "MESH_ARRAYS",
     "MESH_INDEX_SETS",
@@ -52,11 +60,28 @@ __all__ = [
     "check_schema_version",
 ]
 
-#: Bumped on any change of names, dtypes, dimensions or required attributes below.
-SCHEMA_VERSION = 2
+#: Bumped on any change of names, dtypes, dimensions, required attributes or chunk layout below.
+#: Version 3 shards :data:`SHARDED_ARRAYS`: one shard per build task, one inner chunk per site; it
+#: checksums every array (mesh, tissue and coordinates too) and adds the chunk ``fingerprint``.
+SCHEMA_VERSION = 3
+
+#: The version that added units, coordinates, moments, statistics, the split and provenance.
+METADATA_VERSION = 2
 
 #: Versions this code reads; it writes :data:`SCHEMA_VERSION` only.
-READABLE_VERSIONS = (1, SCHEMA_VERSION)
+READABLE_VERSIONS = (1, METADATA_VERSION, SCHEMA_VERSION)
+
+#: Result arrays sharded along ``site`` (from version 3): a shard holds one build task's sites, an
+#: inner chunk one site, so reading one simulation decodes that simulation only.
+SHARDED_ARRAYS = ("u", "activation")
+
+#: What a store of an older readable version lacks (named by the :class:`SchemaWarning`).
+_LACKS = {
+    1: "the metadata of version 2 (units, coordinates, statistics, canonical split, provenance) "
+    "and what version 3 added (sharding, checksums on every array, chunk fingerprints)",
+    2: "what version 3 added: sharding (reading one simulation decodes its build task's whole chunk), "
+    "checksums on mesh, tissue and coordinate arrays, chunk fingerprints",
+}
 
 
 @dataclass(frozen=True)
@@ -120,11 +145,19 @@ SUBJECT_ARRAYS: dict[str, ArraySpec] = {
         "(dimensionless) and activation (model time units)",
         since=2,
     ),
+    "fingerprint": ArraySpec(
+        "uint64",
+        ("chunk",),
+        "1",
+        "per-chunk content fingerprint: 64-bit BLAKE2b of the subject id, chunk index, site range and the "
+        "CRC32C of its u and activation (0 = not written)",
+        since=3,
+    ),
 }
 
 
 class SchemaWarning(UserWarning):
-    """A store of an older schema version is read without the metadata added since."""
+    """A store of an older schema version is read without what was added since (metadata, sharding)."""
 
 
 def array_attributes(table: Mapping[str, ArraySpec], name: str) -> dict[str, str]:
@@ -153,8 +186,9 @@ def check_schema_version(attrs: Mapping[str, Any], where: str = "store", write: 
 
     Raises :class:`SchemaError` for a store without a version, of an unknown
     version or, with ``write``, of an older one (resuming or editing it needs
-    a rebuild). Reading a version-1 store warns (:class:`SchemaWarning`): it
-    lacks coordinates, units, statistics, the canonical split and provenance.
+    a rebuild). Reading an older store warns (:class:`SchemaWarning`): version 1
+    lacks coordinates, units, statistics, the canonical split and provenance;
+    versions 1 and 2 store ``u`` and ``activation`` one chunk per build task.
     """
     version = attrs.get("schema_version")
     if version is None:
@@ -172,8 +206,7 @@ def check_schema_version(attrs: Mapping[str, Any], where: str = "store", write: 
         )
     if version != SCHEMA_VERSION:
         warnings.warn(
-            f"{where} has schema_version {version}: read without the metadata of version {SCHEMA_VERSION} "
-            f"(units, coordinates, statistics, canonical split, provenance); {rebuild} to add them",
+            f"{where} has schema_version {version}: read without {_LACKS[version]}; {rebuild} to add them",
             SchemaWarning,
             stacklevel=2,
         )

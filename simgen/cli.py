@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
-from shared.cli import fail, parse_ids
+from shared.cli import fail, finite, parse_ids
 from shared.config import load_toml
 from shared.errors import InputError
 from simgen.meshes.catalog import get_mesh
@@ -18,6 +19,9 @@ from simgen.meshes.io import save_mesh
 from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
+
+if TYPE_CHECKING:
+    from simgen.build.estimate import BuildEstimate
 
 app = typer.Typer(
     help="simgen: Aliev-Panfilov cardiac simulations on heart meshes, swept into datasets.",
@@ -89,7 +93,7 @@ def simulate(
     ] = "healthy",
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")] = "0",
     threads: ThreadsOpt = 2,
-    dt: Annotated[float | None, typer.Option(help="Time step; automatic when omitted.")] = None,
+    dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
 ) -> None:
     """Simulate stimulation SITES on one mesh + tissue and save u, activation times and a figure."""
     from simgen.plot import plot_activation_maps
@@ -102,14 +106,17 @@ def simulate(
         result = sim.run(site_ids, threads=threads)
     except (InputError, ValueError) as exc:
         _fail(exc)
-    out.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(
-        out / "simulation.npz", u=result.u, activation=result.activation, times=result.times, sites=result.sites
-    )
     act_ms = result.activation * MS_PER_TIME_UNIT
-    plot_activation_maps(
-        m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png", stim_nodes=site_ids
-    )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(
+            out / "simulation.npz", u=result.u, activation=result.activation, times=result.times, sites=result.sites
+        )
+        plot_activation_maps(
+            m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png", stim_nodes=site_ids
+        )
+    except OSError as exc:
+        _fail(exc, out)
     console.print(
         f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), dt={sim.dt:.4g}, "
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
@@ -135,7 +142,10 @@ def demo(
     """Run the demo sweep (LV + BiV, four tissue settings) and write figures and a summary."""
     from simgen.demo import run_demo
 
-    rows = run_demo(out, n_nodes=nodes, n_sites=sites, threads=threads)
+    try:
+        rows = run_demo(out, n_nodes=nodes, n_sites=sites, threads=threads)
+    except (InputError, OSError) as exc:
+        _fail(exc, out)
     console.print((out / "summary.md").read_text())
     console.print(f"{sum(len(r.sites) for r in rows)} simulations, figures in {out}/")
 
@@ -148,17 +158,35 @@ def build(
     workers: WorkersOpt = 2,
     force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
     retries: Annotated[int, typer.Option(min=0, help="Retries per failing task.")] = 2,
+    dry_run: Annotated[bool, typer.Option(help="Print the plan (disk, memory, time) and write nothing.")] = False,
 ) -> None:
-    """Build (or resume) the dataset of SPEC into STORE on a Dask cluster."""
+    """Build (or resume) the dataset of SPEC into STORE on a Dask cluster, after printing its plan.
+
+    The build is refused when a task needs more memory than a worker may use or
+    the store more disk space than is free.
+    """
     from simgen.build import load_spec
     from simgen.build.runner import build as run_build
+    from simgen.build.runner import plan_build
 
+    if dry_run:
+        try:
+            plan_build(load_spec(spec), store, scheduler, workers, _show_plan)
+        except (InputError, OSError) as exc:
+            _fail(exc, store)
+        console.print("dry run: nothing written")
+        return
     _run_with_progress(
         store,
         lambda on_start, on_done: run_build(
-            load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done
+            load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done, _show_plan
         ),
     )
+
+
+def _show_plan(estimate: BuildEstimate) -> None:
+    """Print a build's :class:`~simgen.build.estimate.BuildEstimate`."""
+    console.print("[bold]plan[/bold]\n  " + escape("\n  ".join(estimate.lines())), soft_wrap=True)
 
 
 def _run_with_progress(store: str, job) -> None:
@@ -254,6 +282,29 @@ def regenerate(
 
 
 @app.command()
+def repair(store: StoreArg, scheduler: SchedulerOpt = None, workers: WorkersOpt = 2) -> None:
+    """Restore a damaged STORE from its recorded spec: missing or damaged groups, arrays and chunks.
+
+    Removes what the spec does not imply, writes damaged meshes and subjects
+    anew, recomputes damaged chunks and finishes the build; the store ends as
+    a clean build of its spec.
+    """
+    from simgen.build.repair import repair_store
+
+    reports = []
+
+    def job(on_start, on_done):
+        reports.append(repair_store(store, scheduler, workers, on_start=on_start, on_done=on_done))
+        return reports[0].build
+
+    _run_with_progress(store, job)
+    for line in reports[0].lines():
+        console.print(f"repaired: {line}", soft_wrap=True)
+    if not reports[0].lines():
+        console.print(f"{store}: nothing was damaged")
+
+
+@app.command()
 def status(store: StoreArg) -> None:
     """Per-subject progress of a (possibly unfinished) build."""
     from simgen.build.inspect import store_status
@@ -292,10 +343,12 @@ def unlock(
 @app.command()
 def verify(
     store: StoreArg,
-    sample: Annotated[int, typer.Option(min=0, help="Chunks recomputed and compared bit for bit.")] = 2,
+    sample: Annotated[
+        int, typer.Option(min=0, help="Chunks of every subject recomputed and compared bit for bit.")
+    ] = 1,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the chunk sample.")] = 0,
 ) -> None:
-    """Check every chunk (done, readable, right shape, finite) and recompute a random sample."""
+    """Check the structure against the recorded spec, every checksum and chunk, and recompute a sample."""
     from simgen.build.verify import verify_store
 
     try:

@@ -27,7 +27,7 @@ from shared.errors import InputError
 from shared.mesh import Mesh
 from simgen.meshes.topology import boundary_faces
 
-__all__ = ["VIEWS", "surface_triangles", "plot_activation_maps", "plot_tissue", "plot_surfaces"]
+__all__ = ["VIEWS", "surface_triangles", "plot_activation_maps", "plot_tissue", "plot_surfaces", "plot_mesh_overview"]
 
 #: Default camera views as (elevation, azimuth) in degrees: front and back.
 VIEWS: tuple[tuple[float, float], ...] = ((12.0, 0.0), (12.0, 180.0))
@@ -267,14 +267,7 @@ def plot_surfaces(
     panels = [ax for row in axes for ax in row]
     for ax, mesh, title in zip(panels, meshes, titles):
         faces = _facing(mesh, surface_triangles(mesh), _eye(*view))
-        rgba = np.tile(to_rgba(_NAN_COLOUR), (len(faces), 1))
-        unset = np.ones(len(faces), dtype=bool)
-        for name, (_, colour) in _PART_COLOURS.items():
-            inside = np.zeros(mesh.n_nodes, dtype=bool)
-            inside[mesh.node_sets.get(name, [])] = True
-            part = unset & inside[faces].all(axis=1)
-            rgba[part], unset[part] = to_rgba(colour), False
-        _draw_surface(ax, mesh, faces, rgba, view, bounds)
+        _draw_surface(ax, mesh, faces, _part_colours(mesh, faces), view, bounds)
         ax.set_title(title, fontsize=8, pad=-4)
     for ax in panels[len(meshes) :]:
         ax.set_axis_off()
@@ -284,4 +277,60 @@ def plot_surfaces(
         fontsize=8,
         frameon=False,
     )
+    _save(fig, path)
+
+
+def _part_colours(mesh: Mesh, faces: NDArray) -> NDArray:
+    """Face colours of the surface parts (see :func:`plot_surfaces`)."""
+    rgba = np.tile(to_rgba(_NAN_COLOUR), (len(faces), 1))
+    unset = np.ones(len(faces), dtype=bool)
+    for name, (_, colour) in _PART_COLOURS.items():
+        inside = np.zeros(mesh.n_nodes, dtype=bool)
+        inside[mesh.node_sets.get(name, [])] = True
+        part = unset & inside[faces].all(axis=1)
+        rgba[part], unset[part] = to_rgba(colour), False
+    return rgba
+
+
+def plot_mesh_overview(
+    mesh: Mesh,
+    segments: ArrayLike,
+    activation: ArrayLike,
+    stim_node: int,
+    path: str | PathLike[str],
+    title: str,
+    views: Sequence[tuple[float, float]] = VIEWS,
+) -> None:
+    """One mesh as a PNG: a row each for its node sets, its AHA segments (1-17) and one activation map (ms)."""
+    seg = np.asarray(segments, dtype=np.float64)
+    act = np.asarray(activation, dtype=np.float64)
+    _check_nodal(mesh, seg[None], "segments", ndim=2)
+    _check_nodal(mesh, act[None], "activation", ndim=2)
+    faces = surface_triangles(mesh)
+    segment_colours = ScalarMappable(norm=Normalize(0.5, 17.5), cmap="tab20")
+    activation_colours = ScalarMappable(norm=_colour_range(act[None]), cmap="turbo_r")
+    face_segment = np.asarray([np.bincount(f, minlength=18).argmax() for f in seg[faces].astype(int)])
+    rows = [
+        ("node sets", _part_colours(mesh, faces)),
+        ("AHA segments", segment_colours.to_rgba(face_segment)),
+        (f"activation, site {stim_node}", activation_colours.to_rgba(act[faces].mean(axis=1))),
+    ]
+    fig, axes = _grid(len(rows), len(views))
+    for (name, rgba), row in zip(rows, axes):
+        for ax, view in zip(row, views):
+            _draw_surface(ax, mesh, faces, rgba, view)
+            ax.set_title(f"{name}  (azimuth {view[1]:g}\N{DEGREE SIGN})", fontsize=9, pad=-4)
+    _mark_node(axes[2][0], mesh, stim_node, views[0])
+    fig.suptitle(title, fontsize=10)
+    fig.legend(
+        handles=[Patch(color=c, label=n) for n, c in _PART_COLOURS.values()],
+        loc="upper left",
+        bbox_to_anchor=(_key_x(fig, 0.0), 0.97),
+        fontsize=8,
+        frameon=False,
+    )
+    cax = fig.add_axes((_key_x(fig, 0.15), 0.4, 0.2 / fig.get_figwidth(), 0.2))
+    fig.colorbar(segment_colours, cax=cax, label="AHA segment", ticks=[1, 6, 7, 12, 13, 16, 17])
+    cax = fig.add_axes((_key_x(fig, 0.15), 0.06, 0.2 / fig.get_figwidth(), 0.2))
+    fig.colorbar(activation_colours, cax=cax, label="activation time (ms)")
     _save(fig, path)

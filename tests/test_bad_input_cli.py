@@ -1,24 +1,32 @@
 """Bad input to the real ``simgen`` and ``learner`` command lines: exit code 2, a message naming it, no traceback.
 
-Every case runs the CLI in a subprocess (``python -m simgen`` / ``python -m
-learner``) and fails before any simulation, Dask cluster or training starts.
-Each number option has a range (checked here once for all), so one case per
-kind of check is enough.
+A table of cases by category (spec, mesh, store, lock, CLI number, checkpoint,
+observation, output path). Each case runs the real app (``tests/cli_batch.py``
+runs a batch of command lines in one subprocess, so each package is imported
+once per batch) and must exit with code 2 and one line naming the problem
+(typer's framed usage error for an out-of-range option), without a
+traceback. A case that reads a store gets its own copy of a tiny store built
+once per module, damaged first where the case says so, and must leave it
+byte-identical.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
 import typing
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import NamedTuple
 
+import numpy as np
 import pytest
 
 from learner.cli import _context_range
@@ -26,45 +34,436 @@ from shared.errors import InputError
 from simgen.build.lock import StoreLock
 
 ROOT = Path(__file__).resolve().parents[1]
-SPEC = """tissue = ["healthy"]
+SPEC = """tissue = ["healthy", "scar-apex"]
 [[meshes]]
 id = "lv"
-nodes = 500
+nodes = 300
 [sites]
 count = 4
 [solver]
-frames = {frames}
+frames = 6
 [output]
 chunk_sites = 2
-sock_electrodes = 30
+sock_electrodes = 20
 """
 as_root = os.geteuid() == 0  # root writes into read-only folders
 
 
-def run_cli(package: str, *args: object) -> tuple[int, str]:
-    """Exit code and stdout + stderr of ``python -m package args``."""
-    proc = subprocess.run(
-        [sys.executable, "-m", package, *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=120
+def spec(old: str, new: str) -> str:
+    """:data:`SPEC` with ``old`` replaced by ``new`` (which must occur)."""
+    assert old in SPEC
+    return SPEC.replace(old, new)
+
+
+#: Spec files written into the input folder, by file stem.
+SPECS = {
+    "good": SPEC,
+    "unknown-key": spec("frames = 6", "frame = 6"),
+    "wrong-type": spec("nodes = 300", 'nodes = "many"'),
+    "frames0": spec("frames = 6", "frames = 0"),
+    "chunk0": spec("chunk_sites = 2", "chunk_sites = 0"),
+    "unknown-tissue": spec('"scar-apex"', '"scar-nowhere"'),
+    "duplicate-mesh": SPEC + '[[meshes]]\nid = "lv"\nnodes = 300\n',
+    "bad-id": spec('id = "lv"', 'id = "l v"'),
+    "too-many-sites": spec("count = 4", "count = 100000"),
+    "site-out-of-range": spec("count = 4", "nodes = [99999]"),
+    "duplicate-sites": spec("count = 4", "nodes = [1, 5, 1]"),
+    "unknown-compressor": spec("chunk_sites = 2", 'chunk_sites = 2\ncompressor = "lzma"'),
+    "level-range": spec("chunk_sites = 2", 'chunk_sites = 2\ncompressor = "zstd"\nlevel = 30'),
+    "toml-syntax": spec("frames = 6", "frames = = 6"),
+    "unstable-dt": spec("frames = 6", "frames = 6\ndt = 10.0"),
+    "negative-diffusivity": spec("frames = 6", "frames = 6\ndiffusivity = -1.0"),
+    "nan-diffusivity": spec("frames = 6", "frames = 6\ndiffusivity = nan"),
+    "no-meshes": 'meshes = []\ntissue = ["healthy"]\n',
+    "random-count0": spec("nodes = 300", 'nodes = 300\nshape = "random"\ncount = 0'),
+    "missing-mesh-file": spec("nodes = 300", 'source = "missing.vtu"'),
+    "garbage-mesh-file": spec("nodes = 300", 'source = "garbage.vtu"'),
+    "nan-mesh-file": spec("nodes = 300", 'source = "nan.vtu"'),
+    "out-of-memory": spec("frames = 6", "frames = 1000000000"),
+    "other": spec("count = 4", "count = 3"),
+}
+
+
+class Case(NamedTuple):
+    """A command line (``{d}``: input folder, ``{s}``: the case's store copy, ``{held}``: a store this
+    process locks), substrings of its error message (``{pid}``: this process), and what to damage
+    in the store copy before the run."""
+
+    argv: tuple[str, ...]
+    expect: tuple[str, ...]
+    damage: Callable[[Path], None] | None = None
+
+
+def usage(option: str, *more: str) -> tuple[str, ...]:
+    """The start of typer's message for an out-of-range ``option``."""
+    return (f"Invalid value for '{option}'", *more)
+
+
+def build(name: str, *options: str) -> tuple[str, ...]:
+    """``simgen build`` of spec ``name`` into a fresh store."""
+    return ("simgen", "build", f"{{d}}/{name}.toml", "--store", "{d}/new.zarr", *options)
+
+
+def corrupt(relative: str) -> Callable[[Path], None]:
+    """Damage: flip 8 bytes near the start of the store file ``relative`` (the first site's data)."""
+
+    def damage(store: Path) -> None:
+        path = store / relative
+        data = bytearray(path.read_bytes())
+        data[100:108] = bytes(b ^ 0xFF for b in data[100:108])
+        path.write_bytes(bytes(data))
+
+    return damage
+
+
+def lock_folder(store: Path) -> None:
+    """Damage: a folder where the store's lock file goes."""
+    (store / ".lock").mkdir()
+
+
+A_FILE = ("afile", "(a file where a folder is expected)")
+READ_ONLY = ("readonly/", "Permission denied")
+PREDICT = ("learner", "predict", "{d}/personalized.pt", "--sites", "1")
+PERSONALIZE = ("learner", "personalize", "{d}/model.pt", "--out", "{d}/p.pt", "--observations")
+EXPORT = ("simgen", "export-vtk", "{s}", "lv-healthy", "0", "--out")
+CASES: dict[str, dict[str, Case]] = {
+    "spec": {
+        "unknown key": Case(build("unknown-key"), ("solver: unknown key(s) ['frame']",)),
+        "wrong type": Case(build("wrong-type"), ("meshes", "nodes", "many")),
+        "frames 0": Case(build("frames0"), ("frames must be a positive integer, got 0",)),
+        "chunk_sites 0": Case(build("chunk0"), ("[output] chunk_sites must be an integer >= 1, got 0",)),
+        "unknown tissue": Case(build("unknown-tissue"), ("unknown tissue setting 'scar-nowhere'",)),
+        "duplicate mesh ids": Case(build("duplicate-mesh"), ("duplicate mesh ids ['lv']",)),
+        "bad mesh id": Case(build("bad-id"), ("'l v' is not a valid identifier",)),
+        "more sites than nodes": Case(build("too-many-sites"), ("cannot choose 100000 sites",)),
+        "site out of range": Case(build("site-out-of-range"), ("stimulation node 99999 is out of range",)),
+        "duplicate site nodes": Case(build("duplicate-sites"), ("duplicate stimulation nodes [1]",)),
+        "unknown compressor": Case(build("unknown-compressor"), ("'lzma' is not one of",)),
+        "level out of range": Case(build("level-range"), ("level 30 out of range for compressor 'zstd'",)),
+        "TOML syntax": Case(build("toml-syntax"), ("toml-syntax.toml",)),
+        "unstable dt": Case(build("unstable-dt"), ("dt=10 is unstable",)),
+        "negative diffusivity": Case(build("negative-diffusivity"), ("diffusivity must be finite and > 0",)),
+        "NaN diffusivity": Case(build("nan-diffusivity"), ("diffusivity must be finite and > 0", "nan")),
+        "empty meshes": Case(build("no-meshes"), ("the spec has no meshes",)),
+        "random anatomies count 0": Case(build("random-count0"), ("count must be an integer >= 1, got 0",)),
+        "spec file missing": Case(build("missing"), ("missing.toml",)),
+        "spec is a folder": Case(("simgen", "build", "{d}", "--store", "{d}/new.zarr"), ("{d}",)),
+        "task outgrows the workers' memory": Case(
+            build("out-of-memory", "--workers", "1"), ("a task needs ~", "TiB but a worker may use", "GiB")
+        ),
+        "dry run of a bad spec": Case(build("unstable-dt", "--dry-run"), ("dt=10 is unstable",)),
+        "another spec on a store": Case(
+            ("simgen", "build", "{d}/other.toml", "--store", "{s}"), ("was built from a different spec", "--force")
+        ),
+    },
+    "mesh": {
+        "mesh file missing": Case(build("missing-mesh-file"), ("missing.vtu",)),
+        "mesh file of garbage": Case(build("garbage-mesh-file"), ("garbage.vtu",)),
+        "mesh file with a NaN point": Case(build("nan-mesh-file"), ("nan",)),
+        "unknown procedural mesh": Case(("simgen", "simulate", "{d}/o", "--mesh", "heart"), ("heart",)),
+        "unknown cell kind": Case(("simgen", "mesh", "{d}/m.vtu", "--kind", "hexa"), ("hexa",)),
+        "mesh out in a read-only folder": Case(
+            ("simgen", "mesh", "{d}/readonly/m.vtu", "--nodes", "300"), ("readonly/m.vtu", "Permission denied")
+        ),
+        "add-subject of a missing mesh": Case(
+            ("simgen", "add-subject", "{s}", "--mesh", "{d}/missing.vtu", "--id", "p", "--tissue", "healthy"),
+            ("missing.vtu",),
+        ),
+    },
+    "store": {
+        "status of a missing store": Case(("simgen", "status", "{d}/missing.zarr"), ("missing.zarr",)),
+        "status of a folder that is no store": Case(("simgen", "status", "{d}/readonly"), ("readonly",)),
+        "verify a plain file": Case(("simgen", "verify", "{d}/afile"), ("afile",)),
+        "export an unknown subject": Case(
+            ("simgen", "export-vtk", "{s}", "lv-nobody", "0", "--out", "{d}/vtk"), ("lv-nobody",)
+        ),
+        "export a site out of range": Case(
+            ("simgen", "export-vtk", "{s}", "lv-healthy", "99", "--out", "{d}/vtk"), ("99",)
+        ),
+        "export a corrupted chunk": Case(
+            (*EXPORT, "{d}/vtk-corrupt"),
+            ("site 0: its data cannot be read", "simgen regenerate"),
+            corrupt("subjects/lv-healthy/u/c/0/0/0"),
+        ),
+        "regenerate an unknown subject": Case(
+            ("simgen", "regenerate", "{s}", "--subjects", "lv-nobody"), ("lv-nobody",)
+        ),
+        "add-subject of an unknown tissue": Case(
+            ("simgen", "add-subject", "{s}", "--mesh", "lv", "--id", "p", "--tissue", "scar-nowhere"),
+            ("unknown tissue setting 'scar-nowhere'",),
+        ),
+        "evaluate on a folder that is no store": Case(
+            ("learner", "evaluate", "{d}/model.pt", "{d}/readonly"), ("readonly",)
+        ),
+    },
+    "lock": {
+        "unlock a running build": Case(
+            ("simgen", "unlock", "{held}"), ("still running (pid {pid} on this host): stop it with Ctrl-C", "kill -INT")
+        ),
+        "unlock another host": Case(
+            ("simgen", "unlock", "{d}/other.zarr"), ("cannot check (host elsewhere.example, pid 7)", "--force")
+        ),
+        "unlock store is a file": Case(("simgen", "unlock", "{d}/afile"), A_FILE),
+        "unlock in a read-only store": Case(
+            ("simgen", "unlock", "{d}/readonly/gone.zarr"), ("gone.zarr/.lock", "Permission denied")
+        ),
+        "build a store another build holds": Case(
+            ("simgen", "build", "{d}/good.toml", "--store", "{held}"), ("held.zarr", "pid {pid}")
+        ),
+        "build store is a file": Case(("simgen", "build", "{d}/good.toml", "--store", "{d}/afile"), A_FILE),
+        "build in a read-only folder": Case(
+            ("simgen", "build", "{d}/good.toml", "--store", "{d}/readonly/s.zarr"),
+            ("readonly/s.zarr", "Permission denied"),
+        ),
+        "lock path is a folder": Case(("simgen", "build", "{d}/good.toml", "--store", "{s}"), (".lock",), lock_folder),
+        "regenerate a held store": Case(("simgen", "regenerate", "{held}", "--subjects", "lv-healthy"), ("pid {pid}",)),
+    },
+    "number": {
+        "workers 0": Case(build("good", "--workers", "0"), usage("--workers")),
+        "workers negative": Case(build("good", "--workers", "-2"), usage("--workers")),
+        "retries -1": Case(build("good", "--retries", "-1"), usage("--retries")),
+        "threads 0": Case(("simgen", "simulate", "{d}/o", "--threads", "0"), usage("--threads")),
+        "nodes 0": Case(("simgen", "mesh", "{d}/m.vtu", "--nodes", "0"), usage("--nodes")),
+        "demo sites 0": Case(("simgen", "demo", "--out", "{d}/demo", "--sites", "0"), usage("--sites")),
+        "duplicate sites": Case(
+            ("simgen", "simulate", "{d}/o", "--sites", "3,0,3"), ("--sites: [3] given more than once",)
+        ),
+        "negative site": Case(("simgen", "simulate", "{d}/o", "--sites", "2,-1"), ("--sites: [-1] must be >= 0",)),
+        "site not a number": Case(
+            ("simgen", "simulate", "{d}/o", "--sites", "1,x"), ("--sites: expected comma-separated",)
+        ),
+        "no site": Case(("simgen", "simulate", "{d}/o", "--sites", ","), ("--sites: give at least one integer",)),
+        "dt NaN": Case(("simgen", "simulate", "{d}/o", "--dt", "nan"), usage("--dt", "nan is not a finite number")),
+        "dt inf": Case(("simgen", "simulate", "{d}/o", "--dt", "inf"), usage("--dt", "inf is not a finite number")),
+        "dt negative": Case(("simgen", "simulate", "{d}/o", "--dt", "-1"), ("dt=-1.0 must be finite and > 0",)),
+        "verify sample -1": Case(("simgen", "verify", "{s}", "--sample", "-1"), usage("--sample")),
+        "export site -1": Case((*EXPORT[:4], "--out", "{d}/vtk", "--", "-1"), usage("site")),
+        "regenerate duplicate sites": Case(
+            ("simgen", "regenerate", "{s}", "--subjects", "lv-healthy", "--sites", "1,1"), ("--sites: [1] given more",)
+        ),
+        "epochs 0": Case(("learner", "train", "{d}/train.toml", "--epochs", "0"), usage("--epochs")),
+        "max-minutes NaN": Case(("learner", "train", "{d}/train.toml", "--max-minutes", "nan"), usage("--max-minutes")),
+        "max-minutes inf": Case(
+            ("learner", "train", "{d}/train.toml", "--max-minutes", "inf"),
+            usage("--max-minutes", "not a finite number"),
+        ),
+        "max-minutes negative": Case(
+            ("learner", "train", "{d}/train.toml", "--max-minutes", "-1"), usage("--max-minutes")
+        ),
+        "seed -1": Case(("learner", "train", "{d}/train.toml", "--seed", "-1"), usage("--seed")),
+        "evaluate sets 0": Case(("learner", "evaluate", "{d}/model.pt", "{s}", "--sets", "0"), usage("--sets")),
+        "evaluate context 5,1": Case(
+            ("learner", "evaluate", "{d}/model.pt", "{s}", "--context", "5,1"), ("--context: expected 'min,max'",)
+        ),
+        "samples 1": Case((*PREDICT, "--samples", "1"), usage("--samples", "one draw gives no spread")),
+        "samples -1": Case((*PREDICT, "--samples", "-1"), usage("--samples")),
+        "predict site out of range": Case(
+            ("learner", "predict", "{d}/personalized.pt", "--sites", "999"), ("stimulation nodes [999]",)
+        ),
+    },
+    "checkpoint": {
+        "missing": Case(("learner", "predict", "{d}/missing.pt", "--sites", "1"), ("checkpoint not found",)),
+        "garbage bytes": Case(
+            ("learner", "predict", "{d}/garbage.pt", "--sites", "1"),
+            ("garbage.pt is not a readable learner checkpoint",),
+        ),
+        "pickled code": Case(
+            ("learner", "predict", "{d}/evil.pt", "--sites", "1"), ("evil.pt is not a readable learner checkpoint",)
+        ),
+        "older format": Case(("learner", "predict", "{d}/format1.pt", "--sites", "1"), ("checkpoint format 1",)),
+        "not a dict": Case(("learner", "predict", "{d}/list.pt", "--sites", "1"), ("checkpoint format ?",)),
+        "model where a personalised one is expected": Case(
+            ("learner", "predict", "{d}/model.pt", "--sites", "1"), ("holds a 'model', expected a 'personalized'",)
+        ),
+        "incomplete model": Case(
+            ("learner", "personalize", "{d}/incomplete.pt", "--out", "{d}/p.pt", "--observations", "{d}/obs.npz"),
+            ("incomplete.pt", "config"),
+        ),
+        "evaluate a garbage checkpoint": Case(
+            ("learner", "evaluate", "{d}/garbage.pt", "{s}"), ("garbage.pt is not a readable learner checkpoint",)
+        ),
+    },
+    "observation": {
+        "file missing": Case((*PERSONALIZE, "{d}/missing.npz"), ("observation file not found",)),
+        "not an npz": Case((*PERSONALIZE, "{d}/garbage.pt"), ("garbage.pt is not an .npz archive",)),
+        "a single .npy array": Case((*PERSONALIZE, "{d}/single.npy"), ("holds a single array",)),
+        "truncated npz": Case((*PERSONALIZE, "{d}/obs-truncated.npz"), ("obs-truncated.npz",)),
+        "missing arrays": Case((*PERSONALIZE, "{d}/obs-no-times.npz"), ("lacks array(s) ['times']",)),
+        "obs of strings": Case((*PERSONALIZE, "{d}/obs-strings.npz"), ("obs must be a 3-D array of float or integer",)),
+        "obs 2-D": Case((*PERSONALIZE, "{d}/obs-2d.npz"), ("obs must be a 3-D array", "got 2-D")),
+        "float cells": Case((*PERSONALIZE, "{d}/obs-float-cells.npz"), ("cells must be a 2-D array of integer",)),
+        "NaN at an observed node": Case((*PERSONALIZE, "{d}/obs-nan.npz"), ("NaN or inf at observed nodes",)),
+        "no observed node": Case((*PERSONALIZE, "{d}/obs-unobserved.npz"), ("no observed node",)),
+        "observed not 0/1": Case((*PERSONALIZE, "{d}/obs-observed2.npz"), ("observed must hold 0/1",)),
+        "NaN point": Case((*PERSONALIZE, "{d}/obs-nan-point.npz"), ("points contains NaN or inf",)),
+        "sites do not fit obs": Case((*PERSONALIZE, "{d}/obs-extra-site.npz"), ("observations do not fit together",)),
+        "site out of range": Case((*PERSONALIZE, "{d}/obs-far-site.npz"), ("are not nodes of the 316-node mesh",)),
+        "cell index out of range": Case((*PERSONALIZE, "{d}/obs-bad-cells.npz"), ("cell node index out of range",)),
+        "neither file nor store": Case(PERSONALIZE[:-1], ("give either --observations FILE or --store",)),
+        "unknown subject in a store": Case(
+            (
+                "learner",
+                "personalize",
+                "{d}/model.pt",
+                "--out",
+                "{d}/p.pt",
+                "--store",
+                "{s}",
+                "--subject",
+                "lv-x",
+                "--sites",
+                "1",
+            ),
+            ("lv-x",),
+        ),
+    },
+    "path": {
+        "simulate out is a file": Case(("simgen", "simulate", "{d}/afile/o", "--nodes", "300"), A_FILE),
+        "simulate out in a read-only folder": Case(
+            ("simgen", "simulate", "{d}/readonly/o", "--nodes", "300"), READ_ONLY
+        ),
+        "demo out is a file": Case(("simgen", "demo", "--out", "{d}/afile", "--nodes", "300"), A_FILE),
+        "export out is a file": Case((*EXPORT, "{d}/afile"), A_FILE),
+        "export out in a read-only folder": Case((*EXPORT, "{d}/readonly/vtk"), READ_ONLY),
+        "card out in a read-only folder": Case(("simgen", "card", "{s}", "--out", "{d}/readonly/card.md"), READ_ONLY),
+        "train out is a file": Case(("learner", "train", "{d}/train.toml", "--out", "{d}/afile"), A_FILE),
+        "train out in a read-only folder": Case(
+            ("learner", "train", "{d}/train.toml", "--out", "{d}/readonly/run"), READ_ONLY
+        ),
+        "personalize out in a read-only folder": Case(
+            ("learner", "personalize", "{d}/model.pt", "--out", "{d}/readonly/p.pt", "--observations", "{d}/obs.npz"),
+            READ_ONLY,
+        ),
+        "predict out in a read-only folder": Case((*PREDICT, "--out", "{d}/readonly/pred.npz"), READ_ONLY),
+        "predict out is a folder": Case(
+            (*PREDICT, "--out", "{d}/folder.npz"), ("folder.npz", "(a folder where a file is expected)")
+        ),
+        "predict vtk is a file": Case((*PREDICT, "--out", "{d}/pred.npz", "--vtk", "{d}/afile"), A_FILE),
+        "curves out in a read-only folder": Case(
+            ("learner", "curves", "{d}/run", "--out", "{d}/readonly/c.png"), READ_ONLY
+        ),
+        "card out on a full disk": Case(
+            ("simgen", "card", "{s}", "--out", "/dev/full"), ("/dev/full", "No space left")
+        ),
+        "curves of a malformed log": Case(
+            ("learner", "curves", "{d}/bad-run", "--out", "{d}/c.png"), ("log.jsonl", "line 2")
+        ),
+    },
+}
+FLAT = {f"{category}: {name}": case for category, cases in CASES.items() for name, case in cases.items()}
+#: Cases that rely on folder permissions, which root ignores.
+PERMISSIONS = {key for key, case in FLAT.items() if "Permission denied" in case.expect}
+
+
+class Evil:
+    """Pickled, it would run a shell command when loaded."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return os.system, (f"touch {self.marker}",)
+
+
+def write_observations(d: Path, mesh) -> None:
+    """A valid observation file ``obs.npz`` on ``mesh`` and one broken variant per observation case."""
+    n = mesh.n_nodes
+    rng = np.random.default_rng(0)
+    good = {
+        "points": mesh.points,
+        "cells": mesh.cells,
+        "sites": np.array([0, 5]),
+        "obs": rng.random((2, 6, n), np.float32),
+        "observed": np.isin(np.arange(n), mesh.nodes("surface")),
+        "times": 0.6 * np.arange(1, 7),
+    }
+    nan_obs = good["obs"].copy()
+    nan_obs[1, 2, mesh.nodes("surface")[0]] = np.nan
+    nan_points = good["points"].copy()
+    nan_points[3, 1] = np.nan
+    variants = {
+        "obs": {},
+        "obs-no-times": {"times": None},
+        "obs-strings": {"obs": np.full((2, 6, n), "u")},
+        "obs-2d": {"obs": good["obs"][0]},
+        "obs-float-cells": {"cells": good["cells"] + 0.5},
+        "obs-nan": {"obs": nan_obs},
+        "obs-unobserved": {"observed": np.zeros(n, bool)},
+        "obs-observed2": {"observed": 2 * good["observed"].astype(int)},
+        "obs-nan-point": {"points": nan_points},
+        "obs-extra-site": {"sites": np.array([0, 5, 9])},
+        "obs-far-site": {"sites": np.array([0, n + 50])},
+        "obs-bad-cells": {"cells": np.where(good["cells"] == 0, n + 7, good["cells"])},
+    }
+    for name, patch in variants.items():
+        arrays = {k: v for k, v in {**good, **patch}.items() if v is not None}
+        np.savez(d / f"{name}.npz", **arrays)
+    data = (d / "obs.npz").read_bytes()
+    (d / "obs-truncated.npz").write_bytes(data[: len(data) // 2])
+    np.save(d / "single.npy", good["obs"])
+
+
+def write_checkpoints(d: Path, mesh) -> None:
+    """A model (random weights), a personalised surrogate from it and broken checkpoints."""
+    import torch
+
+    from learner.config import config_from_mapping
+    from learner.models.surrogate import build_model
+    from learner.personalize import observations_from_file, personalize
+    from learner.train.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
+
+    config = config_from_mapping(
+        {
+            "out": str(d / "run"),
+            "data": {"store": str(d / "store.zarr")},
+            "model": {"channels": [4, 8], "hidden": 16, "latent": 8, "levels": 3, "coarsest": 10, "coarse_blocks": 1},
+        }
     )
-    return proc.returncode, proc.stdout + proc.stderr
+    model = build_model(config.model, 6)
+    save_checkpoint(
+        d / "model.pt", {"kind": "model", "config": config.to_dict(), "frames": 6, "model": model.state_dict()}
+    )
+    save_checkpoint(d / "incomplete.pt", {"kind": "model"})
+    personalize(d / "model.pt", observations_from_file(d / "obs.npz"), d / "personalized.pt")
+    (d / "garbage.pt").write_bytes(b"not a checkpoint at all\n" * 10)
+    torch.save({"format": CHECKPOINT_FORMAT, "kind": "model", "config": Evil(d / "pwned")}, d / "evil.pt")
+    torch.save({"format": 1, "kind": "personalized"}, d / "format1.pt")
+    torch.save([1, 2, 3], d / "list.pt")
 
 
-def flat(output: str) -> str:
-    """``output`` on one line, without the frame typer draws around usage errors."""
-    return " ".join(output.translate(str.maketrans("│╭╮╰╯─", "      ")).split())
+def write_meshes(d: Path, mesh) -> None:
+    """Mesh files: ``garbage.vtu`` (not a mesh) and ``nan.vtu`` (a NaN coordinate)."""
+    import meshio
+
+    (d / "garbage.vtu").write_text("<VTKFile>not really</VTKFile>\n")
+    points = mesh.points.copy()
+    points[7, 2] = np.nan
+    meshio.write(d / "nan.vtu", meshio.Mesh(points, [("tetra", mesh.cells)]))
 
 
 @pytest.fixture(scope="module")
 def d(tmp_path_factory) -> Iterator[Path]:
-    """A folder of inputs: specs, a learner config, a plain file, stores locked by others."""
+    """A folder of inputs: specs, meshes, observation files, checkpoints, runs, locked and read-only stores."""
+    from simgen.meshes.catalog import get_mesh
+
     d = tmp_path_factory.mktemp("bad-input")
-    (d / "spec.toml").write_text(SPEC.format(frames=6))
-    (d / "frames0.toml").write_text(SPEC.format(frames=0))
+    for name, text in SPECS.items():
+        (d / f"{name}.toml").write_text(text)
     (d / "train.toml").write_text('out = "run"\n[data]\nstore = "missing.zarr"\n')
     (d / "afile").write_text("not a folder")
-    for name in ("other.zarr", "other-forced.zarr"):
-        (d / name).mkdir()
-        (d / name / ".lock").write_text(json.dumps({"host": "elsewhere.example", "pid": 7, "start": 1, "token": "t"}))
+    (d / "folder.npz").mkdir()
+    mesh = get_mesh("lv", 300)
+    write_observations(d, mesh)
+    write_checkpoints(d, mesh)
+    write_meshes(d, mesh)
+    for run, log in (
+        ("run", '{"epoch": 1, "target_mse": 0.5}\n'),
+        ("bad-run", '{"epoch": 1, "target_mse": 0.5}\n{epoch\n'),
+    ):
+        (d / run).mkdir(exist_ok=True)
+        (d / run / "log.jsonl").write_text(log)
+    (d / "other.zarr").mkdir()
+    (d / "other.zarr/.lock").write_text(json.dumps({"host": "elsewhere.example", "pid": 7, "start": 1, "token": "t"}))
     readonly = d / "readonly"
     (readonly / "gone.zarr").mkdir(parents=True)
     (readonly / "gone.zarr/.lock").write_text(json.dumps({"host": socket.gethostname(), "pid": 999_999_999}))
@@ -76,115 +475,171 @@ def d(tmp_path_factory) -> Iterator[Path]:
 
 
 @pytest.fixture(scope="module")
-def held(d) -> Iterator[Path]:
-    """A store locked by this (running) test process."""
+def store(d) -> Path:
+    """The tiny store of :data:`SPEC`, built once."""
+    from simgen.build import load_spec
+    from simgen.build.runner import build
+
+    build(load_spec(d / "good.toml"), d / "store.zarr", workers=1)
+    return d / "store.zarr"
+
+
+@pytest.fixture(scope="module")
+def held(d, store) -> Iterator[Path]:
+    """A copy of the store, locked by this (running) test process."""
+    shutil.copytree(store, d / "held.zarr")
     with StoreLock(d / "held.zarr"):
         yield d / "held.zarr"
 
 
-def usage(option: str) -> str:
-    """The start of typer's message for an out-of-range ``option``."""
-    return f"Invalid value for '{option}'"
+def digest(store: Path) -> dict[str, str]:
+    """SHA-256 of every file of ``store`` by relative path."""
+    return {
+        str(p.relative_to(store)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(store.rglob("*"))
+        if p.is_file()
+    }
 
 
-BUILD = ("simgen", "build", "{d}/spec.toml", "--store", "{d}/s.zarr")
-A_FILE = ("afile", "(a file where a folder is expected)")
-# id: (argv, substrings of the message); "{d}" is the input folder, "{held}" a store this process locks
-CASES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "workers 0": ((*BUILD, "--workers", "0"), (usage("--workers"),)),
-    "workers negative": ((*BUILD, "--workers", "-2"), (usage("--workers"),)),
-    "retries -1": ((*BUILD, "--retries", "-1"), (usage("--retries"),)),
-    "threads 0": (("simgen", "simulate", "{d}/o", "--threads", "0"), (usage("--threads"),)),
-    "duplicate sites": (("simgen", "simulate", "{d}/o", "--sites", "3,0,3"), ("--sites: [3] given more than once",)),
-    "frames 0": (
-        ("simgen", "build", "{d}/frames0.toml", "--store", "{d}/f.zarr"),
-        ("frames must be a positive integer, got 0",),
-    ),
-    "unlock a running build": (
-        ("simgen", "unlock", "{held}"),
-        ("still running (pid {pid} on this host): stop it with Ctrl-C", "kill -INT {pid}"),
-    ),
-    "unlock another host": (
-        ("simgen", "unlock", "{d}/other.zarr"),
-        ("cannot check (host elsewhere.example, pid 7)", "simgen unlock --force"),
-    ),
-    "build store is a file": (("simgen", "build", "{d}/spec.toml", "--store", "{d}/afile"), A_FILE),
-    "unlock store is a file": (("simgen", "unlock", "{d}/afile"), A_FILE),
-    "build in a read-only folder": (
-        ("simgen", "build", "{d}/spec.toml", "--store", "{d}/readonly/s.zarr"),
-        ("readonly/s.zarr", "Permission denied"),
-    ),
-    "unlock in a read-only store": (
-        ("simgen", "unlock", "{d}/readonly/gone.zarr"),
-        ("gone.zarr/.lock", "Permission denied"),
-    ),
-    "epochs 0": (("learner", "train", "{d}/train.toml", "--epochs", "0"), (usage("--epochs"),)),
-    "train out is a file": (("learner", "train", "{d}/train.toml", "--out", "{d}/afile"), A_FILE),
-    "train out in a read-only folder": (
-        ("learner", "train", "{d}/train.toml", "--out", "{d}/readonly/run"),
-        ("readonly/run", "Permission denied"),
-    ),
-    "samples 1": (
-        ("learner", "predict", "{d}/p.pt", "--sites", "1", "--samples", "1"),
-        (usage("--samples"), "one draw gives no spread"),
-    ),
-    "samples -1": (("learner", "predict", "{d}/p.pt", "--sites", "1", "--samples", "-1"), (usage("--samples"),)),
-}
-READ_ONLY = {case for case in CASES if "read-only" in case}  # root writes there all the same
+def run_batch(argvs: list[list[str]]) -> list[tuple[int, str]]:
+    """``tests/cli_batch.py`` on ``argvs`` in a subprocess."""
+    proc = subprocess.run(
+        [sys.executable, "-P", str(ROOT / "tests" / "cli_batch.py")],  # -P: tests/simgen must not shadow simgen
+        input=json.dumps(argvs),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return [tuple(result) for result in json.loads(proc.stdout)]
+
+
+class Outcome(NamedTuple):
+    """What a case did: exit code, output, the placeholders, its store copy's digests before and after."""
+
+    code: int
+    output: str
+    fill: dict
+    before: dict | None
+    after: dict | None
+
+
+BATCHES = 4  # subprocesses, two at a time: each imports its package once
 
 
 @pytest.fixture(scope="module")
-def outputs(d, held) -> dict[str, tuple[int, str, dict]]:
-    """Exit code, output and placeholders of every case, run side by side (each spends a second or more starting)."""
-    fill = {"d": d, "held": held, "pid": os.getpid()}
-    todo = [case for case in CASES if not (as_root and case in READ_ONLY)]
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        runs = {case: pool.submit(run_cli, *(a.format(**fill) for a in CASES[case][0])) for case in todo}
-    return {case: (*run.result(), fill) for case, run in runs.items()}
+def outcomes(d, store, held) -> dict[str, Outcome]:
+    """Every case run, its store copy hashed before and after."""
+    todo = [key for key in FLAT if not (as_root and key in PERMISSIONS)]
+    fills, before = {}, {}
+    for i, key in enumerate(todo):
+        fills[key] = {"d": d, "held": held, "pid": os.getpid(), "s": d / "stores" / f"{i}.zarr"}
+        if any("{s}" in arg for arg in FLAT[key].argv):
+            shutil.copytree(store, fills[key]["s"])
+            if FLAT[key].damage:
+                FLAT[key].damage(fills[key]["s"])
+            before[key] = digest(fills[key]["s"])
+    argvs = {key: [arg.format(**fills[key]) for arg in FLAT[key].argv] for key in todo}
+    batches = [todo[i::BATCHES] for i in range(BATCHES)]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(lambda batch: run_batch([argvs[key] for key in batch]), batches))
+    out = {}
+    for batch, result in zip(batches, results):
+        for key, (code, output) in zip(batch, result):
+            after = digest(fills[key]["s"]) if key in before else None
+            out[key] = Outcome(code, output, fills[key], before.get(key), after)
+    return out
 
 
-@pytest.mark.parametrize("case", CASES)
-def test_bad_input_exits_2_with_a_message(case, outputs):
-    if case not in outputs:
+def flat(output: str) -> str:
+    """``output`` on one line, without the frame typer draws around usage errors."""
+    return " ".join(output.translate(str.maketrans("│╭╮╰╯─", "      ")).split())
+
+
+@pytest.mark.parametrize("key", FLAT)
+def test_bad_input_exits_2_with_a_message(key, outcomes):
+    if key not in outcomes:
         pytest.skip("root ignores folder permissions")
-    code, output, fill = outputs[case]
+    code, output, fill, before, after = outcomes[key]
     assert code == 2, output
     assert "Traceback" not in output
-    expected = [text.format(**fill) for text in CASES[case][1]]
+    expected = [text.format(**fill) for text in FLAT[key].expect]
     if expected[0].startswith("Invalid value"):  # typer's usage error, framed
         assert all(text in flat(output) for text in expected), output
     else:  # ours: one line
         errors = [line for line in output.splitlines() if line.startswith("error:")]
         assert len(errors) == 1 and all(text in errors[0] for text in expected), output
+    assert before == after, "the store changed"
+
+
+def test_the_suite_covers_every_category():
+    assert len(FLAT) >= 60 and all(len(cases) >= 5 for cases in CASES.values())
+
+
+def test_pickled_code_never_ran(d, outcomes):
+    assert not (d / "pwned").exists()
 
 
 def test_unlock_force_removes_another_hosts_lock(d):
-    code, output = run_cli("simgen", "unlock", d / "other-forced.zarr", "--force")
+    (d / "forced.zarr").mkdir()
+    (d / "forced.zarr/.lock").write_text(json.dumps({"host": "elsewhere.example", "pid": 7, "start": 1, "token": "t"}))
+    [(code, output)] = run_batch([["simgen", "unlock", str(d / "forced.zarr"), "--force"]])
     assert code == 0, output
     assert "removed the lock of host elsewhere.example, pid 7" in flat(output)
-    assert not (d / "other-forced.zarr/.lock").exists()
+    assert not (d / "forced.zarr/.lock").exists()
+
+
+def test_dry_run_prints_the_plan_and_writes_nothing(d, tmp_path):
+    (tmp_path / "default.toml").write_text('name = "no meshes"\n')  # the default mesh, all 16 settings
+    [(code, output), (code_good, output_good)] = run_batch(
+        [
+            ["simgen", "build", str(tmp_path / "default.toml"), "--store", str(tmp_path / "s.zarr"), "--dry-run"],
+            [
+                "simgen",
+                "build",
+                str(d / "good.toml"),
+                "--store",
+                str(tmp_path / "t.zarr"),
+                "--dry-run",
+                "--workers",
+                "1",
+            ],
+        ]
+    )
+    assert code == 0 and code_good == 0, output + output_good
+    assert "meshes: lv (2049 nodes, 200 sites)" in output and "subjects: 16 (1 mesh(es) x 16" in output
+    assert "simulations: 3200 in 128 task(s), 55 frames each" in output
+    for line in ("disk: ~", "memory per worker: ~", "time: ~", "on 1 worker(s)", "dry run: nothing written"):
+        assert line in output_good, output_good
+    assert list(tmp_path.iterdir()) == [tmp_path / "default.toml"]
 
 
 # (package, command function, parameter) of numbers whose range typer cannot state
 UNRANGED = {("simgen", "simulate", "dt")}  # > 0, an open bound: SolverConfig refuses it with a message
 
 
-def numeric(hint: object) -> bool:
-    """Whether a parameter annotation is ``int`` or ``float``, optional or not."""
+def numeric(hint: object) -> set[type]:
+    """The number types of a parameter annotation (``int``, ``float``), optional or not; empty otherwise."""
     kinds = set(typing.get_args(hint) or [hint]) - {type(None)}
-    return bool(kinds) and kinds <= {int, float}
+    return kinds if kinds and kinds <= {int, float} else set()
 
 
 @pytest.mark.parametrize("package", ["simgen", "learner"])
-def test_every_number_option_has_a_range(package):
+def test_every_number_option_has_a_range_and_floats_are_finite(package):
+    from shared.cli import finite
+
     app = importlib.import_module(f"{package}.cli").app
     for command in app.registered_commands:
         hints = typing.get_type_hints(command.callback, include_extras=True)
         hints.pop("return")
         for name, hint in hints.items():
             base, *info = typing.get_args(hint) if typing.get_origin(hint) is typing.Annotated else (hint,)
+            where = f"{package} {command.callback.__name__} {name}"
             if numeric(base) and (package, command.callback.__name__, name) not in UNRANGED:
-                assert info and info[0].min is not None, f"{package} {command.callback.__name__} {name}: no min="
+                assert info and info[0].min is not None, f"{where}: no min="
+            if float in numeric(base):
+                assert info and info[0].callback is finite, f"{where}: NaN and inf not refused"
 
 
 @pytest.mark.parametrize("text", ["5,1", "0,3", "1,2,3", "two", ""])

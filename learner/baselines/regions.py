@@ -13,8 +13,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
-from learner.graph.hierarchy import _adjacency, _cluster, _undirected
+from learner.graph.hierarchy import _cluster
 from shared.errors import InputError, MeshError
+from shared.graph import edge_length_graph, undirected_edges
 from shared.mesh import Mesh
 
 __all__ = ["mesh_regions", "region_sizes"]
@@ -33,8 +34,8 @@ def mesh_regions(mesh: Mesh, count: int = DEFAULT_REGIONS) -> NDArray[np.int64]:
     """
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 1 <= count <= mesh.n_nodes:
         raise InputError(f"region count must be an integer in [1, {mesh.n_nodes}], got {count!r}")
-    und = _undirected(mesh.edges().astype(np.int64), mesh.n_nodes)
-    n_comp, _ = connected_components(_adjacency(mesh.points, und), directed=False)
+    und = undirected_edges(mesh.edges(), mesh.n_nodes)
+    n_comp, _ = connected_components(edge_length_graph(mesh.points, und), directed=False)
     if n_comp != 1:
         raise MeshError(f"mesh {mesh.name!r} has {n_comp} connected components; regions need a connected mesh")
     if count == 1:

@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from learner.graph.geodesic import edge_length_graph
 from shared.errors import InputError
+from shared.graph import edge_length_graph
 from shared.mesh import Mesh
 
 __all__ = ["A_CORE", "A_BORDER", "geodesic_diameter", "geodesic_scar", "scar_library"]

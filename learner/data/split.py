@@ -6,7 +6,10 @@ Subjects on a held-out mesh all go to ``test`` (an unseen geometry, the
 paper's real-data setting); the others are shuffled by ``seed`` and cut by
 fractions (``source = "computed"``, the default) or take the part the store
 records for them (``source = "store"``: the canonical split of
-:mod:`shared.split`, which subjects added later never change).
+:mod:`shared.split`, which subjects added later never change). With
+``by = "mesh"`` the computed cut is over meshes (anatomies) instead of
+subjects: every subject of an anatomy lands in the same part, so validation
+and test anatomies are never seen in training, whatever their tissue.
 """
 
 from __future__ import annotations
@@ -41,6 +44,9 @@ class SplitSpec:
     source
         ``"computed"``: shuffle and cut as above; ``"store"``: the split
         recorded in the store (``seed`` and the fractions are then unused).
+    by
+        What the computed cut shuffles: ``"subject"`` or ``"mesh"`` (whole
+        anatomies; the fractions are then fractions of the meshes).
     """
 
     seed: int = 0
@@ -48,6 +54,7 @@ class SplitSpec:
     test: float = 0.2
     held_out_meshes: tuple[str, ...] = ()
     source: Literal["computed", "store"] = "computed"
+    by: Literal["subject", "mesh"] = "subject"
 
     def __post_init__(self) -> None:
         # TOML gives lists; a tuple keeps the spec hashable and comparable.
@@ -62,6 +69,12 @@ class SplitSpec:
                 raise InputError(f"{name} fraction must be in [0, 1), got {value!r}")
         if self.source not in ("computed", "store"):
             raise InputError(f"split source must be 'computed' or 'store', got {self.source!r}")
+        if self.by not in ("subject", "mesh"):
+            raise InputError(f"split by must be 'subject' or 'mesh', got {self.by!r}")
+        if self.by == "mesh" and self.source == "store":
+            raise InputError(
+                "split by = 'mesh' cuts anatomies, but the store's split is per subject; use source = 'computed'"
+            )
         if self.validation + self.test >= 1.0:
             raise InputError(
                 f"validation + test fractions must be < 1 to leave training subjects, "
@@ -85,7 +98,8 @@ def split_subjects(
     With ``n`` subjects off the held-out meshes, ``validation`` gets
     ``round(spec.validation * n)`` and ``test`` ``round(spec.test * n)`` of them
     (then shrunk, test first, until at least one subject is left for training);
-    ``train`` gets the rest. With ``spec.source == "store"`` they take their
+    ``train`` gets the rest. With ``spec.by == "mesh"`` the same cut is made
+    over the meshes, and each subject follows its mesh. With ``spec.source == "store"`` they take their
     part in ``stored`` (the store's split, :func:`shared.reader.read_split`)
     instead. The result depends only on the *set* of subjects, their meshes,
     ``spec`` and ``stored`` (input order does not matter); each list is sorted.
@@ -124,19 +138,30 @@ def split_subjects(
         if stored is None:
             raise InputError("data.split.source = 'store' needs the store's split (StoreView.stored_split)")
         return _stored_parts(rest, held_out, stored)
-    n = len(rest)
+    if spec.by == "mesh":
+        part_of = {m: part for part, meshes in _cut(sorted({mesh_of[s] for s in rest}), spec).items() for m in meshes}
+        parts = {part: [s for s in rest if part_of[mesh_of[s]] == part] for part in SPLITS}
+    else:
+        parts = _cut(rest, spec)
+    parts["test"] = sorted(parts["test"] + held_out)
+    return parts
+
+
+def _cut(items: list[str], spec: SplitSpec) -> dict[str, list[str]]:
+    """Shuffle sorted ``items`` by ``spec.seed`` and cut them by the fractions, keeping one for training."""
+    n = len(items)
     n_val, n_test = _round_half_up(spec.validation * n), _round_half_up(spec.test * n)
-    while n_val + n_test > n - 1:  # keep at least one training subject
+    while n_val + n_test > n - 1:  # keep at least one for training
         if n_test >= n_val:
             n_test -= 1
         else:
             n_val -= 1
-    order = np.random.default_rng(spec.seed).permutation(n)
-    shuffled = [rest[i] for i in order]
-    val = shuffled[:n_val]
-    test = shuffled[n_val : n_val + n_test]
-    train = shuffled[n_val + n_test :]
-    return {"train": sorted(train), "validation": sorted(val), "test": sorted(test + held_out)}
+    shuffled = [items[i] for i in np.random.default_rng(spec.seed).permutation(n)]
+    return {
+        "train": sorted(shuffled[n_val + n_test :]),
+        "validation": sorted(shuffled[:n_val]),
+        "test": sorted(shuffled[n_val : n_val + n_test]),
+    }
 
 
 def _stored_parts(rest: list[str], held_out: list[str], stored: Mapping[str, str]) -> dict[str, list[str]]:

@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from torch import Tensor
 
 from shared.errors import InputError, MeshError
+from shared.graph import edge_length_graph, undirected_edges
 from shared.mesh import Mesh
 
 __all__ = ["Graph", "MeshHierarchy", "build_hierarchy", "hierarchy_for_mesh"]
@@ -80,7 +81,7 @@ class Graph:
     def from_edges(cls, points: NDArray[np.floating], edges: NDArray[np.integer]) -> Graph:
         """The graph of undirected ``edges`` (E, 2) over ``points`` (N, 3), both directions, sorted."""
         points = np.asarray(points, dtype=np.float64)
-        und = _undirected(np.asarray(edges), len(points))
+        und = undirected_edges(edges, len(points))
         src = np.concatenate([und[:, 0], und[:, 1]])
         dst = np.concatenate([und[:, 1], und[:, 0]])
         # target-major order keeps the scatter in SplineConv cache-friendly
@@ -243,31 +244,6 @@ class MeshHierarchy:
         return f"MeshHierarchy(sizes={self.sizes})"
 
 
-def _undirected(edges: NDArray[np.integer], n: int) -> NDArray[np.int64]:
-    """Unique undirected edges (lower id first), self loops dropped; refuses bad shapes or ids."""
-    if edges.ndim != 2 or edges.shape[1] != 2:
-        raise InputError(f"edges must have shape (E, 2), got {edges.shape}")
-    if edges.size and not np.issubdtype(edges.dtype, np.integer):
-        raise InputError(f"edges must be integer node ids, got dtype {edges.dtype}")
-    e = edges.astype(np.int64)
-    if e.size and (e.min() < 0 or e.max() >= n):
-        raise InputError(f"edges reference node ids outside [0, {n})")
-    e = np.sort(e, axis=1)
-    e = e[e[:, 0] != e[:, 1]]
-    return np.unique(e, axis=0) if len(e) else e.reshape(0, 2)
-
-
-def _adjacency(points: NDArray[np.float64], und: NDArray[np.int64]) -> csr_matrix:
-    """Symmetric sparse matrix of Euclidean edge lengths."""
-    n = len(points)
-    length = np.linalg.norm(points[und[:, 0]] - points[und[:, 1]], axis=1)
-    # coincident points would give zero weights, which csgraph may read as "no edge"
-    length = np.maximum(length, 1e-12 * max(float(length.max(initial=0.0)), 1.0))
-    rows = np.concatenate([und[:, 0], und[:, 1]])
-    cols = np.concatenate([und[:, 1], und[:, 0]])
-    return csr_matrix((np.concatenate([length, length]), (rows, cols)), shape=(n, n))
-
-
 def _farthest_point_seeds(adj: csr_matrix, k: int) -> NDArray[np.int64]:
     """``k`` seeds by farthest-point sampling in graph distance, starting at node 0."""
     mind = dijkstra(adj, directed=True, indices=0)
@@ -294,7 +270,7 @@ def _voronoi(adj: csr_matrix, seeds: NDArray[np.int64]) -> NDArray[np.int64]:
 
 def _cluster(points: NDArray[np.float64], und: NDArray[np.int64], k: int) -> NDArray[np.int64]:
     """Connected clusters 0..k'-1 (k' <= k, empty ones dropped) of a connected graph."""
-    adj = _adjacency(points, und)
+    adj = edge_length_graph(points, und)
     seeds = _farthest_point_seeds(adj, k)
     assign = _voronoi(adj, seeds)
     for _ in range(LLOYD_ITERATIONS):
@@ -348,8 +324,8 @@ def build_hierarchy(
     if int(coarsest) != coarsest or not 1 <= coarsest < n:
         raise InputError(f"coarsest must be an integer in [1, N={n}), got {coarsest}")
     levels, coarsest = int(levels), int(coarsest)
-    und = _undirected(edges, n)
-    n_comp, _ = connected_components(_adjacency(points, und), directed=False)
+    und = undirected_edges(edges, n)
+    n_comp, _ = connected_components(edge_length_graph(points, und), directed=False)
     if n_comp != 1:
         raise MeshError(f"the mesh graph has {n_comp} connected components; a hierarchy needs a connected mesh")
 
@@ -360,7 +336,7 @@ def build_hierarchy(
         m = int(a.max()) + 1
         count = np.bincount(a, minlength=m)
         pos = np.stack([np.bincount(a, pos[:, d], minlength=m) for d in range(3)], axis=1) / count[:, None]
-        und = _undirected(a[und], m)
+        und = undirected_edges(a[und], m)
         assign.append(torch.from_numpy(a))
         graphs.append(Graph.from_edges(pos, und))
     return MeshHierarchy(tuple(graphs), tuple(assign))

@@ -194,12 +194,20 @@ def _assemble(blocks: Tensor, pattern: _BlockPattern) -> Tensor:
 
 
 class _BlockSparseProduct(torch.autograd.Function):
-    """``y = L x`` for ``x`` laid out ``(N in, B)`` and ``L`` assembled from per-entry blocks ``(M, in, out)``."""
+    """``y = L x`` for ``x`` laid out ``(N in, B)`` and ``L`` assembled from per-entry blocks ``(M, in, out)``.
+
+    In float32 or wider (the sparse kernels have no half-precision CPU version): under autocast the
+    inputs are cast up and the gradients back to the inputs' dtypes.
+    """
 
     @staticmethod
     def forward(ctx, x: Tensor, blocks: Tensor, pattern: _BlockPattern) -> Tensor:  # type: ignore[override]
-        matrix = _assemble(blocks, pattern)
-        y = matrix @ x
+        ctx.dtypes = (x.dtype, blocks.dtype)
+        dtype = torch.promote_types(torch.promote_types(x.dtype, blocks.dtype), torch.float32)
+        with torch.autocast(x.device.type, enabled=False):
+            x = x.to(dtype)
+            matrix = _assemble(blocks.to(dtype), pattern)
+            y = matrix @ x
         values = matrix.values()
         ctx.save_for_backward(x, values)
         ctx.pattern = pattern
@@ -210,18 +218,18 @@ class _BlockSparseProduct(torch.autograd.Function):
     def backward(ctx, grad_y: Tensor) -> tuple[Tensor | None, Tensor | None, None]:  # type: ignore[override]
         x, values = ctx.saved_tensors
         p: _BlockPattern = ctx.pattern
-        grad_y = grad_y.contiguous()
+        grad_y = grad_y.to(values.dtype).contiguous()
         grad_x = grad_blocks = None
         if ctx.needs_input_grad[0]:
             shape = (p.nodes * p.cin, p.nodes * p.cout)
             transpose = torch.sparse_csr_tensor(p.crow_t, p.col_t, values[p.order_t], shape, check_invariants=False)
-            grad_x = transpose @ grad_y
+            grad_x = (transpose @ grad_y).to(ctx.dtypes[0])
         if ctx.needs_input_grad[1]:
             # d loss / d L is (grad_y x^T) sampled on L's pattern (SDDMM); every block sharing a value gets it
             shape = (p.nodes * p.cout, p.nodes * p.cin)
             pattern = torch.sparse_csr_tensor(p.crow, p.col, values, shape, check_invariants=False)
             grad_values = torch.sparse.sampled_addmm(pattern, grad_y, x.t(), beta=0.0).values()
-            grad_blocks = grad_values[p.inverse].view(-1, p.cin, p.cout)
+            grad_blocks = grad_values[p.inverse].view(-1, p.cin, p.cout).to(ctx.dtypes[1])
         return grad_x, grad_blocks, None
 
 
@@ -389,7 +397,7 @@ class SplineConv(nn.Module):
         xj = xt.index_select(0, src)  # (E, B, in)
         # bmm even for in=1: its backward beat a broadcast product 2x here
         msg = torch.bmm(xj, kernel)  # (E, B, out)
-        out = xt.new_zeros(n, batch, self.out_channels).index_add_(0, dst, msg)
+        out = msg.new_zeros(n, batch, self.out_channels).index_add_(0, dst, msg)  # msg's dtype: autocast's
         if self.aggr == "mean":
             degree = torch.bincount(dst, minlength=n).clamp_(min=1).to(out.dtype)
             out = out / degree.view(n, 1, 1)

@@ -15,6 +15,12 @@ __all__ = ["CHECKPOINT_FORMAT", "save_checkpoint", "load_checkpoint"]
 #: Bumped on incompatible changes of the checkpoint contents.
 CHECKPOINT_FORMAT = 2  # 2: the latent transition's layer-norm parameters
 
+#: Entries every checkpoint of a kind holds (a training checkpoint holds more to resume from).
+REQUIRED = {
+    "model": ("config", "frames", "model"),
+    "personalized": ("config", "frames", "model", "c_mu", "c_logvar", "subject", "points", "cells", "times"),
+}
+
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
     """Write ``payload`` to ``path`` via a temporary file and an atomic rename (no torn checkpoint on a kill)."""
@@ -28,7 +34,7 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
 
 
 def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]:
-    """Read a checkpoint safely (``weights_only=True``); ``kind`` checks its ``kind`` entry."""
+    """Read a checkpoint safely (``weights_only=True``); with ``kind``, check its kind and :data:`REQUIRED` entries."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"checkpoint not found: {path}")
@@ -43,4 +49,6 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]
         )
     if kind is not None and data.get("kind") != kind:
         raise InputError(f"{path} holds a {data.get('kind')!r}, expected a {kind!r}")
+    if missing := [key for key in REQUIRED.get(kind or "", ()) if key not in data]:
+        raise InputError(f"{path}: the {kind!r} checkpoint lacks {missing}")
     return data

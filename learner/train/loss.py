@@ -23,13 +23,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from learner.data.episodes import Episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.models.surrogate import PNS, Posterior
 
-__all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss"]
+__all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss", "EpisodeObjective"]
 
 
 @dataclass
@@ -79,7 +79,7 @@ def episode_loss(
     """
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
-    zero = torch.zeros(())
+    zero = torch.zeros((), device=truth.device)
     c, kl_q, kl_p = None, zero, zero
     if model.conditioned:
         extra = episode.target_u[:posterior_targets] * episode.observed.to(truth.dtype)
@@ -96,3 +96,31 @@ def episode_loss(
     target_mse, context_mse = err[k:].mean(), err[:k].mean()
     total = target_mse + context_mse + kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
     return LossTerms(total, target_mse, context_mse, kl_q, kl_p)
+
+
+class EpisodeObjective(nn.Module):
+    """:func:`episode_loss` as a module's ``forward``, the call that ``DistributedDataParallel`` wraps."""
+
+    def __init__(self, model: PNS, lambda1: float, lambda2: float, posterior_targets: int | None = None) -> None:
+        super().__init__()
+        self.model, self.lambda1, self.lambda2, self.posterior_targets = model, lambda1, lambda2, posterior_targets
+
+    def forward(
+        self,
+        episode: Episode,
+        hierarchy: MeshHierarchy,
+        kl_weight: float,
+        frames: Tensor | None,
+        generator: torch.Generator | None,
+    ) -> LossTerms:
+        return episode_loss(
+            self.model,
+            episode,
+            hierarchy,
+            self.lambda1,
+            self.lambda2,
+            kl_weight,
+            frames,
+            generator,
+            self.posterior_targets,
+        )

@@ -1,9 +1,11 @@
-"""Episodic meta-training with exact resume, a NaN guard and atomic checkpoints.
+"""Episodic meta-training with exact resume, a NaN guard and atomic checkpoints, on one process or several.
 
-One epoch draws one episode per training subject (docs/method.md, "Training objective"); episodes
-depend only on ``(seed, epoch, subject)`` and every other random draw comes
-from a generator saved in the checkpoint, so a run resumed from ``last.pt``
-continues exactly as if it had never stopped.
+One epoch draws one episode per training subject (docs/method.md, "Training objective"). An episode
+and every random draw of its loss (the decoded frame subset, the posterior samples) depend only on
+``(seed, epoch, subject)``, so a run resumed from ``last.pt`` continues exactly as if it had never
+stopped, and no draw depends on which process trains the episode. With several processes
+(:mod:`learner.train.distributed`) each trains its share of an epoch's steps under
+``DistributedDataParallel``; rank 0 writes the checkpoints and logs.
 """
 
 from __future__ import annotations
@@ -14,21 +16,26 @@ import math
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+import numpy as np
 import torch
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from learner.config import LearnerConfig, config_from_mapping
 from learner.data.episodes import Episode, EpisodeDataset
 from learner.data.split import split_subjects
+from learner.graph.hierarchy import MeshHierarchy
 from learner.models.surrogate import PNS, build_model
-from learner.runtime import set_threads, tune_allocator
+from learner.runtime import autocast, on_device, resolve_device, set_threads, tune_allocator
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
-from learner.train.loss import LossTerms, episode_loss
+from learner.train.distributed import SINGLE_PROCESS, World, kill_point, process_group
+from learner.train.loss import EpisodeObjective, LossTerms
 from shared.errors import InputError
 
 __all__ = ["TrainingDiverged", "TrainResult", "Trainer", "train", "load_model"]
@@ -58,19 +65,25 @@ class TrainResult:
 class Trainer:
     """Meta-trains a metaPNS (or PNS) model on the store named in ``config``."""
 
-    def __init__(self, config: LearnerConfig, progress: bool = True) -> None:
-        self.config, self.progress = config, progress
+    def __init__(self, config: LearnerConfig, progress: bool = True, world: World = SINGLE_PROCESS) -> None:
+        cfg = config.train
+        self.config, self.world, self.progress = config, world, progress and world.main
+        self.device = resolve_device(cfg.device, world.local_rank, world.size)
         self.out = Path(config.out)
         self.view = StoreView(config.data.store, cache_dir=self.out / "hierarchies")
         stored = self.view.stored_split if config.data.split.source == "store" else None  # one read per subject
         self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split, stored)
-        torch.manual_seed(config.train.seed)
-        self.model: PNS = build_model(config.model, self.view.frames)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.train.lr)
-        self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, config.train.lr_halve_every, gamma=0.5)
-        self.generator = torch.Generator().manual_seed(config.train.seed)
-        self.epoch, self.history, self.best = 0, [], math.inf
-        self.warm_start = self._warm_start(Path(config.train.init)) if config.train.init else None
+        torch.manual_seed(cfg.seed)
+        self.model: PNS = build_model(config.model, self.view.frames).to(self.device)
+        self.objective: nn.Module = EpisodeObjective(
+            self.model, cfg.lambda1, cfg.lambda2, cfg.posterior_targets or None
+        )
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
+        self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, cfg.lr_halve_every, gamma=0.5)
+        self.scaler = torch.amp.GradScaler(self.device.type, enabled=cfg.precision == "fp16")
+        self.epoch, self.history, self.best, self.steps_taken = 0, [], math.inf, 0
+        self._datasets: dict[tuple[str, ...], EpisodeDataset] = {}
+        self.warm_start = self._warm_start(Path(cfg.init)) if cfg.init else None
 
     # -- checkpoints -------------------------------------------------------
     def state(self) -> dict:
@@ -83,7 +96,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(),
-            "generator": self.generator.get_state(),
+            "scaler": self.scaler.state_dict(),
             "epoch": self.epoch,
             "history": self.history,
             "best_validation": self.best,
@@ -112,7 +125,8 @@ class Trainer:
         self.model.load_state_dict(ckpt["model"])
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self.scheduler.load_state_dict(ckpt["scheduler"])
-        self.generator.set_state(ckpt["generator"])
+        if ckpt.get("scaler"):
+            self.scaler.load_state_dict(ckpt["scaler"])
         self.epoch, self.history, self.best = ckpt["epoch"], list(ckpt["history"]), ckpt["best_validation"]
 
     def training_mean(self) -> float:
@@ -124,105 +138,134 @@ class Trainer:
         return total / max(count, 1)
 
     # -- one epoch ---------------------------------------------------------
-    def _episodes(self, subjects: list[str], epoch: int) -> DataLoader:
-        spec, workers = self.config.data.episodes, self.config.data.workers
-        ds = EpisodeDataset(self.config.data.store, subjects, spec, seed=self.config.train.seed, epoch=epoch)
-        return DataLoader(ds, batch_size=None, num_workers=workers)
+    def _dataset(self, subjects: list[str], epoch: int) -> EpisodeDataset:
+        """The episodes of ``subjects`` (built and store-checked once per subject list) set to ``epoch``."""
+        key = tuple(subjects)
+        if key not in self._datasets:
+            self._datasets[key] = EpisodeDataset(
+                self.config.data.store, subjects, self.config.data.episodes, seed=self.config.train.seed
+            )
+        self._datasets[key].set_epoch(epoch)
+        return self._datasets[key]
+
+    def _episodes(self, subjects: list[str], epoch: int, world: World = SINGLE_PROCESS) -> DataLoader:
+        """``world.rank``'s share of an epoch's episodes, read by ``data.workers`` loader processes."""
+        ds = self._dataset(subjects, epoch)
+        ds.shard(world.rank, world.size)
+        cuda = self.device.type == "cuda"
+        return DataLoader(ds, batch_size=None, num_workers=self.config.data.workers, pin_memory=cuda)
+
+    def _hierarchy(self, mesh_id: str) -> MeshHierarchy:
+        model = self.config.model
+        return on_device(self.view.hierarchy(mesh_id, model.levels, model.coarsest), self.device)
 
     def _kl_weight(self) -> float:
         ramp = self.config.train.kl_anneal_epochs
         return 1.0 if ramp <= 0 else min(1.0, (self.epoch + 1) / ramp)
 
-    def _frames(self) -> torch.Tensor | None:
+    def _frames(self, generator: torch.Generator) -> torch.Tensor | None:
         k = self.config.train.loss_frames
         if k <= 0 or k >= self.view.frames:
             return None
-        return torch.randperm(self.view.frames, generator=self.generator)[:k].sort().values
+        return torch.randperm(self.view.frames, generator=generator)[:k].sort().values.to(self.device)
+
+    def episode_generator(self, subject_id: str) -> torch.Generator:
+        """The generator of a training episode's loss frames and posterior draws, from (seed, epoch, subject)."""
+        key = [self.config.train.seed, self.epoch, self.splits["train"].index(subject_id)]
+        return torch.Generator().manual_seed(int(np.random.SeedSequence(key).generate_state(1, np.uint64)[0]))
+
+    def episode_terms(self, episode: Episode) -> LossTerms:
+        """The loss of one training episode of the current epoch, on the trainer's device and in its precision."""
+        generator = self.episode_generator(episode.subject_id)
+        frames = self._frames(generator)
+        ep = episode.to(self.device, non_blocking=True)
+        with autocast(self.device, self.config.train.precision):
+            return self.objective(ep, self._hierarchy(ep.mesh_id), self._kl_weight(), frames, generator)
 
     def train_epoch(self, on_step: StepHook | None = None) -> dict[str, float]:
         """One episode per training subject; returns the mean loss terms and the gradient norms' median and maximum.
 
         ``on_step(episode, terms, grad_norm)`` is called after each backward pass
         and clipping, before the optimiser step (diagnostics:
-        ``bench/training_stability.py``); ``grad_norm`` is the norm before clipping.
+        ``bench/training_stability.py``); ``grad_norm`` is the norm before clipping
+        (of the gradient averaged over the ranks). Loss means are over the whole
+        epoch, every rank's episodes.
         """
-        cfg, m = self.config.train, self.model
+        cfg, m, world = self.config.train, self.model, self.world
         m.train()
-        sums: dict[str, float] = {}
+        episodes = len(self.splits["train"])
+        keys = [f.name for f in fields(LossTerms)]
+        sums, real = dict.fromkeys(keys, 0.0), 0
         norms: list[float] = []
-        loader = self._episodes(self.splits["train"], self.epoch)
         bar = tqdm(
-            loader,
-            total=len(self.splits["train"]),
+            self._episodes(self.splits["train"], self.epoch, world),
+            total=world.steps(episodes),
             disable=not self.progress,
             leave=False,
             desc=f"epoch {self.epoch + 1}/{cfg.epochs}",
         )
-        for n, ep in enumerate(bar, start=1):
-            hier = self.view.hierarchy(ep.mesh_id, self.config.model.levels, self.config.model.coarsest)
-            terms = episode_loss(
-                m,
-                ep,
-                hier,
-                cfg.lambda1,
-                cfg.lambda2,
-                self._kl_weight(),
-                self._frames(),
-                self.generator,
-                cfg.posterior_targets or None,
-            )
+        for step, ep in enumerate(bar):
+            weight = world.weight(step, episodes)  # 1.0 on one process
+            terms = self.episode_terms(ep)
             self.optimizer.zero_grad(set_to_none=True)
-            terms.total.backward()
+            self.scaler.scale(terms.total * weight).backward()
+            self.scaler.unscale_(self.optimizer)
             grad_norm = torch.nn.utils.clip_grad_norm_(m.parameters(), cfg.grad_clip)
-            if not (torch.isfinite(terms.total) and torch.isfinite(grad_norm)):
+            if not torch.isfinite(terms.total) or (not self.scaler.is_enabled() and not torch.isfinite(grad_norm)):
                 raise TrainingDiverged(
                     f"non-finite loss or gradient at epoch {self.epoch + 1}, subject {ep.subject_id}; "
                     f"the last good checkpoint is {self.out / 'last.pt'} (lower train.lr or train.grad_clip)"
                 )
             if on_step is not None:
                 on_step(ep, terms, float(grad_norm))
-            self.optimizer.step()
+            self.scaler.step(self.optimizer)
+            self.scaler.update()
+            self.steps_taken += 1
+            kill_point(world, self.steps_taken)
             norms.append(float(grad_norm))
-            for k, v in terms.as_floats().items():
-                sums[k] = sums.get(k, 0.0) + v
-            bar.set_postfix(loss=f"{sums['total'] / n:.4g}", mse=f"{sums['target_mse'] / n:.3g}")
-        means = {k: v / max(len(self.splits["train"]), 1) for k, v in sums.items()}
+            if weight > 0:
+                real += 1
+                for k, v in terms.as_floats().items():
+                    sums[k] += v
+                bar.set_postfix(loss=f"{sums['total'] / real:.4g}", mse=f"{sums['target_mse'] / real:.3g}")
+        *totals, real = world.all_sum([*sums.values(), real], self.device)
+        means = {k: v / max(real, 1) for k, v in zip(keys, totals)}
         return {**means, "grad_norm_median": statistics.median(norms), "grad_norm_max": max(norms)}
 
     @torch.no_grad()
     def validate(self) -> float:
-        """Mean target MSE on fixed validation episodes (c = mean of p(c | Y))."""
+        """Mean target MSE on fixed validation episodes (c = mean of p(c | Y)), sharded over the ranks."""
         subjects = self.splits["validation"] or self.splits["train"]
         self.model.eval()
         total, n = 0.0, 0
-        ds = EpisodeDataset(
-            self.config.data.store,
-            subjects,
-            self.config.data.episodes,
-            seed=self.config.train.seed,
-            epoch=VALIDATION_EPOCH,
-        )
-        for ep in ds:
-            hier = self.view.hierarchy(ep.mesh_id, self.config.model.levels, self.config.model.coarsest)
-            c = self.model.embed(ep.context_obs, ep.observed, hier).mu if self.model.conditioned else None
-            pred = self.model.generate(ep.target_sites, hier, c)
-            total, n = total + float(((pred - ep.target_u) ** 2).mean()), n + 1
+        ds = self._dataset(subjects, VALIDATION_EPOCH)
+        for i in ds.order()[self.world.rank :: self.world.size]:
+            ep = ds.episode(i).to(self.device)
+            hier = self._hierarchy(ep.mesh_id)
+            with autocast(self.device, self.config.train.precision):
+                c = self.model.embed(ep.context_obs, ep.observed, hier).mu if self.model.conditioned else None
+                pred = self.model.generate(ep.target_sites, hier, c)
+            total, n = total + float(((pred.float() - ep.target_u) ** 2).mean()), n + 1
+        total, n = self.world.all_sum([total, n], self.device)
         return total / max(n, 1)
 
     # -- the loop ----------------------------------------------------------
     def fit(self, on_epoch: Callable[[dict], None] | None = None, on_step: StepHook | None = None) -> TrainResult:
         """Train until ``train.epochs`` (or ``train.max_minutes``), checkpointing every epoch."""
-        cfg = self.config.train
+        cfg, main = self.config.train, self.world.main
         tune_allocator()
         set_threads(cfg.threads)
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "config.json").write_text(json.dumps(self.config.to_dict(), indent=2))
-        if self.epoch == 0 and not self.history:
+        if main:
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "config.json").write_text(json.dumps(self.config.to_dict(), indent=2))
+        if self.epoch == 0 and not self.history and main:  # DDP gives the other ranks rank 0's parameters
             if self.warm_start is not None:
                 record = {"init": self.config.train.init, **self.warm_start}
                 (self.out / "warm_start.json").write_text(json.dumps(record))
             if self.warm_start is None or "decoder.out.bias" in self.warm_start["fresh"]:
                 self.model.set_output_mean(self.training_mean())
+        if self.world.size > 1 and not isinstance(self.objective, DistributedDataParallel):
+            self.objective = DistributedDataParallel(self.objective)
         start, stopped = time.perf_counter(), False
         while self.epoch < cfg.epochs:
             t0 = time.perf_counter()
@@ -230,20 +273,23 @@ class Trainer:
             self.scheduler.step()
             self.epoch += 1
             row["seconds"] = time.perf_counter() - t0
-            stopped = cfg.max_minutes > 0 and time.perf_counter() - start > 60 * cfg.max_minutes
+            over = cfg.max_minutes > 0 and time.perf_counter() - start > 60 * cfg.max_minutes
+            stopped = self.world.all_sum([float(over)], self.device)[0] > 0  # every rank stops together
             if self.epoch % cfg.validate_every == 0 or self.epoch == cfg.epochs or stopped:
                 row["val_target_mse"] = self.validate()
                 if row["val_target_mse"] < self.best:
                     self.best = row["val_target_mse"]
-                    save_checkpoint(self.out / "best.pt", self.state())
+                    if main:
+                        save_checkpoint(self.out / "best.pt", self.state())
             self.history.append(row)
-            save_checkpoint(self.out / "last.pt", self.state())
-            self._log(row)
-            if on_epoch is not None:
-                on_epoch(row)
+            if main:
+                save_checkpoint(self.out / "last.pt", self.state())
+                self._log(row)
+                if on_epoch is not None:
+                    on_epoch(row)
             if stopped:
                 break
-        if not (self.out / "best.pt").exists():
+        if main and not (self.out / "best.pt").exists():
             save_checkpoint(self.out / "best.pt", self.state())
         return TrainResult(self.out, self.epoch, self.history, self.best, stopped)
 
@@ -273,33 +319,39 @@ class Trainer:
 
 
 def _resumable(config: dict) -> dict:
-    """The configuration without what a resumed run may change (its length and time budget).
+    """The configuration without what a resumed run may change (its length, time budget and device).
 
     Keys added to the configuration since the checkpoint was written take their defaults.
     """
     config = config_from_mapping(config).to_dict()
-    train = {k: v for k, v in config["train"].items() if k not in ("epochs", "max_minutes")}
+    train = {k: v for k, v in config["train"].items() if k not in ("epochs", "max_minutes", "device")}
     return {**config, "train": train}
 
 
 def train(
     config: LearnerConfig, fresh: bool = False, progress: bool = True, on_epoch: Callable[[dict], None] | None = None
 ) -> TrainResult:
-    """Train per ``config``; resumes from ``<out>/last.pt`` unless ``fresh``."""
-    trainer = Trainer(config, progress)
-    last = Path(config.out) / "last.pt"
-    if fresh:
-        for name in ("last.pt", "best.pt", "log.csv", "log.jsonl"):
-            (Path(config.out) / name).unlink(missing_ok=True)
-    elif last.exists():
-        trainer.resume(last)
-    return trainer.fit(on_epoch)
+    """Train per ``config``; resumes from ``<out>/last.pt`` unless ``fresh``.
+
+    Under ``torchrun`` (``WORLD_SIZE`` > 1) every rank calls this: each joins
+    the process group, resumes from the same ``last.pt`` and trains its share.
+    """
+    with process_group(config.train.device) as world:
+        trainer = Trainer(config, progress, world)
+        last = Path(config.out) / "last.pt"
+        if fresh:
+            if world.main:
+                for name in ("last.pt", "best.pt", "log.csv", "log.jsonl"):
+                    (Path(config.out) / name).unlink(missing_ok=True)
+        elif last.exists():
+            trainer.resume(last)
+        return trainer.fit(on_epoch)
 
 
-def load_model(path: str | Path) -> tuple[PNS, LearnerConfig, dict]:
-    """A trained model (eval mode), its config and the checkpoint dict."""
+def load_model(path: str | Path, device: torch.device | str = "cpu") -> tuple[PNS, LearnerConfig, dict]:
+    """A trained model (eval mode, on ``device``), its config and the checkpoint dict."""
     ckpt = load_checkpoint(path, kind="model")
     config = config_from_mapping(ckpt["config"])
     model = build_model(config.model, ckpt["frames"])
     model.load_state_dict(ckpt["model"])
-    return model.eval(), config, ckpt
+    return model.to(device).eval(), config, ckpt

@@ -18,7 +18,7 @@ import numpy as np
 import zarr
 
 from shared.reader import check_store
-from shared.schema import SCHEMA_VERSION, subject_path
+from shared.schema import METADATA_VERSION, subject_path
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
 from simgen.build import location
 from simgen.build.metadata import simulation_attrs
@@ -65,7 +65,7 @@ class StoreFacts:
 
     def missing(self, otherwise: str = "not recorded") -> str:
         """Why a value is absent: the store's older schema version, or ``otherwise``."""
-        return f"not recorded (schema version {self.version})" if self.version < SCHEMA_VERSION else otherwise
+        return f"not recorded (schema version {self.version})" if self.version < METADATA_VERSION else otherwise
 
 
 def store_facts(store: str | Path) -> StoreFacts:

@@ -18,12 +18,18 @@ which :func:`simgen.build.location.remove_partials` cleans up after a kill)
 are Zarr's, so any reader opens the store as usual.
 
 Zarr's encoding of an uncompressed, checksummed chunk (``bytes`` +
-``crc32c`` codecs) copies the 29 MB twice (the checksum is appended with
-``np.append``, then the staging copy above). :func:`write_checksummed` writes
-the same file from the values' own memory instead: checksum computed in
-place, whole blocks written straight from a page-aligned array (the solver
-allocates its output so), only the last partial block and the checksum
-staged. :func:`chunk_file` says when a chunk can be written so.
+``crc32c`` codecs) copies the data twice (the checksum is appended with
+``np.append``, then the staging copy above). :func:`write_rows` writes the
+same files from the values' own memory instead, checksums computed in place,
+whole blocks written straight from a page-aligned array (the solver allocates
+its output so), the rest staged:
+
+- a plain chunk (``done`` flags, ``moments``): the values' bytes, then their CRC32C;
+- a shard of ``u`` or ``activation`` (Zarr's ``sharding_indexed`` codec, one
+  inner chunk per row along the first axis): each row's bytes and CRC32C, then
+  the index (offset and length of each inner chunk, all ones for a row past the
+  array's end, which Zarr does not store) and its CRC32C. The rows after the
+  first start inside a block, so they go through the staging buffer: one copy.
 """
 
 from __future__ import annotations
@@ -41,13 +47,22 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 from zarr.abc.store import Store
-from zarr.codecs import BytesCodec, Crc32cCodec
+from zarr.codecs import BytesCodec, Crc32cCodec, ShardingCodec, ShardingCodecIndexLocation
 from zarr.core.buffer import Buffer
 from zarr.storage import LocalStore
 
 from simgen.build.location import is_url
 
-__all__ = ["PIECE_BYTES", "DirectLocalStore", "writable_store", "write_in_pieces", "write_checksummed", "chunk_file"]
+__all__ = [
+    "PIECE_BYTES",
+    "DirectLocalStore",
+    "writable_store",
+    "write_in_pieces",
+    "write_checksummed",
+    "write_shard",
+    "chunk_file",
+    "write_rows",
+]
 
 #: Bytes per ``write()`` call (direct I/O rounds it up to :data:`ALIGN`).
 PIECE_BYTES = 4 << 20
@@ -57,9 +72,11 @@ ALIGN = 4096
 DIRECT_MIN_BYTES = 64 << 10
 _O_DIRECT = getattr(os, "O_DIRECT", 0)
 _local = threading.local()
-#: The chunk codecs whose files :func:`write_checksummed` writes: raw little-endian values, then their CRC32C
-#: (Zarr leaves the byte order out for one-byte types).
+#: The chunk codecs whose files :func:`write_checksummed` writes (and of a shard's inner chunks and index):
+#: raw little-endian values, then their CRC32C (Zarr leaves the byte order out for one-byte types).
 _CHECKSUMMED = ((BytesCodec(endian="little"), Crc32cCodec()), (BytesCodec(endian=None), Crc32cCodec()))
+#: Offset and length of an inner chunk a shard does not store.
+_ABSENT = 2**64 - 1
 
 
 def _staging(size: int) -> NDArray[np.uint8]:
@@ -149,36 +166,105 @@ def write_in_pieces(path: Path, value: Buffer, exclusive: bool = False) -> None:
     _replace(path, [value.as_numpy_array().view(np.uint8).reshape(-1)], exclusive)
 
 
-def write_checksummed(path: Path, data: NDArray, fill: NDArray | None = None) -> None:
-    """Write the chunk file Zarr's ``bytes`` + ``crc32c`` codecs make of ``data`` (then ``fill``, if given).
-
-    The values' bytes (C order, as stored: a little-endian dtype), then the
-    CRC32C of them, little-endian - with no copy of ``data`` when it starts
-    on a page (:func:`_write_direct`). ``fill`` completes a chunk that ``data``
-    covers only the start of. Written as :func:`write_in_pieces` writes.
-    """
-    arrays = [np.ascontiguousarray(a) for a in (data, fill) if a is not None]
-    if any(a.dtype.byteorder == ">" for a in arrays):
+def _bytes(data: NDArray) -> NDArray[np.uint8]:
+    """The bytes of ``data`` in C order (a view where it is contiguous); refuses big-endian values."""
+    data = np.ascontiguousarray(data)
+    if data.dtype.byteorder == ">":
         raise ValueError("chunk values must be little-endian (as the bytes codec stores them)")
-    pieces = [a.reshape(-1).view(np.uint8) for a in arrays]
-    crc = 0
-    for piece in pieces:  # the crc32c package: 1.1 ms for 29 MB, Zarr's google-crc32c 4.3 ms (measured)
-        crc = crc32c.crc32c(piece, crc)
-    _replace(path, [*pieces, np.array([crc], "<u4").view(np.uint8)], exclusive=False)
+    return data.reshape(-1).view(np.uint8)
+
+
+def _crc(piece: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """CRC32C of ``piece``, little-endian, as Zarr's ``crc32c`` codec appends it.
+
+    The crc32c package: 1.1 ms for 29 MB, Zarr's google-crc32c 4.3 ms (measured).
+    """
+    return np.array([crc32c.crc32c(piece)], "<u4").view(np.uint8)
+
+
+def write_checksummed(path: Path, data: NDArray) -> None:
+    """Write the chunk file Zarr's ``bytes`` + ``crc32c`` codecs make of ``data``: its bytes, then their CRC32C.
+
+    With no copy of ``data`` when it starts on a page (:func:`_write_direct`);
+    written as :func:`write_in_pieces` writes.
+    """
+    piece = _bytes(data)
+    _replace(path, [piece, _crc(piece)], exclusive=False)
+
+
+def write_shard(path: Path, rows: NDArray, shard_rows: int) -> None:
+    """Write the shard file of ``rows``: inner chunks of one row each, ``bytes`` + ``crc32c``, index at the end.
+
+    ``shard_rows`` inner chunks make a shard; the first ``len(rows)`` are
+    stored, the rest (past the array's end) are absent from the index, as Zarr
+    writes them. Index: ``(offset, length)`` little-endian uint64 per inner
+    chunk, then its CRC32C.
+    """
+    flat = _bytes(rows).reshape(len(rows), -1)
+    pieces = [piece for row in flat for piece in (row, _crc(row))]
+    size = flat.shape[1] + 4
+    index = np.full((shard_rows, 2), _ABSENT, "<u8")
+    index[: len(rows), 0] = np.arange(len(rows)) * size
+    index[: len(rows), 1] = size
+    index_bytes = index.reshape(-1).view(np.uint8)
+    _replace(path, [*pieces, index_bytes, _crc(index_bytes)], exclusive=False)
+
+
+def _is_row_shard(codec: object, array: zarr.Array) -> bool:
+    """Whether ``codec`` shards ``array`` into checksummed one-row inner chunks, index checksummed at the end."""
+    return (
+        isinstance(codec, ShardingCodec)
+        and codec.chunk_shape == (1, *array.shards[1:])
+        and tuple(codec.codecs) in _CHECKSUMMED
+        and tuple(codec.index_codecs) == _CHECKSUMMED[0]
+        and codec.index_location == ShardingCodecIndexLocation.end
+    )
+
+
+def _file_kind(array: zarr.Array) -> str | None:
+    """``"chunk"`` or ``"shard"``: which file :func:`write_rows` writes for ``array``; ``None``: Zarr writes."""
+    store = array.store_path.store
+    if not isinstance(store, DirectLocalStore) or store.read_only:
+        return None
+    codecs = tuple(array.metadata.codecs)
+    if codecs in _CHECKSUMMED:
+        return "chunk"
+    return "shard" if len(codecs) == 1 and _is_row_shard(codecs[0], array) else None
 
 
 def chunk_file(array: zarr.Array, coords: tuple[int, ...]) -> Path | None:
-    """The file of chunk ``coords`` of ``array`` if :func:`write_checksummed` can write it, else ``None``.
+    """The file of chunk ``coords`` of ``array`` (a shard, for a sharded array) if :func:`write_rows` writes it.
 
-    It can when the array lives in a writable :class:`DirectLocalStore` and its
+    It does when the array lives in a writable :class:`DirectLocalStore` and its
     chunks are encoded by exactly the ``bytes`` (little-endian) + ``crc32c``
-    codecs (no compressor, no sharding).
+    codecs, or sharded into inner chunks of one row so encoded (index
+    checksummed, at the end); else ``None`` (a compressor, other sharding).
     """
-    store = array.store_path.store
-    if not isinstance(store, DirectLocalStore) or store.read_only or tuple(array.metadata.codecs) not in _CHECKSUMMED:
+    if _file_kind(array) is None:
         return None
-    key = array.metadata.encode_chunk_key(coords)
+    store, key = array.store_path.store, array.metadata.encode_chunk_key(coords)
     return store.root / array.store_path.path / key if array.store_path.path else store.root / key
+
+
+def write_rows(array: zarr.Array, start: int, values: NDArray) -> bool:
+    """``array[start:start + len(values)] = values`` as one file written here; ``False`` (nothing written)
+    when that is not one whole file :func:`chunk_file` allows.
+
+    Whole means: every row of one chunk, or of one shard up to the array's end,
+    across the whole of the other dimensions.
+    """
+    kind, grid = _file_kind(array), array.shards or array.chunks
+    rows = min(grid[0], array.shape[0] - start)
+    whole = start % grid[0] == 0 and grid[1:] == array.shape[1:] and values.shape == (rows, *array.shape[1:])
+    if kind is None or not whole or (kind == "chunk" and rows < grid[0]):  # Zarr stores a chunk's fill past the end
+        return False
+    file = chunk_file(array, (start // grid[0],) + (0,) * (array.ndim - 1))
+    values = np.ascontiguousarray(values, np.dtype(array.dtype).newbyteorder("<"))
+    if kind == "shard":
+        write_shard(file, values, grid[0])
+    else:
+        write_checksummed(file, values)
+    return True
 
 
 class DirectLocalStore(LocalStore):

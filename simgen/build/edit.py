@@ -31,6 +31,7 @@ after writing its layout.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import re
 import time
@@ -45,7 +46,7 @@ from shared.schema import subject_path
 from shared.tissue import TissueSpec
 from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
-from simgen.build.manifest import Plan, Subject, Task, select_sites, sock_electrodes, validate_plan
+from simgen.build.manifest import Plan, Subject, Task, entry_mesh, select_sites, sock_electrodes, validate_plan
 from simgen.build.metadata import provenance
 from simgen.build.runner import BuildReport, run_pending
 from simgen.build.spec import BuildSpec, MeshEntry, SiteSelection, spec_from_mapping
@@ -57,10 +58,12 @@ from simgen.build.store import (
     write_mesh_group,
     write_subject_groups,
 )
-from simgen.meshes.catalog import GENERATORS, get_mesh
+from simgen.build.structure import refuse_damaged
+from simgen.meshes.catalog import GENERATORS, source_file
+from simgen.meshes.shipped import is_real
 from simgen.tissue.defaults import default_settings
 
-__all__ = ["add_subject", "regenerate", "store_spec", "added_entries"]
+__all__ = ["add_subject", "addition_plan", "regenerate", "store_spec", "added_entries"]
 
 _ID = re.compile(r"[A-Za-z0-9_-]+")
 
@@ -117,19 +120,33 @@ def _tissue_list(tissue: Sequence[TissueSpec | str]) -> list[TissueSpec]:
 
 
 def _absolute_source(mesh: MeshEntry) -> MeshEntry:
-    if mesh.source in GENERATORS or Path(mesh.source).is_absolute():
+    if mesh.source in GENERATORS or is_real(mesh.source) or Path(mesh.source).is_absolute():
         return mesh
-    return MeshEntry(mesh.id, str(Path(mesh.source).resolve()), mesh.nodes, mesh.kind)
+    return dataclasses.replace(mesh, source=str(Path(mesh.source).resolve()))
 
 
 def _file_sha256(source: str) -> str | None:
-    if source in GENERATORS:
-        return None
-    return hashlib.sha256(Path(source).read_bytes()).hexdigest()
+    path = source_file(source)
+    return None if path is None else hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _known_meshes(spec: BuildSpec, attrs: dict) -> set[str]:
-    return {m.id for m in spec.meshes} | {entry["mesh"]["id"] for entry in attrs.get("added", [])}
+def addition_plan(spec: BuildSpec, mesh: MeshEntry, settings: list[TissueSpec], sites: SiteSelection) -> Plan:
+    """The plan of adding ``mesh`` under ``settings`` to a store of ``spec``, its sites chosen by ``sites``.
+
+    Subjects ``f"{mesh.id}-{setting.name}"``; the spec's seed, chunk size and
+    sock electrodes. Raises the mesh and site errors of :func:`~simgen.build.manifest.make_plan`.
+    """
+    m = entry_mesh(mesh)
+    site_nodes = select_sites(m, sites, spec.seed, mesh.id)
+    electrodes = sock_electrodes(m, spec.output.sock_electrodes)
+    subjects = [Subject(f"{mesh.id}-{s.name}", mesh.id, s) for s in settings]
+    size = spec.output.chunk_sites
+    tasks = [
+        Task(s.id, k, a, min(a + size, len(site_nodes)))
+        for s in subjects
+        for k, a in enumerate(range(0, len(site_nodes), size))
+    ]
+    return Plan(spec, {mesh.id: m}, {mesh.id: site_nodes}, {mesh.id: electrodes}, subjects, tasks)
 
 
 def _finish(report: BuildReport, start: float) -> BuildReport:
@@ -174,15 +191,10 @@ def add_subject(
     check_store(store, write=True)  # before the lock creates anything
     with StoreLock(store):
         spec = store_spec(store)
+        refuse_damaged(store)  # a group left by an interrupted add-subject is extra: `simgen repair` removes it
         root = _root(store)
         new_ids = [f"{mesh.id}-{s.name}" for s in settings]
         if mesh.id in _groups(root, "meshes"):
-            if mesh.id not in _known_meshes(spec, dict(root.attrs)):
-                raise InputError(
-                    f"store {store} has a mesh group {mesh.id!r} left over from an interrupted add-subject "
-                    f"(not in the spec, not recorded in 'added'); delete {store}/meshes/{mesh.id} "
-                    f"and its subjects' folders {store}/subjects/{mesh.id}-*, then retry"
-                )
             raise InputError(f"store {store} already has a mesh {mesh.id!r}: choose another mesh id")
         taken = sorted(set(new_ids) & _groups(root, "subjects"))
         if taken:
@@ -190,18 +202,8 @@ def add_subject(
                 f"store {store} already has subject(s) {taken}: choose another mesh id or tissue setting name"
             )
         # Everything that can fail, before anything is written (as validate_plan does for a build).
-        m = get_mesh(mesh.source, mesh.nodes, mesh.kind, name=mesh.id)
         selection = sites if sites is not None else spec.sites
-        site_nodes = select_sites(m, selection, spec.seed, mesh.id)
-        electrodes = sock_electrodes(m, spec.output.sock_electrodes)
-        subjects = [Subject(sid, mesh.id, s) for sid, s in zip(new_ids, settings)]
-        size = spec.output.chunk_sites
-        tasks = [
-            Task(s.id, k, a, min(a + size, len(site_nodes)))
-            for s in subjects
-            for k, a in enumerate(range(0, len(site_nodes), size))
-        ]
-        plan = Plan(spec, {mesh.id: m}, {mesh.id: site_nodes}, {mesh.id: electrodes}, subjects, tasks)
+        plan = addition_plan(spec, mesh, settings, selection)
         setups = validate_plan(plan)
         record = {
             "mesh": spec_dict_of(mesh),
@@ -215,8 +217,8 @@ def add_subject(
         remove_partials(store)
         root = _root(store, "r+")
         root.attrs["complete"] = False
-        write_mesh_group(root, mesh.id, m, site_nodes, electrodes)
-        write_subject_groups(root, subjects, {mesh.id: m}, {mesh.id: site_nodes}, spec.output, spec.solver, setups)
+        write_mesh_group(root, mesh.id, plan.meshes[mesh.id], plan.sites[mesh.id], plan.electrodes[mesh.id])
+        write_subject_groups(root, plan.subjects, plan.meshes, plan.sites, spec.output, spec.solver, setups)
         root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
         consolidate_metadata(store)  # readers of consolidated metadata see the new groups
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, subjects=new_ids)
@@ -279,6 +281,7 @@ def regenerate(
     check_store(store, write=True)
     with StoreLock(store):
         spec = store_spec(store)
+        refuse_damaged(store)
         chunks = _chunks_to_clear(_root(store), subjects, sites)
         remove_partials(store)
         root = _root(store, "r+")

@@ -76,7 +76,7 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
     Raises
     ------
     InputError
-        Unknown subject, site index out of range, or the site's chunk not done.
+        Unknown subject, site index out of range, the site's chunk not done or damaged.
     """
     store = store_location(store)
     check_store(store)
@@ -84,12 +84,18 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
     _check_site(g, subject_id, site_index)
     site = int(site_index)
     mesh = read_mesh(store, g.attrs["mesh_id"])
-    u = np.asarray(g["u"][site], np.float32)  # (time, node)
-    static = {
-        "activation_ms": (g["activation"][site] * MS_PER_TIME_UNIT).astype(np.float32),
-        "a": np.asarray(g["a"][...], np.float32),
-        "label": np.asarray(g["label"][...], np.int8),
-    }
+    try:
+        u = np.asarray(g["u"][site], np.float32)  # (time, node)
+        static = {
+            "activation_ms": (g["activation"][site] * MS_PER_TIME_UNIT).astype(np.float32),
+            "a": np.asarray(g["a"][...], np.float32),
+            "label": np.asarray(g["label"][...], np.int8),
+        }
+    except ValueError as exc:  # a checksum mismatch or undecodable bytes: damaged chunk files
+        raise InputError(
+            f"subject {subject_id!r} site {site}: its data cannot be read ({exc}); `simgen verify {store}` "
+            f"names the damage and `simgen regenerate {store} --subjects {subject_id} --sites {site}` rewrites it"
+        ) from None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"{subject_id}_site{site:04d}"

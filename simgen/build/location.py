@@ -22,6 +22,7 @@ import shutil
 from pathlib import Path
 
 from shared.errors import InputError
+from shared.location import is_url
 
 __all__ = [
     "StoreURLError",
@@ -45,11 +46,6 @@ LOCAL_PROTOCOLS = frozenset({"file", "local"})
 
 class StoreURLError(InputError):
     """A store URL is malformed, its fsspec backend is missing, or it cannot be shared by workers."""
-
-
-def is_url(store: str | Path) -> bool:
-    """``True`` for an fsspec URL (``s3://...``, ``file://...``, ``simplecache::s3://...``)."""
-    return isinstance(store, str) and "://" in store
 
 
 def _protocol(url: str) -> str:

@@ -149,8 +149,18 @@ def sock_electrodes(mesh: Mesh, n_electrodes: int) -> NDArray[np.int64]:
     return Sock(n_electrodes=n_electrodes).indices(mesh).astype(np.int64)
 
 
-def _load_mesh(entry: MeshEntry) -> Mesh:
-    return get_mesh(entry.source, entry.nodes, entry.kind, name=entry.id, shape_params=entry.shape_params)
+def entry_mesh(entry: MeshEntry) -> Mesh:
+    """The mesh of a ``[[meshes]]`` entry, named by its id."""
+    return get_mesh(
+        entry.source,
+        entry.nodes,
+        entry.kind,
+        name=entry.id,
+        shape_params=entry.shape_params,
+        units=entry.units,
+        landmarks=entry.axis,
+        node_set_arrays=entry.node_set_arrays,
+    )
 
 
 def make_plan(spec: BuildSpec) -> Plan:
@@ -163,7 +173,7 @@ def make_plan(spec: BuildSpec) -> Plan:
     sites: dict[str, NDArray[np.int64]] = {}
     electrodes: dict[str, NDArray[np.int64]] = {}
     for entry in spec.meshes:
-        mesh = _load_mesh(entry)
+        mesh = entry_mesh(entry)
         meshes[entry.id] = mesh
         sites[entry.id] = select_sites(mesh, spec.sites, spec.seed, entry.id)
         electrodes[entry.id] = sock_electrodes(mesh, spec.output.sock_electrodes)

@@ -22,11 +22,13 @@ from distributed import Client, LocalCluster, as_completed
 
 from shared.errors import InputError
 from simgen.build.card import short_card, store_facts
+from simgen.build.estimate import BuildEstimate, check_resources, estimate_build
 from simgen.build.location import store_location
 from simgen.build.lock import StoreLock
-from simgen.build.manifest import Task, make_plan, validate_plan
+from simgen.build.manifest import Plan, SubjectSetup, Task, make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
 from simgen.build.store import chunk_tasks, consolidate, create_layout, pending_tasks, write_statistics
+from simgen.build.structure import refuse_damaged
 from simgen.build.worker import flush_writes, run_task
 from simgen.solver.simulate import SolverConfig
 
@@ -34,6 +36,7 @@ __all__ = [
     "BuildFailed",
     "BuildReport",
     "build",
+    "plan_build",
     "run_pending",
     "dask_client",
     "single_thread_env",
@@ -96,6 +99,30 @@ def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
         yield client
 
 
+def plan_build(
+    spec: BuildSpec,
+    store: str | Path,
+    scheduler: str | None = None,
+    workers: int = 2,
+    on_plan: Callable[[BuildEstimate], None] | None = None,
+) -> tuple[Plan, dict[str, SubjectSetup], str]:
+    """Plan and check a build of ``spec`` into ``store`` without writing anything.
+
+    Returns the plan, the subjects' set-ups (:func:`validate_plan`) and the
+    store's canonical location. ``on_plan`` is shown the estimate, its time
+    calibrated (a few solver steps), before :func:`check_resources` refuses a
+    build that does not fit the workers' memory or the free disk space.
+    """
+    plan = make_plan(spec)
+    setups = validate_plan(plan)  # every error that can be found before writing
+    store = store_location(store, for_workers=True)
+    estimate = estimate_build(plan, setups, store, scheduler, workers, calibrate=on_plan is not None)
+    if on_plan:
+        on_plan(estimate)
+    check_resources(estimate)
+    return plan, setups, store
+
+
 def build(
     spec: BuildSpec,
     store: str | Path,
@@ -105,22 +132,23 @@ def build(
     retries: int = 2,
     on_start: Callable[[int, str | None], None] | None = None,
     on_done: Callable[[str], None] | None = None,
+    on_plan: Callable[[BuildEstimate], None] | None = None,
 ) -> BuildReport:
     """Build (or resume) the dataset of ``spec`` into ``store``.
 
     ``store`` is a folder (made absolute, so that workers started elsewhere
     write to the same one) or an fsspec URL such as ``s3://bucket/name.zarr``
     that every worker can reach (:mod:`simgen.build.location`).
-    ``on_start(n_tasks, dashboard_link)`` and ``on_done(task_key)`` let a
-    caller show progress. Raises :class:`BuildFailed` naming the tasks that
-    failed ``retries + 1`` times; the store keeps every finished chunk.
+    ``on_plan(estimate)`` (:func:`plan_build`), ``on_start(n_tasks,
+    dashboard_link)`` and ``on_done(task_key)`` let a caller show the plan and
+    progress. Raises :class:`BuildFailed` naming the tasks that failed
+    ``retries + 1`` times; the store keeps every finished chunk.
     """
     start = time.perf_counter()
-    plan = make_plan(spec)
-    setups = validate_plan(plan)  # every error that can be found before writing
-    store = store_location(store, for_workers=True)
+    plan, setups, store = plan_build(spec, store, scheduler, workers, on_plan)
     with StoreLock(store):
-        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force, setups=setups)
+        if not create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force, setups=setups):
+            refuse_damaged(store)  # a store is resumed only when it holds what its spec implies
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done)
     report.seconds = time.perf_counter() - start
     return report

@@ -16,7 +16,7 @@ Example (TOML)::
 
     [[meshes]]
     id = "lv"
-    source = "lv"  # or "biv", or a mesh file (relative to the spec file)
+    source = "lv"  # or "biv", "real:tof-biv" (docs/anatomies.md), or a mesh file (relative to the spec file)
     nodes = 1000
 
     [[meshes]]  # 12 random BiV anatomies, ids "biv-000" .. "biv-011"
@@ -53,7 +53,10 @@ from shared.mesh import NODE_SETS, OPTIONAL_NODE_SETS
 from shared.tissue import TissueSpec
 from simgen.meshes.anatomy import sample_shapes
 from simgen.meshes.catalog import GENERATORS
+from simgen.meshes.heart import LANDMARKS
 from simgen.meshes.shapes import shape_from_params
+from simgen.meshes.shipped import is_real, real_mesh_file
+from simgen.meshes.units import MM_PER_UNIT
 from simgen.solver.simulate import SolverConfig
 from simgen.tissue.defaults import default_settings
 
@@ -98,12 +101,20 @@ class MeshEntry:
     """One geometry of the dataset.
 
     ``source`` is a procedural geometry (``"lv"``, ``"biv"``) generated with
-    about ``nodes`` nodes of cell ``kind``, or the path of a mesh file (then
-    ``nodes`` and ``kind`` are ignored; relative paths are resolved against
-    the spec file's folder by :func:`load_spec`). ``id`` names the mesh in the
-    store and prefixes its subjects' ids. ``shape_params`` (procedural sources
-    only; ``None``: the default geometry) are the anatomy's shape parameters
-    (:mod:`simgen.meshes.shapes`), completed with the defaults of those not given.
+    about ``nodes`` nodes of cell ``kind``, a shipped real mesh
+    (``"real:<name>"``, :mod:`simgen.meshes.shipped`) or the path of a mesh
+    file (relative paths are resolved against the spec file's folder by
+    :func:`load_spec`); real meshes and files are resampled to about ``nodes``
+    nodes of ``kind`` when they have more, and get detected node sets and
+    axis (:func:`simgen.meshes.heart.load_heart`). ``id`` names the mesh in
+    the store and prefixes its subjects' ids. ``shape_params`` (procedural
+    sources only; ``None``: the default geometry) are the anatomy's shape
+    parameters (:mod:`simgen.meshes.shapes`), completed with the defaults of
+    those not given. For real meshes and files only: ``units`` of the file
+    (``None``: the file's, else inferred), ``axis`` landmark points in mm
+    (``apex``, ``base``, optional ``septum``) replacing the detected long axis,
+    and ``node_set_arrays`` (node set -> the file's 0/1 point-data array)
+    replacing detected sets. Unset keys stay out of the spec's hash.
     """
 
     id: str
@@ -111,11 +122,17 @@ class MeshEntry:
     nodes: int = 2000
     kind: Literal["tetra", "triangle"] = "tetra"
     shape_params: dict[str, int | float] | None = field(default=None, hash=False)
+    units: Literal["mm", "cm", "m"] | None = None
+    axis: dict[str, tuple[float, float, float]] | None = field(default=None, hash=False)
+    node_set_arrays: dict[str, str] | None = field(default=None, hash=False)
 
     def __post_init__(self) -> None:
         _check_id(self.id, "[[meshes]] id")
         if not isinstance(self.source, str) or not self.source:
-            raise ConfigError(f"mesh {self.id!r}: source must be 'lv', 'biv' or a mesh file path, got {self.source!r}")
+            raise ConfigError(
+                f"mesh {self.id!r}: source must be 'lv', 'biv', 'real:<name>' or a mesh file path, got {self.source!r}"
+            )
+        self._check_file_keys()
         _check_int(self.nodes, 1, f"mesh {self.id!r}: nodes")
         if self.kind not in ("tetra", "triangle"):
             raise ConfigError(f"mesh {self.id!r}: kind {self.kind!r} is not one of ['tetra', 'triangle']")
@@ -125,6 +142,27 @@ class MeshEntry:
             except InputError as exc:
                 raise type(exc)(f"mesh {self.id!r}: {exc}") from None
             object.__setattr__(self, "shape_params", shape.params())
+
+    def _check_file_keys(self) -> None:
+        """``units``, ``axis`` and ``node_set_arrays``: real meshes and files only, with known names."""
+        given = [k for k in ("units", "axis", "node_set_arrays") if getattr(self, k) is not None]
+        if given and self.source in GENERATORS:
+            raise ConfigError(f"mesh {self.id!r}: {given} apply to mesh files and real meshes, not to {self.source!r}")
+        if is_real(self.source):
+            try:
+                real_mesh_file(self.source)
+            except InputError as exc:
+                raise ConfigError(f"mesh {self.id!r}: {exc}") from None
+        if self.units is not None and self.units not in MM_PER_UNIT:
+            raise ConfigError(f"mesh {self.id!r}: units {self.units!r} is not one of {list(MM_PER_UNIT)}")
+        if self.axis is not None and not ({"apex", "base"} <= set(self.axis) <= set(LANDMARKS)):
+            raise ConfigError(
+                f"mesh {self.id!r}: axis needs apex and base (and optionally septum) points, got {sorted(self.axis)}"
+            )
+        sets = (*NODE_SETS[1:], *OPTIONAL_NODE_SETS)
+        unknown = sorted(set(self.node_set_arrays or {}) - set(sets))
+        if unknown:
+            raise ConfigError(f"mesh {self.id!r}: node_set_arrays {unknown} are not node sets; use {list(sets)}")
 
 
 @dataclass(frozen=True)
@@ -257,7 +295,12 @@ def _resolve_sources(data: dict[str, Any], base_dir: Path) -> dict[str, Any]:
     resolved = []
     for entry in meshes:
         source = entry.get("source") if isinstance(entry, dict) else None
-        if isinstance(source, str) and source not in GENERATORS and not Path(source).is_absolute():
+        if (
+            isinstance(source, str)
+            and source not in GENERATORS
+            and not is_real(source)
+            and not Path(source).is_absolute()
+        ):
             entry = {**entry, "source": str((base_dir / source).resolve())}
         resolved.append(entry)
     return {**data, "meshes": resolved}

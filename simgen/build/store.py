@@ -2,9 +2,10 @@
 
 The driver creates every group, array and attribute of the store before any
 task runs (:func:`create_layout`); a task writes only its own ``u`` and
-``activation`` chunk of one subject and then its ``done`` flag, which lives in
-a chunk of its own (:func:`write_chunk`). Nothing two tasks write overlaps, so
-workers never coordinate, and a resumed build rewrites missing chunks only.
+``activation`` shard of one subject (one inner chunk per site, so that a reader
+decodes one simulation alone), its ``moments`` and then its ``done`` flag, each
+in a chunk of its own (:func:`write_chunk`). Nothing two tasks write overlaps,
+so workers never coordinate, and a resumed build rewrites missing chunks only.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from shared.schema import (
     MOMENT_VARIABLES,
     MOMENTS,
     SCHEMA_VERSION,
+    SHARDED_ARRAYS,
     SUBJECT_ARRAYS,
     SchemaWarning,
     array_attributes,
@@ -44,7 +46,8 @@ from shared.schema import (
 from shared.split import canonical_part, split_rule
 from shared.units import MS_PER_TIME_UNIT
 from simgen.build import location
-from simgen.build.chunk_files import chunk_file, writable_store, write_checksummed
+from simgen.build.chunk_files import writable_store, write_rows
+from simgen.build.fingerprint import chunk_fingerprint
 from simgen.build.lock import LOCK_NAME
 from simgen.build.manifest import Subject, SubjectSetup, Task, validate_plan
 from simgen.build.metadata import provenance, simulation_attrs, solver_attrs
@@ -56,6 +59,8 @@ __all__ = [
     "create_layout",
     "write_mesh_group",
     "write_subject_groups",
+    "subject_array_metadata",
+    "mesh_array_metadata",
     "remove_partials",
     "subject_shapes",
     "ResultArrays",
@@ -77,6 +82,10 @@ __all__ = [
 #: Subject groups read or written at once (Zarr's small-file round trips overlap).
 IO_THREADS = 8
 
+#: Shard :data:`~shared.schema.SHARDED_ARRAYS` (schema version 3). ``False`` lays them out one chunk
+#: per build task, as version 2 did: bench/store_read.py sets it to compare the two layouts.
+SHARD_RESULTS = True
+
 
 class StoreMismatch(InputError):
     """An existing store was built from a different spec."""
@@ -92,7 +101,9 @@ def _compressors(kind: str, level: int) -> tuple[Any, ...]:
 
 
 def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...], chunks=None, **kw) -> zarr.Array:
+    """Create array ``name`` of ``spec_table``; checksummed (zstd, CRC32C) unless ``compressors`` says otherwise."""
     spec = spec_table[name]
+    kw.setdefault("compressors", _compressors("zstd", 0))  # Zarr's default compressor, then a checksum
     return group.create_array(
         name,
         shape=shape,
@@ -217,9 +228,7 @@ def write_subject_groups(
         for name, (shape, chunks) in subject_shapes(
             meshes[s.mesh_id].n_nodes, len(sites[s.mesh_id]), output, solver
         ).items():
-            nodes[f"{subject_path(s.id)}/{name}"] = _subject_metadata(
-                name, shape, chunks, output.compressor, output.level
-            )
+            nodes[f"{subject_path(s.id)}/{name}"] = subject_array_metadata(name, shape, chunks, output)
     arrays = dict(zarr.create_hierarchy(store=root.store, nodes=nodes))
     times = solver.output_interval * np.arange(1, solver.frames + 1)
 
@@ -246,7 +255,7 @@ def write_subject_groups(
 def subject_shapes(
     n_nodes: int, n_sites: int, output: OutputSpec, solver: SolverConfig
 ) -> dict[str, tuple[tuple[int, ...], tuple[int, ...]]]:
-    """Shape and chunk shape of each array of a subject group."""
+    """Shape and chunk shape of each array of a subject group (for ``u`` and ``activation``, the shard shape)."""
     chunk, n_chunks = min(output.chunk_sites, n_sites), -(-n_sites // output.chunk_sites)
     field, frames = ((n_nodes,), (n_nodes,)), ((solver.frames,), (solver.frames,))
     moments = (len(MOMENT_VARIABLES), len(MOMENTS))
@@ -261,6 +270,7 @@ def subject_shapes(
         "activation": ((n_sites, n_nodes), (chunk, n_nodes)),
         "done": ((n_chunks,), (1,)),
         "moments": ((n_chunks, *moments), (1, *moments)),
+        "fingerprint": ((n_chunks,), (1,)),
         "times": frames,
         "time_ms": frames,
         "site": ((n_sites,), (n_sites,)),
@@ -269,15 +279,37 @@ def subject_shapes(
 
 @lru_cache(maxsize=64)
 def _subject_metadata(
-    name: str, shape: tuple[int, ...], chunks: tuple[int, ...], compressor: str, level: int
+    name: str, shape: tuple[int, ...], chunks: tuple[int, ...], compressor: str, level: int, sharded: bool
 ) -> ArrayV3Metadata:
-    """Zarr metadata of subject array ``name``, as :meth:`zarr.Group.create_array` makes it (in memory)."""
+    """Zarr metadata of subject array ``name``, as :meth:`zarr.Group.create_array` makes it (in memory).
+
+    ``sharded``: a result array's ``chunks`` are shards of inner chunks of one site.
+    """
     kw: dict[str, Any] = {}
-    if name in ("u", "activation"):
+    if name in SHARDED_ARRAYS:
         kw = {"compressors": _compressors(compressor, level), "fill_value": np.nan}
-    elif name in ("done", "moments"):  # a chunk of its own per task, written by the task that finished it
-        kw = {"compressors": _compressors("none", 0), "fill_value": 0 if name == "done" else np.nan}
+        if sharded:
+            chunks, kw["shards"] = (1, *chunks[1:]), chunks
+    elif name in ("done", "moments", "fingerprint"):  # a chunk of its own per task, written by that task
+        kw = {"compressors": _compressors("none", 0), "fill_value": np.nan if name == "moments" else 0}
     return _array(zarr.open_group(MemoryStore(), mode="w"), name, SUBJECT_ARRAYS, shape, chunks, **kw).metadata
+
+
+def subject_array_metadata(
+    name: str, shape: tuple[int, ...], chunks: tuple[int, ...], output: OutputSpec
+) -> ArrayV3Metadata:
+    """Zarr metadata of subject array ``name`` as a build with ``output`` settings writes it."""
+    return _subject_metadata(name, shape, chunks, output.compressor, output.level, SHARD_RESULTS)
+
+
+def _mesh_chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
+    """Chunk shape of a mesh array: the whole array (one element for an empty node set)."""
+    return (max(shape[0], 1), *shape[1:])
+
+
+def mesh_array_metadata(name: str, shape: tuple[int, ...]) -> ArrayV3Metadata:
+    """Zarr metadata of mesh array ``name`` of ``shape`` as :func:`write_mesh_group` writes it."""
+    return _array(zarr.open_group(MemoryStore(), mode="w"), name, MESH_ARRAYS, shape, _mesh_chunks(shape)).metadata
 
 
 def spec_dict_of(obj: Any) -> Any:
@@ -290,15 +322,13 @@ def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) 
     if mesh.axis is not None:
         axis = {k: np.asarray(getattr(mesh.axis, k), float).tolist() for k in ("apex", "base", "reference")}
     g.attrs.update({"name": mesh.name, "cell_type": mesh.cell_type, "axis": axis})
-    _array(g, "points", MESH_ARRAYS, mesh.points.shape)[...] = mesh.points
-    _array(g, "cells", MESH_ARRAYS, mesh.cells.shape)[...] = mesh.cells
-    _array(g, "stim_nodes", MESH_ARRAYS, (len(sites),))[...] = np.asarray(sites, np.int32)
     sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
-    sets["electrodes"] = np.asarray(electrodes, np.int32)
-    for name, idx in sets.items():
-        arr = _array(g, name, MESH_ARRAYS, (len(idx),), (max(len(idx), 1),))
-        if len(idx):
-            arr[...] = np.asarray(idx, np.int32)
+    values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
+    for name, value in values.items():
+        value = np.asarray(value, MESH_ARRAYS[name].dtype)
+        arr = _array(g, name, MESH_ARRAYS, value.shape, _mesh_chunks(value.shape))
+        if value.size:
+            arr[...] = value
 
 
 class ResultArrays(NamedTuple):
@@ -307,20 +337,22 @@ class ResultArrays(NamedTuple):
     u: zarr.Array
     activation: zarr.Array
     moments: zarr.Array
+    fingerprint: zarr.Array
     done: zarr.Array
 
 
 def result_arrays(path: str | Path, subject_id: str) -> ResultArrays:
-    """A subject's ``u``, ``activation``, ``moments`` and ``done`` arrays, opened for writing (a worker keeps them).
+    """A subject's :class:`ResultArrays`, opened for writing (a worker keeps them).
 
     A local store is opened through :class:`~simgen.build.chunk_files.DirectLocalStore`
-    (Zarr's files, written with direct I/O: a 29 MB chunk in ~20 ms instead of 75-80 ms
+    (Zarr's files, written with direct I/O: a 29 MB shard in ~20 ms instead of 75-80 ms
     through the page cache on the measured VM).
     """
     g = zarr.open_group(writable_store(str(path)), path=subject_path(subject_id), mode="r+")
-    # a chunk of results is never all fill value (NaN): skip Zarr's full scan for one before each write
+    # a site's results are never all fill value (NaN): skip Zarr's scan for one before each write
     whole = {"write_empty_chunks": True}
-    return ResultArrays(g["u"].with_config(whole), g["activation"].with_config(whole), g["moments"], g["done"])
+    u, activation = g["u"].with_config(whole), g["activation"].with_config(whole)
+    return ResultArrays(u, activation, g["moments"], g["fingerprint"], g["done"])
 
 
 def write_chunk(
@@ -333,46 +365,26 @@ def write_chunk(
     activation: NDArray,
     arrays: ResultArrays | None = None,
 ) -> None:
-    """Worker: write one chunk of sites and its moments, then (only then) its completion flag.
+    """Worker: write one chunk of sites, its moments and fingerprint, then (only then) its completion flag.
 
     ``arrays``: :func:`result_arrays` of the subject, opened once by a caller
     that writes many chunks (saves five metadata reads per chunk).
     """
     arrays = arrays or result_arrays(path, subject_id)
-    _write_sites(arrays.u, chunk, start, stop, u)
-    _write_sites(arrays.activation, chunk, start, stop, activation)
-    _write_sites(arrays.moments, chunk, chunk, chunk + 1, chunk_moments(u, activation)[None])
-    _write_sites(arrays.done, chunk, chunk, chunk + 1, np.ones(1, arrays.done.dtype))
+    _write_rows(arrays.u, start, u)
+    _write_rows(arrays.activation, start, activation)
+    _write_rows(arrays.moments, chunk, chunk_moments(u, activation)[None])
+    fingerprint = chunk_fingerprint(subject_id, chunk, start, stop, u, activation)
+    _write_rows(arrays.fingerprint, chunk, np.array([fingerprint], arrays.fingerprint.dtype))
+    _write_rows(arrays.done, chunk, np.ones(1, arrays.done.dtype))
 
 
-def _write_sites(array: zarr.Array, chunk: int, start: int, stop: int, values: NDArray) -> None:
-    """``array[start:stop] = values``, sites ``[start, stop)`` being chunk ``chunk`` (or its start, at the end).
-
-    When :func:`~simgen.build.chunk_files.chunk_file` allows, the chunk file is
-    written here, straight from ``values`` (29 MB for a default chunk of ``u``:
-    Zarr's encoding copies it twice, ~10 ms); sites past the array's end get the
-    fill value, as Zarr stores them. Anything else goes through Zarr.
-    """
-    size = array.chunks[0]
-    values = np.ascontiguousarray(values, np.dtype(array.dtype).newbyteorder("<"))
-    whole = start == chunk * size and stop == min(start + size, array.shape[0])
-    file = chunk_file(array, (chunk,) + (0,) * (array.ndim - 1)) if whole else None
-    if file is None or array.chunks[1:] != array.shape[1:] or values.shape != (stop - start, *array.shape[1:]):
-        array[start:stop] = values
-        return
-    write_checksummed(file, values, _fill((size - (stop - start), *array.shape[1:]), values.dtype, array.fill_value))
-
-
-def _fill(shape: tuple[int, ...], dtype: np.dtype, value: Any) -> NDArray | None:
-    """A read-only array of ``value`` (kept for the next subject's last chunk), ``None`` when empty."""
-    return _filled(shape, dtype.str, np.asarray(value, dtype).tobytes()) if shape[0] else None
-
-
-@lru_cache(maxsize=2)
-def _filled(shape: tuple[int, ...], dtype: str, value: bytes) -> NDArray:  # the value as bytes: NaN != NaN
-    fill = np.full(shape, np.frombuffer(value, dtype)[0], dtype)
-    fill.flags.writeable = False
-    return fill
+def _write_rows(array: zarr.Array, start: int, values: NDArray) -> None:
+    """``array[start:start + len(values)] = values``: the file written straight from ``values`` where
+    :func:`~simgen.build.chunk_files.write_rows` can (29 MB for a default shard of ``u``: Zarr's
+    encoding copies it twice, ~10 ms), else through Zarr."""
+    if not write_rows(array, start, values):
+        array[start : start + len(values)] = values
 
 
 def chunk_tasks(path: str | Path, subjects: list[str] | None = None) -> dict[Task, bool]:

@@ -1,15 +1,17 @@
-"""Integrity check of a dataset store: layout, metadata, completeness, readability, values, recomputation.
+"""Integrity check of a dataset store: structure, checksums, completeness, values, fingerprints, recomputation.
 
-:func:`verify_store` reads the store one chunk at a time (never a whole
-array), so a corrupted or truncated chunk file becomes a problem naming its
-subject, array and chunk instead of a crash. In a store of the current schema
-version it also checks the metadata: every array's dimensions and CF
-attributes, the coordinates against the mesh, the canonical split, each
-chunk's moments against its data and the statistics against the moments. A
-random sample of done chunks is then simulated again in-process and compared
-bitwise with the stored data: the solver is deterministic and independent of
-how sites are batched, so any difference means the stored chunk is not what
-the spec produces.
+:func:`verify_store` first compares the store with the structure its
+recorded spec implies (:mod:`simgen.build.structure`: every group, array and
+attribute, each array's metadata and codecs, the checksums of the mesh,
+tissue, coordinate and done-flag arrays, the coordinates against the mesh).
+It then reads the result arrays one chunk at a time (never a whole array), so
+a corrupted or truncated chunk file becomes a problem naming its subject,
+array and chunk instead of a crash, and checks each done chunk's values, its
+moments (schema version 2 on) and its fingerprint (version 3), and the
+statistics against the moments. Finally ``sample`` done chunks of every
+subject are simulated again in-process and compared bitwise with the stored
+data: the solver is deterministic and independent of how sites are batched,
+so any difference means the stored chunk is not what the spec produces.
 """
 
 from __future__ import annotations
@@ -22,13 +24,12 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from shared.schema import SCHEMA_VERSION, SUBJECT_ARRAYS, array_attributes, mesh_path, subject_path
-from shared.split import canonical_part
-from shared.units import MS_PER_TIME_UNIT
+from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
+from simgen.build.fingerprint import chunk_fingerprint
 from simgen.build.location import store_location
-from simgen.build.spec import BuildSpec, spec_from_mapping
 from simgen.build.stats import chunk_moments, statistics
-from simgen.build.store import check_store, read_mesh, read_sites, read_tissue, subject_ids, subject_shapes
+from simgen.build.store import check_store, read_mesh, read_sites, read_tissue
+from simgen.build.structure import Damage, read_done, read_failure, recorded_structure, structure_damage
 from simgen.solver.simulate import Simulator, SolverConfig
 
 __all__ = ["U_RANGE", "ChunkRef", "VerifyReport", "verify_store"]
@@ -52,17 +53,30 @@ class ChunkRef:
 
 @dataclass
 class VerifyReport:
-    """Outcome of :func:`verify_store`; the store is fine when ``problems`` is empty."""
+    """Outcome of :func:`verify_store`; the store is fine when ``problems`` is empty.
+
+    ``damage``: the structural findings (also in ``problems``); ``damaged_chunks``:
+    the done chunks whose data fail a check (unreadable, values, moments,
+    fingerprint, recomputation), which ``simgen repair`` computes again.
+    """
 
     store: str
     problems: list[str] = field(default_factory=list)
     chunks_checked: int = 0
     chunks_recomputed: int = 0
+    damage: list[Damage] = field(default_factory=list)
+    damaged_chunks: list[ChunkRef] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
         """``True`` when no problem was found."""
         return not self.problems
+
+    def chunk_problems(self, ref: ChunkRef, problems: list[str]) -> None:
+        """Record the problems of done chunk ``ref`` (nothing when ``problems`` is empty)."""
+        if problems:
+            self.problems.extend(problems)
+            self.damaged_chunks.append(ref)
 
 
 def _chunk_refs(subject_id: str, n_sites: int, chunk_sites: int) -> Iterator[ChunkRef]:
@@ -70,64 +84,27 @@ def _chunk_refs(subject_id: str, n_sites: int, chunk_sites: int) -> Iterator[Chu
         yield ChunkRef(subject_id, k, start, min(start + chunk_sites, n_sites))
 
 
-def _layout_problems(root: zarr.Group, subject_id: str, spec: BuildSpec, version: int) -> list[str]:
-    """Missing arrays, wrong shapes, dtypes, dimensions or (current version) attributes of one subject."""
-    try:
-        g = root[subject_path(subject_id)]
-        m = root[mesh_path(g.attrs["mesh_id"])]
-        shapes = subject_shapes(m["points"].shape[0], m["stim_nodes"].shape[0], spec.output, spec.solver)
-        arrays = {name: g[name] for name in shapes if SUBJECT_ARRAYS[name].since <= version}
-    except Exception as exc:  # missing group, array or attribute
-        return [f"subject {subject_id}: layout unreadable ({type(exc).__name__}: {exc})"]
-    problems = []
-    for name, arr in arrays.items():
-        schema, shape = SUBJECT_ARRAYS[name], shapes[name][0]
-        found = {"shape": tuple(arr.shape), "dtype": str(arr.dtype), "dimensions": arr.metadata.dimension_names}
-        expected = {"shape": shape, "dtype": schema.dtype, "dimensions": schema.dims}
-        if version == SCHEMA_VERSION:
-            found["attributes"] = {k: arr.attrs.get(k) for k in ("units", "long_name", "coordinates")}
-            expected["attributes"] = {"coordinates": None, **array_attributes(SUBJECT_ARRAYS, name)}
-        problems += [
-            f"subject {subject_id}: {name} has {key} {found[key]}, schema expects {expected[key]}"
-            for key in expected
-            if found[key] != expected[key]
-        ]
-    if version == SCHEMA_VERSION and not problems:
-        problems += _metadata_problems(g, m, subject_id)
-    return problems
-
-
-def _metadata_problems(g: zarr.Group, m: zarr.Group, subject_id: str) -> list[str]:
-    """Coordinates that disagree with the mesh, a wrong canonical split part, missing solver settings."""
-    points = m["points"][...]
-    expected = {
-        "site": m["stim_nodes"][...],
-        "time_ms": g["times"][...] * MS_PER_TIME_UNIT,
-        **{axis: points[:, i] for i, axis in enumerate("xyz")},
-    }
-    problems = [
-        f"subject {subject_id}: coordinate {name} disagrees with the mesh and times"
-        for name, values in expected.items()
-        if not np.array_equal(g[name][...], values)
-    ]
-    if g.attrs.get("split") != canonical_part(subject_id):
-        problems.append(
-            f"subject {subject_id}: split attribute {g.attrs.get('split')!r}, the canonical split "
-            f"assigns {canonical_part(subject_id)!r}"
-        )
-    if not {"dt", "steps_per_frame", "stimulus_radius"} <= set(g.attrs.get("solver") or {}):
-        problems.append(f"subject {subject_id}: solver attribute missing or incomplete")
-    return problems
-
-
 def _read(arr: zarr.Array, ref: ChunkRef, name: str) -> tuple[NDArray | None, str | None]:
-    """Chunk ``ref`` of ``arr``, or ``None`` and a problem naming the chunk when it cannot be decoded."""
+    """Chunk ``ref`` of ``arr``, or ``None`` and a problem naming the chunk file (and, in a shard of
+    one inner chunk per site, the sites that do not decode) when it cannot be decoded."""
     try:
         return arr[ref.start : ref.stop], None
     except Exception as exc:  # codec / zarr errors of a corrupted or truncated chunk file
         key = arr.metadata.encode_chunk_key((ref.chunk,) + (0,) * (arr.ndim - 1))
         where = f"{subject_path(ref.subject_id)}/{name}/{key}"
-        return None, f"{ref}: {name} chunk unreadable (file {where}): {type(exc).__name__}: {exc}"
+        sites = f", sites {_unreadable_sites(arr, ref)}" if arr.chunks[0] == 1 < ref.stop - ref.start else ""
+        return None, f"{ref}: {name} chunk unreadable (file {where}{sites}): {type(exc).__name__}: {exc}"
+
+
+def _unreadable_sites(arr: zarr.Array, ref: ChunkRef) -> list[int]:
+    """The sites of ``ref`` whose inner chunk of ``arr`` does not decode (each is read alone)."""
+    bad = []
+    for site in range(ref.start, ref.stop):
+        try:
+            arr[site]
+        except Exception:  # this site's inner chunk (or the shard index) is damaged
+            bad.append(site)
+    return bad
 
 
 def _value_problems(ref: ChunkRef, u: NDArray, activation: NDArray) -> list[str]:
@@ -149,37 +126,56 @@ def _value_problems(ref: ChunkRef, u: NDArray, activation: NDArray) -> list[str]
     return problems
 
 
+def _chunk_problems(g: zarr.Group, ref: ChunkRef, version: int) -> list[str]:
+    """Everything wrong with done chunk ``ref``: unreadable data, values, moments, fingerprint."""
+    u, err_u = _read(g["u"], ref, "u")
+    activation, err_a = _read(g["activation"], ref, "activation")
+    if err_u or err_a:
+        return [e for e in (err_u, err_a) if e]
+    problems = _value_problems(ref, u, activation)
+    if problems or version < METADATA_VERSION:
+        return problems
+    for name in ("moments", "fingerprint")[: 1 + (version >= SCHEMA_VERSION)]:
+        arr = g[name]
+        try:
+            stored = arr[ref.chunk]
+        except Exception as exc:  # a corrupted or truncated file
+            return [f"{ref}: {name} {read_failure(arr, (ref.chunk,) + (0,) * (arr.ndim - 1), exc)}"]
+        if name == "moments" and not np.array_equal(stored, chunk_moments(u, activation)):
+            return [f"{ref}: stored moments differ from the chunk's data"]
+        if name == "fingerprint" and int(stored) != chunk_fingerprint(*_place(ref), u, activation):
+            return [
+                f"{ref}: content fingerprint differs: its data and moments were written for another "
+                "subject or other sites (a chunk file moved or copied?)"
+            ]
+    return []
+
+
+def _place(ref: ChunkRef) -> tuple[str, int, int, int]:
+    return ref.subject_id, ref.chunk, ref.start, ref.stop
+
+
 def _check_chunks(root: zarr.Group, subject_id: str, report: VerifyReport, version: int) -> list[ChunkRef]:
     """Check every chunk of one subject; return the done chunks that read back fine."""
     g = root[subject_path(subject_id)]
-    try:
-        done = np.asarray(g["done"][...]).astype(bool)
-        moments = g["moments"][...] if version == SCHEMA_VERSION else None
-    except Exception as exc:
-        report.problems.append(f"subject {subject_id}: done flags or moments unreadable ({type(exc).__name__}: {exc})")
-        return []
+    done, unreadable = read_done(g["done"])
     good = []
     for ref in _chunk_refs(subject_id, g["u"].shape[0], int(g.attrs["chunk_sites"])):
+        if ref.chunk in unreadable:
+            continue  # named with the structure
         if not done[ref.chunk]:
             report.problems.append(f"{ref} not done")
             continue
         report.chunks_checked += 1
-        u, err_u = _read(g["u"], ref, "u")
-        activation, err_a = _read(g["activation"], ref, "activation")
-        errors = [e for e in (err_u, err_a) if e]
-        if not errors:
-            errors = _value_problems(ref, u, activation)
-        if not errors and moments is not None and not np.array_equal(moments[ref.chunk], chunk_moments(u, activation)):
-            errors = [f"{ref}: stored moments differ from the chunk's data"]
-        report.problems.extend(errors)
-        if not errors:
+        problems = _chunk_problems(g, ref, version)
+        report.chunk_problems(ref, problems)
+        if not problems:
             good.append(ref)
     return good
 
 
-def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: SolverConfig) -> list[str]:
+def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: SolverConfig, report: VerifyReport) -> None:
     """Simulate ``refs`` again and compare bitwise with the stored chunks."""
-    problems = []
     sims: dict[str, tuple[Simulator, NDArray]] = {}
     for ref in refs:
         if ref.subject_id not in sims:
@@ -190,12 +186,14 @@ def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: Solve
         result = sim.run(sites[ref.start : ref.stop], threads=1)
         g = root[subject_path(ref.subject_id)]
         u = g["u"][ref.start : ref.stop]
+        problems = []
         if not np.array_equal(u, result.u):
             diff = float(np.max(np.abs(u.astype(np.float64) - result.u)))
             problems.append(f"{ref}: stored u differs from recomputation (max |diff| {diff:.3g})")
         if not np.array_equal(g["activation"][ref.start : ref.stop], result.activation, equal_nan=True):
             problems.append(f"{ref}: stored activation differs from recomputation")
-    return problems
+        report.chunk_problems(ref, problems)
+        report.chunks_recomputed += 1
 
 
 def _statistics_problems(root: zarr.Group, ids: list[str]) -> list[str]:
@@ -213,44 +211,56 @@ def _statistics_problems(root: zarr.Group, ids: list[str]) -> list[str]:
     return problems
 
 
-def verify_store(store: str | Path, sample: int = 2, seed: int = 0) -> VerifyReport:
-    """Check every chunk of ``store`` and recompute ``sample`` random done chunks.
+def _sample(candidates: list[ChunkRef], per_subject: int, seed: int) -> list[ChunkRef]:
+    """Up to ``per_subject`` chunks of each subject, drawn by ``seed``; subject then chunk order."""
+    rng = np.random.default_rng(seed)
+    by_subject: dict[str, list[ChunkRef]] = {}
+    for ref in candidates:
+        by_subject.setdefault(ref.subject_id, []).append(ref)
+    picked = []
+    for refs in by_subject.values():
+        n = min(per_subject, len(refs))
+        picked += [refs[i] for i in sorted(rng.choice(len(refs), size=n, replace=False).tolist())]
+    return picked
+
+
+def verify_store(store: str | Path, sample: int = 1, seed: int = 0) -> VerifyReport:
+    """Check the structure and every chunk of ``store``; recompute ``sample`` done chunks of every subject.
 
     Parameters
     ----------
     store : folder or fsspec URL (``s3://bucket/name.zarr``) of the dataset store.
-    sample : number of done, readable chunks simulated again and compared bitwise.
+    sample : done, readable chunks per subject simulated again and compared bitwise (0: none).
     seed : seed of the chunk sample (:func:`numpy.random.default_rng`).
 
     Returns
     -------
     VerifyReport
-        Every problem found (unfinished, unreadable, mis-shaped, non-finite,
-        out-of-range or differing chunks), each naming its subject and chunk.
+        Every problem found (missing, extra or corrupted pieces of the
+        structure; unfinished, unreadable, non-finite, out-of-range, moved or
+        differing chunks), each naming its mesh or subject and, for a chunk,
+        its index and sites.
 
     Raises
     ------
     SchemaError
         When ``store`` is not a store of a schema version this code reads
-        (a version-1 store is checked without the metadata of version 2).
+        (older versions are checked without what was added since).
     """
     store = store_location(store)
     attrs = check_store(store)
-    version, spec = attrs["schema_version"], spec_from_mapping(attrs["spec"])
-    solver = spec.solver
+    version, recorded = attrs["schema_version"], recorded_structure(attrs)
     root = zarr.open_group(store, mode="r", use_consolidated=False)  # what is stored, not a copy of its metadata
-    report = VerifyReport(store)
-    candidates: list[ChunkRef] = []
-    ids = subject_ids(store)
-    for subject_id in ids:
-        layout = _layout_problems(root, subject_id, spec, version)
-        report.problems.extend(layout)
-        if not layout:
-            candidates.extend(_check_chunks(root, subject_id, report, version))
-    if version == SCHEMA_VERSION and not report.problems:
-        report.problems.extend(_statistics_problems(root, ids))
-    n = min(max(int(sample), 0), len(candidates))
-    picked = sorted(np.random.default_rng(seed).choice(len(candidates), size=n, replace=False).tolist())
-    report.problems.extend(_recompute(store, root, [candidates[i] for i in picked], solver))
-    report.chunks_recomputed = n
+    report = VerifyReport(store, damage=structure_damage(store))
+    report.problems.extend(map(str, report.damage))
+    damaged = {d.group for d in report.damage if d.chunk is None and not d.extra}  # groups not to read further
+    ids = [
+        subject_id
+        for subject_id, mesh_id in recorded.subjects.items()
+        if not {subject_path(subject_id), mesh_path(mesh_id), "meshes", "subjects"} & damaged
+    ]
+    candidates = [ref for s in ids for ref in _check_chunks(root, s, report, version)]
+    if version >= METADATA_VERSION and not report.problems:
+        report.problems.extend(_statistics_problems(root, list(recorded.subjects)))
+    _recompute(store, root, _sample(candidates, max(int(sample), 0), seed), recorded.spec.solver, report)
     return report

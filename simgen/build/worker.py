@@ -24,10 +24,11 @@ from shared.schema import subject_path
 from simgen.build.store import ResultArrays, read_mesh, read_sites, read_tissue, result_arrays, write_chunk
 from simgen.solver.simulate import Simulator, SolverConfig
 
-__all__ = ["Prepared", "prepare", "run_task", "BackgroundWriter", "flush_writes"]
+__all__ = ["Prepared", "prepare", "run_task", "BackgroundWriter", "flush_writes", "SUBJECTS_KEPT"]
 
 _CACHE: OrderedDict[tuple, Prepared] = OrderedDict()
-_CACHE_SIZE = 4
+#: Subjects whose simulator and arrays a worker process keeps (the memory estimate counts them all).
+SUBJECTS_KEPT = 4
 
 
 class Prepared(NamedTuple):
@@ -46,7 +47,7 @@ def prepare(store: str, subject_id: str, solver: SolverConfig) -> Prepared:
         mesh_id = zarr.open_group(store, path=subject_path(subject_id), mode="r").attrs["mesh_id"]
         sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, subject_id), solver)
         _CACHE[key] = Prepared(sim, read_sites(store, mesh_id), result_arrays(store, subject_id))
-        while len(_CACHE) > _CACHE_SIZE:
+        while len(_CACHE) > SUBJECTS_KEPT:
             _CACHE.popitem(last=False)
     _CACHE.move_to_end(key)
     return _CACHE[key]

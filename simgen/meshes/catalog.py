@@ -1,7 +1,8 @@
-"""Mesh sources by name: procedural geometries or a mesh file."""
+"""Mesh sources by name: procedural geometries, shipped real meshes or a mesh file."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -9,10 +10,11 @@ from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.meshes.biventricular import biv_ellipsoid
 from simgen.meshes.ellipsoid import lv_ellipsoid
-from simgen.meshes.io import load_mesh
+from simgen.meshes.heart import load_heart
 from simgen.meshes.shapes import shape_from_params
+from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX, is_real, real_mesh_file
 
-__all__ = ["GENERATORS", "get_mesh"]
+__all__ = ["GENERATORS", "get_mesh", "source_file"]
 
 #: Procedural geometries, each ``f(n_nodes, kind, name=...) -> Mesh``.
 GENERATORS = {"lv": lv_ellipsoid, "biv": biv_ellipsoid}
@@ -24,19 +26,40 @@ def get_mesh(
     kind: Literal["tetra", "triangle"] = "tetra",
     name: str | None = None,
     shape_params: dict[str, Any] | None = None,
+    units: str | None = None,
+    landmarks: Mapping[str, Sequence[float]] | None = None,
+    node_set_arrays: Mapping[str, str] | None = None,
 ) -> Mesh:
-    """A procedural geometry (``"lv"``, ``"biv"``) with ``n_nodes`` nodes, or a mesh file path.
+    """A procedural geometry (``"lv"``, ``"biv"``), a shipped real mesh (``"real:<name>"``) or a mesh file.
 
-    Files are loaded with meshio and validated; ``n_nodes``, ``kind`` and
-    ``shape_params`` (:func:`~simgen.meshes.shapes.shape_from_params`; ``None``:
-    the default geometry) apply to procedural geometries only.
+    Procedural geometries have about ``n_nodes`` nodes of cell ``kind``;
+    ``shape_params`` (:func:`~simgen.meshes.shapes.shape_from_params`;
+    ``None``: the default geometry) apply to them only. Real meshes and files
+    go through :func:`~simgen.meshes.heart.load_heart` (units, repair,
+    resampling to ``n_nodes`` and ``kind``, node sets and axis), which
+    ``units``, ``landmarks`` and ``node_set_arrays`` steer.
     """
     if source in GENERATORS:
+        if units is not None or landmarks or node_set_arrays:
+            raise MeshError(f"procedural mesh {source!r} takes no units, landmarks or node_set_arrays (files do)")
         geometry = None if shape_params is None else shape_from_params(source, shape_params).geometry()
         return GENERATORS[source](n_nodes, kind, geometry=geometry, name=name or f"{source}-{kind}-{n_nodes}")
     if shape_params is not None:
         raise MeshError(f"mesh file {source!r} takes no shape parameters (only {sorted(GENERATORS)} do)")
+    path = source_file(source)
+    if path is None or not path.exists():
+        raise MeshError(
+            f"unknown mesh {source!r}: use one of {sorted(GENERATORS)}, a shipped mesh "
+            f"{[REAL_PREFIX + n for n in REAL_MESHES]} or the path of an existing mesh file"
+        )
+    return load_heart(source, n_nodes, kind, name or Path(source).stem, units, landmarks, node_set_arrays)
+
+
+def source_file(source: str) -> Path | None:
+    """The file behind a mesh source: a shipped mesh's compressed file, a file path, ``None`` for procedural ones."""
+    if source in GENERATORS:
+        return None
+    if is_real(source):
+        return real_mesh_file(source)
     path = Path(source)
-    if path.suffix and path.exists():
-        return load_mesh(path, name=name or path.stem)
-    raise MeshError(f"unknown mesh {source!r}: use one of {sorted(GENERATORS)} or the path of an existing mesh file")
+    return path if path.suffix else None

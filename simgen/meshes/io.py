@@ -3,12 +3,20 @@
 Node sets travel as point-data masks (1 = member): the standard sets of
 :data:`shared.mesh.NODE_SETS` under their own names (so files from other
 tools that mark, e.g., ``epicardium`` are understood), any other set under
-``nodeset:<name>``. ``surface`` is always recomputed on load. meshio formats
-cannot carry the long axis; pass ``axis=`` to :func:`load_mesh` when needed.
+``nodeset:<name>``; ``node_set_arrays`` names other masks of a file as sets.
+``surface`` is always recomputed on load. meshio formats cannot carry the
+long axis; pass ``axis=`` to :func:`load_mesh` when needed.
+
+Coordinates are converted to millimetres (:mod:`simgen.meshes.units`;
+:func:`save_mesh` writes the constant point-data array ``mm_per_unit``) and
+the cells repaired where that is safe (:mod:`simgen.meshes.repair`), each
+repair logged.
 """
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Mapping
 from os import PathLike
 from pathlib import Path
 
@@ -18,7 +26,9 @@ from numpy.typing import NDArray
 
 from shared.errors import MeshError
 from shared.mesh import NODE_SETS, LongAxis, Mesh
+from simgen.meshes.repair import drop_unused_nodes, orient_triangles, remove_degenerate_cells, split_hexahedra
 from simgen.meshes.topology import boundary_faces
+from simgen.meshes.units import UNIT_KEY, file_units, mm_per_unit
 from simgen.meshes.validate import validate_mesh
 
 __all__ = ["load_mesh", "save_mesh"]
@@ -27,51 +37,83 @@ _PREFIX = "nodeset:"
 _IGNORED = {"vertex", "line", "line3"}  # lower-dimensional markers (e.g. gmsh physical groups)
 _FORMAT = {".msh": "gmsh"}  # meshio would pick gmsh22 ASCII, which loses point data
 _SURFACE_ONLY = {".stl", ".obj", ".off", ".ply"}
+# Cell types used, in order of preference, with the lower-dimensional types then taken as markers.
+_KINDS = {"tetra": {"triangle", "quad"}, "hexahedron": {"quad"}, "triangle": set()}
+log = logging.getLogger("simgen.meshes")
 
 
-def load_mesh(path: str | PathLike, name: str | None = None, axis: LongAxis | None = None) -> Mesh:
-    """Read a triangle or tetrahedral mesh and validate it.
+def load_mesh(
+    path: str | PathLike,
+    name: str | None = None,
+    axis: LongAxis | None = None,
+    units: str | None = None,
+    node_set_arrays: Mapping[str, str] | None = None,
+) -> Mesh:
+    """Read a triangle, tetrahedral or hexahedral mesh in mm, repair it where safe and validate it.
 
     Parameters
     ----------
     path : any file meshio reads (.vtu, .vtk, .msh, .obj, .stl, .ply, .xdmf, ...).
     name : mesh name; defaults to the file stem.
-    axis : optional ventricular frame to attach (files carry none).
+    axis : optional ventricular frame to attach (files carry none), in mm.
+    units : ``"mm"``, ``"cm"`` or ``"m"``; ``None``: the file's, else inferred
+        from the extent (:func:`simgen.meshes.units.mm_per_unit`).
+    node_set_arrays : node set name -> name of the file's 0/1 point-data array
+        holding it (e.g. ``{"epicardium": "EPI"}``).
 
     Tetrahedra are used when present (triangles and lines are then taken as
-    boundary markers and ignored), else triangles. Nodes referenced by no kept
-    cell are dropped and node sets renumbered. Raises :class:`MeshError` naming
-    the file if it is missing, unreadable, has no usable cells or fails
+    boundary markers and ignored), else hexahedra (split into tetrahedra),
+    else triangles. Degenerate cells are removed, nodes referenced by no kept
+    cell dropped (both with a logged note giving the indices and the
+    renumbering) and triangles oriented consistently outward. Raises
+    :class:`MeshError` naming the file if it is missing, unreadable, has no
+    usable cells, has ambiguous units or fails
     :func:`~simgen.meshes.validate.validate_mesh`.
     """
     path = Path(path)
-    if not path.is_file():
-        raise MeshError(f"mesh file not found: {path}")
-    try:
-        with np.errstate(over="ignore"):  # meshio's STL sniffing overflows on ASCII files
-            raw = meshio.read(path)
-    except (Exception, SystemExit) as exc:  # meshio raises many types, and exits on unknown content
-        reason = str(exc) if not isinstance(exc, SystemExit) else "not a readable mesh in this format"
-        raise MeshError(f"cannot read mesh file {path}: {reason}") from exc
-    cells = _select_cells(raw, path)
+    raw = _read(path)
+    where = str(path)
     points = np.asarray(raw.points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] not in (2, 3):
         raise MeshError(f"{path}: points must have 2 or 3 coordinates, got shape {points.shape}")
     if points.shape[1] == 2:
         points = np.hstack([points, np.zeros((len(points), 1))])
+    kind, cells = _select_cells(raw, path)
+    scale, origin = mm_per_unit(points, file_units(raw.field_data, raw.point_data, where), units, where)
+    if scale != 1.0:
+        points = points * scale
+        (log.warning if origin == "inferred" else log.info)(
+            "%s: coordinates x %g to mm (unit %s)", where, scale, origin
+        )
+    if kind == "hexahedron":
+        cells = split_hexahedra(points, cells, where)
 
-    masks = {key: _mask(raw.point_data[key], len(points), key, path) for key in _set_names(raw.point_data)}
-    keep = np.unique(cells)
-    new_index = np.full(len(points), -1, dtype=np.int64)
-    new_index[keep] = np.arange(len(keep))
-    cells = new_index[cells]
-    node_sets = {key.removeprefix(_PREFIX): np.flatnonzero(mask[keep]) for key, mask in masks.items()}
-    node_sets["surface"] = np.arange(len(keep)) if cells.shape[1] == 3 else np.unique(boundary_faces(cells))
+    masks = {
+        key: _mask(raw.point_data[array], len(points), array, path)
+        for key, array in _set_arrays(raw, node_set_arrays, path).items()
+    }
+    cells = remove_degenerate_cells(points, cells, where)
+    points, cells, kept = drop_unused_nodes(points, cells, where)
+    if cells.shape[1] == 3:
+        cells = orient_triangles(points, cells, where)
+    node_sets = {key: np.flatnonzero(mask[kept]) for key, mask in masks.items()}
+    node_sets["surface"] = np.arange(len(points)) if cells.shape[1] == 3 else np.unique(boundary_faces(cells))
     try:
-        mesh = Mesh(points=points[keep], cells=cells, node_sets=node_sets, axis=axis, name=name or path.stem)
+        mesh = Mesh(points=points, cells=cells, node_sets=node_sets, axis=axis, name=name or path.stem)
         return validate_mesh(mesh)
     except MeshError as exc:
         raise MeshError(f"{path}: {exc}") from exc
+
+
+def _read(path: Path) -> meshio.Mesh:
+    if not path.is_file():
+        raise MeshError(f"mesh file not found: {path}")
+    try:
+        with np.errstate(over="ignore"):  # meshio's STL sniffing overflows on ASCII files
+            return meshio.read(path)
+    except (Exception, SystemExit) as exc:  # meshio raises many types, and exits on unknown content
+        reason = str(exc) if not isinstance(exc, SystemExit) else "not a readable mesh in this format"
+        raise MeshError(f"cannot read mesh file {path}: {reason}") from exc
 
 
 def save_mesh(mesh: Mesh, path: str | PathLike) -> Path:
@@ -83,7 +125,7 @@ def save_mesh(mesh: Mesh, path: str | PathLike) -> Path:
     path = Path(path)
     if mesh.cell_type == "tetra" and path.suffix.lower() in _SURFACE_ONLY:
         raise MeshError(f"cannot write {path}: {path.suffix} files hold no tetrahedra (use .vtu or .msh)")
-    point_data = {}
+    point_data = {UNIT_KEY: np.ones(mesh.n_nodes, dtype=np.float32)}  # coordinates are mm
     for key, idx in mesh.node_sets.items():
         mask = np.zeros(mesh.n_nodes, dtype=np.uint8)
         mask[idx] = 1
@@ -96,26 +138,38 @@ def save_mesh(mesh: Mesh, path: str | PathLike) -> Path:
     return path
 
 
-def _select_cells(raw: meshio.Mesh, path: Path) -> NDArray[np.int64]:
+def _select_cells(raw: meshio.Mesh, path: Path) -> tuple[str, NDArray[np.int64]]:
+    """The volume or surface cells to use, ``(cell type, cells)``; markers of lower dimension are ignored."""
     types = {block.type for block in raw.cells}
-    if "tetra" in types:
-        kind, allowed = "tetra", {"tetra", "triangle", "quad"} | _IGNORED
-    elif "triangle" in types:
-        kind, allowed = "triangle", {"triangle"} | _IGNORED
+    for kind in _KINDS:
+        if kind in types:
+            break
     else:
         found = ", ".join(sorted(types)) or "none"
-        raise MeshError(f"{path}: no linear tetrahedra or triangles (cell types: {found})")
-    other = types - allowed
+        raise MeshError(f"{path}: no linear tetrahedra, hexahedra or triangles (cell types: {found})")
+    other = types - {kind} - _KINDS[kind] - _IGNORED
     if other:
         raise MeshError(
             f"{path}: mixed cell types are unsupported ({kind} with {', '.join(sorted(other))}); "
-            "convert the mesh to pure linear tetrahedra or triangles"
+            "convert the mesh to pure linear tetrahedra, hexahedra or triangles"
         )
-    return np.concatenate([block.data for block in raw.cells if block.type == kind]).astype(np.int64)
+    return kind, np.concatenate([block.data for block in raw.cells if block.type == kind]).astype(np.int64)
 
 
-def _set_names(point_data: dict) -> list[str]:
-    return [key for key in point_data if (key in NODE_SETS and key != "surface") or key.startswith(_PREFIX)]
+def _set_arrays(raw: meshio.Mesh, node_set_arrays: Mapping[str, str] | None, path: Path) -> dict[str, str]:
+    """Node set name -> point-data array holding it: the file's own sets, then ``node_set_arrays``."""
+    names = {
+        key.removeprefix(_PREFIX): key
+        for key in raw.point_data
+        if (key in NODE_SETS and key != "surface") or key.startswith(_PREFIX)
+    }
+    for set_name, array in (node_set_arrays or {}).items():
+        if array not in raw.point_data:
+            raise MeshError(
+                f"{path}: no point-data array {array!r} for node set {set_name!r} (has: {sorted(raw.point_data)})"
+            )
+        names[set_name] = array
+    return names
 
 
 def _mask(values: NDArray, n: int, key: str, path: Path) -> NDArray[np.bool_]:

@@ -6,6 +6,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from shared.graph import edge_length_graph
 from shared.mesh import Mesh
 
 __all__ = ["edge_graph", "tet_faces", "group_rows", "boundary_faces", "extract_surface", "signed_volumes"]
@@ -16,14 +17,7 @@ _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
 def edge_graph(mesh: Mesh) -> sp.csr_matrix:
     """Symmetric sparse graph of the mesh edges weighted by their length (mm), for geodesic distances."""
-    e = mesh.edges()
-    w = np.linalg.norm(mesh.points[e[:, 0]] - mesh.points[e[:, 1]], axis=1)
-    # csgraph drops explicit zeros; keep coincident nodes connected.
-    w = np.maximum(w, 1e-12)
-    n = mesh.n_nodes
-    rows = np.concatenate([e[:, 0], e[:, 1]])
-    cols = np.concatenate([e[:, 1], e[:, 0]])
-    return sp.coo_matrix((np.concatenate([w, w]), (rows, cols)), shape=(n, n)).tocsr()
+    return edge_length_graph(mesh.points, mesh.edges())
 
 
 def signed_volumes(points: NDArray[np.float64], tets: NDArray[np.integer]) -> NDArray[np.float64]:

@@ -33,7 +33,7 @@ from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.meshes.topology import group_rows, signed_volumes, tet_faces
 
-__all__ = ["validate_mesh", "mesh_problems", "non_manifold_nodes"]
+__all__ = ["validate_mesh", "mesh_problems", "non_manifold_nodes", "degenerate_cells"]
 
 #: Coincident-node tolerance, relative to the bounding-box diagonal.
 DUPLICATE_NODE_RTOL = 1e-9
@@ -75,8 +75,7 @@ def mesh_problems(mesh: Mesh) -> list[str]:
         problems.append(f"{len(pairs)} duplicate node pair(s) (coincident coordinates), first {pairs[:_SHOW].tolist()}")
 
     size = _cell_sizes(points, cells)
-    ratio = _size_ratio(points, cells, size)
-    degenerate = np.flatnonzero(ratio < DEGENERATE_RTOL)
+    degenerate = np.flatnonzero(_size_ratio(points, cells, size) < DEGENERATE_RTOL)
     if len(degenerate):
         what = "zero area" if cells.shape[1] == 3 else "zero volume"
         problems.append(_describe("degenerate cell", f"({what})", degenerate))
@@ -95,6 +94,12 @@ def mesh_problems(mesh: Mesh) -> list[str]:
 
     problems += _orientation_problems(cells, size)
     return problems
+
+
+def degenerate_cells(points: NDArray[np.float64], cells: NDArray[np.integer]) -> NDArray[np.int64]:
+    """Indices of the cells with ``|area| / l^2`` or ``|volume| / l^3`` below :data:`DEGENERATE_RTOL`."""
+    cells = np.asarray(cells, dtype=np.int64)
+    return np.flatnonzero(_size_ratio(points, cells, _cell_sizes(points, cells)) < DEGENERATE_RTOL)
 
 
 def _describe(what: str, why: str, idx: NDArray[np.integer]) -> str:

@@ -21,22 +21,6 @@ import pytest
 BIN = Path(sys.executable).parent
 SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 
-# The tiny spec of tests/simgen/build/conftest.py: 2 subjects x 2 chunks of 3 sites on a 500-node LV.
-SPEC = """
-tissue = ["healthy", "scar-apex"]
-[[meshes]]
-id = "lv"
-source = "lv"
-nodes = 500
-[sites]
-count = 6
-[solver]
-frames = 8
-[output]
-chunk_sites = 3
-sock_electrodes = 40
-"""
-
 
 def _local(argv: list[str]) -> list[str]:
     """The command with its program taken from this environment (``dask`` -> ``.venv/bin/dask``)."""
@@ -88,9 +72,9 @@ def cluster(compose_commands, with_options, tmp_path):
             proc.wait(timeout=30)
 
 
-def test_cli_build_with_the_compose_commands(cluster, compose_commands, with_options, tmp_path):
+def test_cli_build_with_the_compose_commands(cluster, compose_commands, with_options, tiny_spec_toml, tmp_path):
     spec, store = tmp_path / "tiny.toml", tmp_path / "out" / "tiny.zarr"
-    spec.write_text(SPEC)
+    spec.write_text(tiny_spec_toml)
     job = compose_commands["build"]
     assert job[:2] == ["simgen", "build"] and job[job.index("--scheduler") + 1] == "tcp://scheduler:8786"
     argv = with_options(job, store=str(store), scheduler=cluster)
@@ -101,7 +85,7 @@ def test_cli_build_with_the_compose_commands(cluster, compose_commands, with_opt
 
     verify = _run(_local(["simgen", "verify", str(store), "--sample", "1"]))
     assert verify.returncode == 0, verify.stdout + verify.stderr
-    assert "4 chunks read, 1 recomputed, 0 problem(s)" in verify.stdout
+    assert "4 chunks read, 2 recomputed, 0 problem(s)" in verify.stdout
     status = _run(_local(["simgen", "status", str(store)]))
     assert "4/4 chunks done (100%)" in status.stdout
 

@@ -21,8 +21,9 @@ DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 REPO = DEPLOY.parent
 
 
-def _k8s() -> dict[str, dict]:
-    docs = [d for f in sorted((DEPLOY / "kubernetes").glob("*.yaml")) for d in yaml.safe_load_all(f.read_text())]
+def _k8s(pattern: str = "[!t]*.yaml") -> dict[str, dict]:
+    """The manifests of files matching ``pattern`` by kind (default: the build's, not the train-*.yaml ones)."""
+    docs = [d for f in sorted((DEPLOY / "kubernetes").glob(pattern)) for d in yaml.safe_load_all(f.read_text())]
     return {d["kind"]: d for d in docs}
 
 
@@ -114,7 +115,39 @@ def test_kubernetes_daskcluster_and_job():
     assert "s3://" in (DEPLOY / "kubernetes" / "build-job.yaml").read_text()  # the object-store variant
 
 
+def test_kubernetes_training_recipes_run_torchrun_on_the_shared_volume():
+    (pytorchjob,) = _k8s("train-pytorchjob.yaml").values()
+    assert pytorchjob["apiVersion"] == "kubeflow.org/v1"
+    replicas = pytorchjob["spec"]["pytorchReplicaSpecs"]
+    for replica in replicas.values():
+        (c,) = replica["template"]["spec"]["containers"]
+        assert c["name"] == "pytorch" and c["command"] == ["torchrun"] and c["args"][:3] == ["-m", "learner", "train"]
+    indexed = _k8s("train-indexed-job.yaml")
+    service, job = indexed["Service"], indexed["Job"]
+    pod = job["spec"]["template"]["spec"]
+    assert service["spec"]["clusterIP"] == "None" and service["spec"]["selector"] == {"job-name": "learner-train"}
+    assert job["metadata"]["name"] == pod["subdomain"] == service["metadata"]["name"]
+    (c,) = pod["containers"]
+    args = dict(a.split("=", 1) for a in c["args"] if a.startswith("--") and "=" in a)
+    assert int(args["--nnodes"]) == job["spec"]["completions"] == job["spec"]["parallelism"]
+    assert args["--node-rank"] == "$(JOB_COMPLETION_INDEX)" and args["--master-addr"].startswith("learner-train-0.")
+    assert c["args"][c["args"].index("-m") :][:3] == ["-m", "learner", "train"]
+    for spec in (replicas["Master"]["template"]["spec"], pod):
+        claims = {v["persistentVolumeClaim"]["claimName"] for v in spec["volumes"] if "persistentVolumeClaim" in v}
+        assert claims == {"simgen-store"}
+
+
 # -- SLURM ---------------------------------------------------------------------------------------------
+
+
+def test_train_sbatch_runs_one_torchrun_per_node():
+    script = DEPLOY / "slurm" / "train.sbatch"
+    subprocess.run(["bash", "-n", str(script)], check=True)
+    text = script.read_text().replace("\\\n", " ")
+    (srun,) = [shlex.split(line) for line in text.splitlines() if line.startswith("srun ")]
+    torchrun = srun[srun.index("torchrun") :]
+    assert _option(torchrun, "--rdzv-backend") == "c10d" and "--nproc-per-node" in torchrun
+    assert torchrun[torchrun.index("-m") :][:3] == ["-m", "learner", "train"]
 
 
 def _sbatch_commands() -> list[list[str]]:

@@ -1,4 +1,4 @@
-"""A tiny dataset store shared by the learner tests (built once per session by simgen)."""
+"""A small model configuration on the tiny store of ``tests/conftest.py``."""
 
 from __future__ import annotations
 
@@ -6,27 +6,31 @@ from pathlib import Path
 
 import pytest
 
-from simgen.build import spec_from_mapping
-from simgen.build.runner import build
 
-TINY_STORE_SPEC = {
-    "meshes": [
-        {"id": "lv", "source": "lv", "nodes": 500},
-        {"id": "lv-b", "source": "lv", "nodes": 600},
-    ],
-    "tissue": ["healthy", "scar-apex", "scar-anterior-mid"],
-    "sites": {"count": 12},
-    "solver": {"frames": 12, "output_interval": 2.0},
-    "output": {"chunk_sites": 4, "sock_electrodes": 40},
-}
-
-
-@pytest.fixture(scope="session")
-def tiny_store(tmp_path_factory) -> Path:
-    """2 LV meshes x 3 tissue settings = 6 subjects, 12 sites each, 12 frames every 2 time units."""
-    store = tmp_path_factory.mktemp("learner") / "tiny.zarr"
-    build(spec_from_mapping(TINY_STORE_SPEC), store, workers=1)
-    return store
+def tiny_toml(store: Path, workers: int = 0, validation: float = 0.2, test: float = 0.2, train: str = "") -> str:
+    """:func:`tiny_config`'s model as a TOML file's text (``out = "run"``); ``train``: lines of ``[train]``."""
+    return f"""
+out = "run"
+[data]
+store = "{store}"
+workers = {workers}
+[data.split]
+seed = 0
+validation = {validation}
+test = {test}
+[data.episodes]
+context = [1, 3]
+targets = 4
+[model]
+channels = [4, 8]
+hidden = 16
+latent = 8
+levels = 3
+coarsest = 10
+coarse_blocks = 1
+[train]
+{train}
+"""
 
 
 def tiny_config(store: Path, out: Path, kind: str = "metapns", **train):
@@ -60,3 +64,9 @@ def tiny_config(store: Path, out: Path, kind: str = "metapns", **train):
 def tiny_config_fixture():
     """The :func:`tiny_config` factory."""
     return tiny_config
+
+
+@pytest.fixture(name="tiny_toml", scope="session")
+def tiny_toml_fixture():
+    """The :func:`tiny_toml` factory."""
+    return tiny_toml

@@ -38,7 +38,7 @@ regions = 2
 store = "{tiny_store}"
 observe = "electrodes"
 """)
-    result = runner.invoke(app, ["benchmark", str(cfg)])
+    result = runner.invoke(app, ["benchmark", str(cfg), "--device", "cpu"])
     assert result.exit_code == 0, result.output
     out = tmp_path / "report"
     data = json.loads((out / "benchmark.json").read_text())

@@ -17,30 +17,10 @@ runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def trained(tiny_store, tmp_path_factory):
+def trained(tiny_store, tiny_toml, tmp_path_factory):
     folder = tmp_path_factory.mktemp("cli")
     cfg = folder / "train.toml"
-    cfg.write_text(f"""
-out = "run"
-[data]
-store = "{tiny_store}"
-workers = 0
-[data.split]
-test = 0.2
-validation = 0.2
-[data.episodes]
-context = [1, 3]
-targets = 4
-[model]
-channels = [4, 8]
-hidden = 16
-latent = 8
-levels = 3
-coarsest = 10
-coarse_blocks = 1
-[train]
-epochs = 2
-""")
+    cfg.write_text(tiny_toml(tiny_store, train="epochs = 2"))
     result = runner.invoke(app, ["train", str(cfg)])
     assert result.exit_code == 0, result.output
     assert "epoch    2" in result.output

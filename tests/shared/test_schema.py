@@ -35,15 +35,16 @@ def test_current_version_passes_silently(recwarn):
     assert not recwarn.list
 
 
-def test_version_1_is_read_with_a_warning_and_never_written():
-    assert 1 in READABLE_VERSIONS and SCHEMA_VERSION == 2
-    with pytest.warns(SchemaWarning, match="s.zarr has schema_version 1"):
-        assert check_schema_version({"schema_version": 1}, "s.zarr") == 1
-    with pytest.raises(SchemaError, match=r"writes version 2 only.*`simgen build SPEC --store s.zarr --force`"):
-        check_schema_version({"schema_version": 1}, "s.zarr", write=True)
+@pytest.mark.parametrize("version, lacks", [(1, "the metadata of version 2"), (2, "what version 3 added: sharding")])
+def test_older_versions_are_read_with_a_warning_and_never_written(version, lacks):
+    assert READABLE_VERSIONS == (1, 2, 3) and SCHEMA_VERSION == 3
+    with pytest.warns(SchemaWarning, match=f"s.zarr has schema_version {version}: read without {lacks}"):
+        assert check_schema_version({"schema_version": version}, "s.zarr") == version
+    with pytest.raises(SchemaError, match=r"writes version 3 only.*`simgen build SPEC --store s.zarr --force`"):
+        check_schema_version({"schema_version": version}, "s.zarr", write=True)
 
 
-@pytest.mark.parametrize("attrs, match", [({}, "no schema_version"), ({"schema_version": 3}, "reads versions 1, 2")])
+@pytest.mark.parametrize("attrs, match", [({}, "no schema_version"), ({"schema_version": 4}, "reads versions 1, 2, 3")])
 def test_unknown_or_missing_version_is_refused(attrs, match):
     with pytest.raises(SchemaError, match=match):
         check_schema_version(attrs, "s.zarr")

@@ -71,7 +71,10 @@ def test_empty_nan_or_mismatched_observations_are_refused(lv, context):
         baseline.predict([0])
     with pytest.raises(InputError, match="context size must be >= 1"):
         Observations(lv.mesh, np.zeros(0, int), np.zeros((0, 12, lv.mesh.n_nodes)), context.observed, context.times)
-    blind = dataclasses.replace(context, observed=np.zeros(lv.mesh.n_nodes, bool))
+    with pytest.raises(InputError, match="no observed node"):
+        dataclasses.replace(context, observed=np.zeros(lv.mesh.n_nodes, bool))
+    blind = dataclasses.replace(context, observed=context.observed.copy())
+    blind.observed[:] = False  # after construction, past Observations' own check
     with pytest.raises(InputError, match="no node is observed"):
         baseline.fit(blind, lv.solver)
     holed = dataclasses.replace(context, obs=context.obs.copy())

@@ -7,13 +7,13 @@ import pytest
 from scipy.sparse.csgraph import dijkstra
 
 from learner.baselines.tissue_library import A_BORDER, A_CORE, geodesic_diameter, geodesic_scar, scar_library
-from learner.graph.hierarchy import _adjacency, _undirected
 from shared.errors import InputError
+from shared.graph import edge_length_graph
 
 
 def test_a_scar_is_a_geodesic_disc_with_a_border_band(lv):
     mesh = lv.mesh
-    adj = _adjacency(mesh.points, _undirected(mesh.edges().astype(np.int64), mesh.n_nodes))
+    adj = edge_length_graph(mesh.points, mesh.edges())
     dist = dijkstra(adj, indices=100)
     a = geodesic_scar(mesh, 100, radius=20.0, border_width=8.0)
     np.testing.assert_array_equal(a == A_CORE, dist <= 20.0)

@@ -148,17 +148,17 @@ def chunk_reads(monkeypatch) -> list[str]:
 
 
 def test_reads_only_the_chunks_of_the_selected_rows(tiny_store, chunk_reads):
-    load_episode(tiny_store, "lv-healthy", [1], [2, 3])  # rows 0-3 = chunk 0
-    assert chunk_reads == ["subjects/lv-healthy/u/c/0/0/0"]
+    load_episode(tiny_store, "lv-healthy", [1], [2, 3])  # rows 0-3 = shard 0
+    assert set(chunk_reads) == {"subjects/lv-healthy/u/c/0/0/0"}  # per row: the shard index, the row's inner chunk
     chunk_reads.clear()
     load_episode(tiny_store, "lv-healthy", [9], [0])
-    assert sorted(chunk_reads) == ["subjects/lv-healthy/u/c/0/0/0", "subjects/lv-healthy/u/c/2/0/0"]
+    assert set(chunk_reads) == {"subjects/lv-healthy/u/c/0/0/0", "subjects/lv-healthy/u/c/2/0/0"}
     chunk_reads.clear()
     spec = EpisodeSpec(context=(1, 2), targets=2, chunks_per_episode=1)
     ds = EpisodeDataset(tiny_store, ["lv-healthy", "lv-b-scar-apex"], spec, seed=5, episodes_per_subject=4)
     assert chunk_reads == []  # construction reads metadata only
     episodes = list(ds)
-    assert len(chunk_reads) == len(episodes) == 8  # one chunk per episode
+    assert len(episodes) == 8 and len(set(chunk_reads)) <= 8  # one shard per episode
     for ep in episodes:
         rows = torch.cat([ep.context_rows, ep.target_rows])
         assert len(set((rows // 4).tolist())) == 1

@@ -120,3 +120,31 @@ def test_adding_a_subject_moves_no_stored_subject(store_copy):
     for part in SPLITS:
         assert set(before[part]) <= set(after[part])
     assert sum(map(len, after.values())) == 8
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_split_by_mesh_keeps_anatomies_whole(seed):
+    ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
+    mesh_of = {sid: sid.split("-")[0] for sid in ids}
+    parts = split_subjects(ids, mesh_of, SplitSpec(seed=seed, validation=0.1, test=0.2, by="mesh"))
+    _check_partition(parts, ids)
+    meshes = {name: {mesh_of[s] for s in parts[name]} for name in SPLITS}
+    assert not meshes["train"] & meshes["test"] and not meshes["train"] & meshes["validation"]
+    assert not meshes["validation"] & meshes["test"]
+    assert (len(meshes["train"]), len(meshes["validation"]), len(meshes["test"])) == (14, 2, 4)
+    assert all(len(parts[name]) == 4 * len(meshes[name]) for name in SPLITS)  # every tissue of an anatomy
+
+
+def test_split_by_mesh_with_held_out_mesh_and_one_mesh_left():
+    parts = split_subjects(IDS, MESH_OF, SplitSpec(validation=0.3, test=0.3, by="mesh", held_out_meshes=("m2",)))
+    meshes = {name: {MESH_OF[s] for s in parts[name]} for name in SPLITS}
+    assert meshes["test"] == {"m2"} and len(meshes["train"]) == len(meshes["validation"]) == 1
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"by": "site"}, "split by must be 'subject' or 'mesh'"), ({"by": "mesh", "source": "store"}, "per subject")],
+)
+def test_split_by_bad_values(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        SplitSpec(**kwargs)

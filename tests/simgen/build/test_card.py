@@ -42,4 +42,4 @@ def test_build_stores_the_short_card(reference_store):
         "dataset: 2 subjects on 1 mesh(es) of 520 nodes, 6 stimulation sites each, "
         "8 frames every 0.6 time units (7.74 ms)."
     )
-    assert len(summary.splitlines()) == 3 and "on 2024-01-01T00:00:00+00:00; schema version 2" in summary
+    assert len(summary.splitlines()) == 3 and "on 2024-01-01T00:00:00+00:00; schema version 3" in summary

@@ -15,7 +15,14 @@ from zarr.core.buffer import default_buffer_prototype
 from zarr.core.sync import sync
 
 import simgen.build.chunk_files as chunk_files
-from simgen.build.chunk_files import DirectLocalStore, chunk_file, writable_store, write_checksummed, write_in_pieces
+from simgen.build.chunk_files import (
+    DirectLocalStore,
+    chunk_file,
+    writable_store,
+    write_checksummed,
+    write_in_pieces,
+    write_rows,
+)
 from simgen.solver.simulate import page_aligned_empty
 
 
@@ -103,41 +110,49 @@ def test_urls_stay_urls():
 
 
 @pytest.mark.parametrize("aligned", [True, False], ids=["page-aligned", "unaligned"])
-@pytest.mark.parametrize("sites", [4, 3], ids=["whole-chunk", "last-chunk"])
-def test_checksummed_chunk_files_are_byte_for_byte_zarrs(tmp_path, monkeypatch, io_mode, aligned, sites):
+@pytest.mark.parametrize(
+    "sites, sharded",
+    [(4, False), (4, True), (3, True)],
+    ids=["whole-chunk", "whole-shard", "last-shard"],
+)
+def test_written_files_are_byte_for_byte_zarrs(tmp_path, monkeypatch, io_mode, aligned, sites, sharded):
     monkeypatch.setattr(chunk_files, "PIECE_BYTES", 3 * 4096)  # several pieces, straight from memory and staged
-    shape = (4 + sites, 4, 1_101)  # chunks of 4 sites, 70,464 bytes: not a whole number of blocks; chunk 1 written
+    shape = (4 + sites, 4, 1_101)  # files of 4 sites, 70,464 bytes: not a whole number of blocks; file 1 written
     values = page_aligned_empty((sites + 1, *shape[1:]), np.float32)
     values[...] = np.random.default_rng(1).random(values.shape, dtype=np.float32)
     values = values[:sites] if aligned else values[1:]
     assert (values.ctypes.data % chunk_files.ALIGN == 0) is aligned
+    layout = {"chunks": (1, *shape[1:]), "shards": (4, *shape[1:])} if sharded else {"chunks": (4, *shape[1:])}
     for name in ("plain.zarr", "ours.zarr"):
         zarr.create_array(
-            str(tmp_path / name),
-            shape=shape,
-            chunks=(4, *shape[1:]),
-            dtype="f4",
-            fill_value=np.nan,
-            compressors=(Crc32cCodec(),),
+            str(tmp_path / name), shape=shape, dtype="f4", fill_value=np.nan, compressors=(Crc32cCodec(),), **layout
         )
     zarr.open_array(str(tmp_path / "plain.zarr"), mode="r+")[4 : 4 + sites] = values
     ours = zarr.open_array(DirectLocalStore(tmp_path / "ours.zarr"), mode="r+")
-    file = chunk_file(ours, (1, 0, 0))
-    assert file == tmp_path / "ours.zarr" / "c" / "1" / "0" / "0"
-    fill = None
-    if sites < 4:  # page-aligned too: it must still follow the staged end of values
-        fill = page_aligned_empty((4 - sites, *shape[1:]), np.float32)
-        fill[...] = np.nan
-    write_checksummed(file, values, fill)
-    assert file.read_bytes() == (tmp_path / "plain.zarr" / "c" / "1" / "0" / "0").read_bytes()
+    assert chunk_file(ours, (1, 0, 0)) == tmp_path / "ours.zarr" / "c" / "1" / "0" / "0"
+    assert write_rows(ours, 4, values)
+    assert (tmp_path / "ours.zarr/c/1/0/0").read_bytes() == (tmp_path / "plain.zarr/c/1/0/0").read_bytes()
     assert np.array_equal(zarr.open_array(str(tmp_path / "ours.zarr"), mode="r")[4 : 4 + sites], values)
     assert not list(tmp_path.rglob("*.partial"))
 
 
+def test_only_whole_files_are_written_and_the_rest_left_to_zarr(tmp_path):
+    ours = zarr.create_array(
+        DirectLocalStore(tmp_path / "s.zarr"), shape=(7, 8), chunks=(2, 8), dtype="f4", compressors=(Crc32cCodec(),)
+    )
+    rows = np.ones((2, 8), np.float32)
+    assert not write_rows(ours, 1, rows)  # not at a chunk's start
+    assert not write_rows(ours, 0, rows[:1])  # part of a chunk
+    assert not write_rows(ours, 6, rows[:1])  # the last chunk: Zarr stores its fill past the end
+    assert not write_rows(ours, 0, np.ones((2, 4), np.float32))  # part of the other dimension
+    assert not list(tmp_path.rglob("c/*"))
+    assert write_rows(ours, 2, rows) and (tmp_path / "s.zarr/c/1/0").is_file()
+
+
 def test_only_uncompressed_checksummed_arrays_in_a_direct_store_get_chunk_files(tmp_path):
-    def array(name, store=None, dtype="f4", **kw):
+    def array(name, store=None, dtype="f4", chunks=(2, 8), **kw):
         return zarr.create_array(
-            store or DirectLocalStore(tmp_path / name), shape=(4, 8), chunks=(2, 8), dtype=dtype, **kw
+            store or DirectLocalStore(tmp_path / name), shape=(4, 8), chunks=chunks, dtype=dtype, **kw
         )
 
     assert chunk_file(array("flags.zarr", dtype="u1", compressors=(Crc32cCodec(),)), (1, 0)) is not None
@@ -145,8 +160,11 @@ def test_only_uncompressed_checksummed_arrays_in_a_direct_store_get_chunk_files(
     assert chunk_file(array("blosc.zarr", compressors=(BloscCodec(cname="lz4"), Crc32cCodec())), (1, 0)) is None
     assert chunk_file(array("plain.zarr", compressors=None), (1, 0)) is None  # no checksum
     assert chunk_file(array("s", str(tmp_path / "zarrs-own.zarr"), compressors=(Crc32cCodec(),)), (1, 0)) is None
-    sharded = array("sharded.zarr", shards=(4, 8), compressors=(Crc32cCodec(),))
-    assert chunk_file(sharded, (0, 0)) is None
+    assert chunk_file(array("sharded.zarr", chunks=(1, 8), shards=(2, 8)), (1, 0)) is None  # no checksum
+    rows = array("rows.zarr", chunks=(1, 8), shards=(2, 8), compressors=(Crc32cCodec(),))
+    assert chunk_file(rows, (1, 0)) == tmp_path / "rows.zarr/c/1/0"
+    tiles = array("tiles.zarr", chunks=(1, 4), shards=(2, 8), compressors=(Crc32cCodec(),))
+    assert chunk_file(tiles, (1, 0)) is None  # inner chunks of part of a row
     read_only = zarr.open_array(DirectLocalStore(tmp_path / "f4.zarr", read_only=True), mode="r")
     assert chunk_file(read_only, (1, 0)) is None  # Zarr refuses the write
 

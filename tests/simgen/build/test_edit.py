@@ -131,6 +131,7 @@ def test_regenerate_site_subset_rewrites_only_that_chunk(store, store_bytes, ref
         "subjects/lv-healthy/u/c/1/0/0",
         "subjects/lv-healthy/activation/c/1/0",
         "subjects/lv-healthy/moments/c/1/0/0",
+        "subjects/lv-healthy/fingerprint/c/1",
         "subjects/lv-healthy/done/c/1",
     }
     assert rewritten - {"zarr.json"} == chunk1  # the subject's statistics are the same: not rewritten

@@ -29,12 +29,13 @@ def test_layout_groups_arrays_and_fields(tmp_path, tiny_spec):
         g = root[f"subjects/{subject.id}"]
         assert (g.attrs["mesh_id"], g.attrs["chunk_sites"], g.attrs["tissue"]["name"]) == ("lv", 4, subject.tissue.name)
         u, act, done = g["u"], g["activation"], g["done"]
-        assert (u.shape, u.chunks, u.metadata.dimension_names) == (
+        assert (u.shape, u.shards, u.chunks, u.metadata.dimension_names) == (
             (6, frames, n),
-            (4, frames, n),
+            (4, frames, n),  # one shard per build task
+            (1, frames, n),  # one inner chunk per site
             ("site", "time", "node"),
         )
-        assert (act.shape, act.chunks) == ((6, n), (4, n))
+        assert (act.shape, act.shards, act.chunks) == ((6, n), (4, n), (1, n))
         assert np.isnan(u.fill_value) and np.isnan(act.fill_value)
         assert isinstance(u.compressors[0], BloscCodec) and isinstance(u.compressors[-1], Crc32cCodec)
         assert (done.shape, done.chunks, done.fill_value, done.compressors) == ((2,), (1,), 0, (Crc32cCodec(),))

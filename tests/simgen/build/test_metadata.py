@@ -11,7 +11,7 @@ import zarr
 
 from shared.errors import ConfigError
 from shared.reader import read_statistics
-from shared.schema import MESH_ARRAYS, SUBJECT_ARRAYS, array_attributes
+from shared.schema import MESH_ARRAYS, SCHEMA_VERSION, SUBJECT_ARRAYS, array_attributes
 from shared.split import canonical_part
 from shared.units import MS_PER_TIME_UNIT
 from simgen.build import make_plan
@@ -81,7 +81,7 @@ def test_root_and_subject_attributes_record_model_solver_and_provenance(referenc
     assert (sim["stimulus_duration"], sim["frames"], sim["units"]["time"]) == (1.0, 8, "12.9 ms")
     assert "du/dt" in sim["equations"][0]
     assert root.attrs["split"]["fractions"] == {"train": 0.7, "validation": 0.1, "test": 0.2}
-    assert "8 frames" in root.attrs["summary"] and "schema version 2" in root.attrs["summary"]
+    assert "8 frames" in root.attrs["summary"] and f"schema version {SCHEMA_VERSION}" in root.attrs["summary"]
     plan = make_plan(tiny_spec())
     for subject in plan.subjects:
         g = root[f"subjects/{subject.id}"]

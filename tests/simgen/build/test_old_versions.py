@@ -67,7 +67,7 @@ def test_unknown_version_is_refused_with_the_rebuild_command(old_store):
     zarr.open_group(str(old_store), mode="r+").attrs["schema_version"] = 99
     with pytest.raises(
         SchemaError,
-        match=r"schema_version 99, this code reads versions 1, 2; rebuild it with "
+        match=r"schema_version 99, this code reads versions 1, 2, 3; rebuild it with "
         r"`simgen build SPEC --store .*old.zarr --force`",
     ):
         check_store(old_store)

@@ -12,6 +12,7 @@ import zarr
 from shared.errors import SchemaError
 from shared.schema import SCHEMA_VERSION
 from shared.split import canonical_part
+from simgen.build.fingerprint import chunk_fingerprint
 from simgen.build.stats import chunk_moments, statistics
 from simgen.build.verify import verify_store
 
@@ -86,8 +87,10 @@ def test_altered_valid_data_is_caught_by_its_moments(store):
 
 def test_altered_valid_data_is_caught_by_recomputation(store):
     g = _subject(store, "lv-healthy")
-    g["u"][0:3] = u = g["u"][0:3] * 0.5  # finite, in range, with matching moments: only recomputation can tell
+    # finite, in range, with matching moments and fingerprint: only recomputation can tell
+    g["u"][0:3] = u = g["u"][0:3] * 0.5
     g["moments"][0] = chunk_moments(u, g["activation"][0:3])
+    g["fingerprint"][0] = chunk_fingerprint("lv-healthy", 0, 0, 3, u, g["activation"][0:3])
     stats = dict(g.attrs["statistics"])
     g.attrs["statistics"] = statistics(g["moments"][...])
     root = zarr.open_group(str(store), mode="r+")

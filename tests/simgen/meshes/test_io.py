@@ -87,7 +87,7 @@ def test_unused_nodes_are_dropped_and_sets_renumbered(tmp_path):
     path = tmp_path / "extra.vtu"
     raw = meshio.Mesh(points, [("tetra", np.array([[1, 2, 3, 4]]))], point_data={"epicardium": epi})
     meshio.write(path, raw)
-    loaded = load_mesh(path)
+    loaded = load_mesh(path, units="mm")
     np.testing.assert_array_equal(loaded.points, TET)
     np.testing.assert_array_equal(loaded.node_sets["epicardium"], [0, 3])
 
@@ -114,7 +114,7 @@ def test_unknown_format(tmp_path):
 def test_no_usable_cells(tmp_path):
     path = tmp_path / "lines.vtu"
     meshio.write(path, meshio.Mesh(TET, [("line", np.array([[0, 1], [1, 2]]))]))
-    with pytest.raises(MeshError, match=r"no linear tetrahedra or triangles \(cell types: line\)"):
+    with pytest.raises(MeshError, match=r"no linear tetrahedra, hexahedra or triangles \(cell types: line\)"):
         load_mesh(path)
 
 
@@ -131,7 +131,7 @@ def test_invalid_mesh_in_file_names_path_and_problem(tmp_path):
     path = tmp_path / "flipped.vtu"
     meshio.write(path, meshio.Mesh(TET, [("tetra", np.array([[1, 0, 2, 3]]))]))
     with pytest.raises(MeshError, match=r"flipped\.vtu: mesh 'flipped' is invalid: .*negative volume"):
-        load_mesh(path)
+        load_mesh(path, units="mm")
 
 
 def test_bad_node_mask(tmp_path):
@@ -139,7 +139,7 @@ def test_bad_node_mask(tmp_path):
     labels = np.array([0, 1, 2, 1])
     meshio.write(path, meshio.Mesh(TET, [("tetra", np.array([[0, 1, 2, 3]]))], point_data={"base": labels}))
     with pytest.raises(MeshError, match=r"point data 'base' is not a 0/1 node mask"):
-        load_mesh(path)
+        load_mesh(path, units="mm")
 
 
 def test_tetra_to_surface_format_is_refused(tmp_path):

@@ -1,0 +1,99 @@
+"""Mesh files made simulation-ready hearts: units, repair, resampling, node sets and long axis.
+
+:func:`load_heart` is what :func:`simgen.meshes.get_mesh` does with a mesh
+file or a shipped real mesh (``"real:<name>"``):
+
+1. :func:`~simgen.meshes.io.load_mesh`: millimetres, safe repairs, validation;
+2. :func:`~simgen.meshes.resample.resample` to about ``nodes`` nodes of ``kind``;
+3. the node sets the file carries (its own masks, or those ``node_set_arrays``
+   names) are kept; when it lacks ``epicardium`` or ``endocardium``, all heart
+   sets and the long axis are detected (:func:`~simgen.meshes.nodesets.detect_heart`),
+   the file's sets taking precedence. A mesh in which no cavity is found (a
+   slab, a solid) keeps only its own sets, with a logged warning;
+4. ``landmarks`` (``apex``, ``base`` and optionally ``septum`` points in mm)
+   replace the detected long axis.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from shared.errors import MeshError
+from shared.mesh import CellType, LongAxis, Mesh
+from simgen.meshes.io import load_mesh
+from simgen.meshes.nodesets import detect_heart
+from simgen.meshes.resample import resample
+from simgen.meshes.shipped import REAL_PREFIX, is_real, unpacked
+from simgen.meshes.validate import validate_mesh
+
+__all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
+
+log = logging.getLogger("simgen.meshes")
+
+#: Landmark points a spec may give (mm); ``apex`` and ``base`` (base centre) are required together.
+LANDMARKS = ("apex", "base", "septum")
+
+
+def load_heart(
+    source: str | PathLike,
+    nodes: int,
+    kind: CellType,
+    name: str | None = None,
+    units: str | None = None,
+    landmarks: Mapping[str, Sequence[float]] | None = None,
+    node_set_arrays: Mapping[str, str] | None = None,
+) -> Mesh:
+    """A mesh file or ``"real:<name>"`` as a validated heart mesh of about ``nodes`` nodes (module docstring)."""
+    if is_real(str(source)):
+        with unpacked(str(source)) as path:
+            mesh = load_mesh(
+                path,
+                name or str(source).removeprefix(REAL_PREFIX),
+                units=units or "mm",
+                node_set_arrays=node_set_arrays,
+            )
+    else:
+        mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays)
+    mesh = resample(mesh, nodes, kind)
+    sets, axis = dict(mesh.node_sets), mesh.axis
+    if "epicardium" not in sets or "endocardium" not in sets:
+        try:
+            detected, axis = detect_heart(mesh)
+            sets = {**detected, **sets}
+        except MeshError as exc:
+            log.warning("mesh %r: heart node sets not detected: %s", mesh.name, exc)
+    if landmarks:
+        axis = axis_from_landmarks(landmarks, axis)
+    return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name))
+
+
+def axis_from_landmarks(landmarks: Mapping[str, Sequence[float]], detected: LongAxis | None = None) -> LongAxis:
+    """The long axis through ``apex`` and ``base``; angle 0 towards ``septum``, else the detected one, else x."""
+    unknown = sorted(set(landmarks) - set(LANDMARKS))
+    if unknown or not {"apex", "base"} <= set(landmarks):
+        raise MeshError(f"axis landmarks: give apex and base (and optionally septum), got {sorted(landmarks)}")
+    points = {}
+    for key, value in landmarks.items():
+        point = np.asarray(value, dtype=np.float64)
+        if point.shape != (3,) or not np.isfinite(point).all():
+            raise MeshError(f"axis landmark {key!r} must be 3 finite coordinates (mm), got {list(value)}")
+        points[key] = point
+    d = points["base"] - points["apex"]
+    if np.linalg.norm(d) == 0:
+        raise MeshError("axis landmarks: apex and base coincide")
+    d /= np.linalg.norm(d)
+    if "septum" in points:
+        towards = points["septum"] - points["apex"]
+    elif detected is not None:
+        towards = np.asarray(detected.reference, dtype=np.float64)
+    else:
+        towards = np.eye(3)[0 if abs(d[0]) < np.sqrt(0.5) else 1]
+    reference = towards - (towards @ d) * d
+    if np.linalg.norm(reference) < 1e-9:
+        raise MeshError("axis landmarks: the septum point lies on the long axis")
+    return LongAxis(points["apex"], points["base"], reference / np.linalg.norm(reference))
