@@ -233,13 +233,13 @@ def plot_tissue(mesh: Mesh, label: ArrayLike, path: str | PathLike[str], title: 
         _draw_surface(ax, mesh, faces, rgba, view)
         ax.set_title(f"azimuth {view[1]:g}\N{DEGREE SIGN}", fontsize=9, pad=-4)
     fig.suptitle(title, fontsize=11)
-    fig.legend(
-        handles=[Patch(color=c, label=n) for n, c in _TISSUE_COLOURS.values()],
-        loc="center right",
-        fontsize=8,
-        frameon=False,
-    )
+    _colour_key(fig, _TISSUE_COLOURS, loc="center right")
     _save(fig, path)
+
+
+def _colour_key(fig, colours: dict[str, tuple[str, str]], **where) -> None:
+    """A legend of coloured patches, one per ``(label, colour)`` value of ``colours``, placed by ``where``."""
+    fig.legend(handles=[Patch(color=c, label=n) for n, c in colours.values()], fontsize=8, frameon=False, **where)
 
 
 def plot_surfaces(
@@ -271,12 +271,7 @@ def plot_surfaces(
         ax.set_title(title, fontsize=8, pad=-4)
     for ax in panels[len(meshes) :]:
         ax.set_axis_off()
-    fig.legend(
-        handles=[Patch(color=c, label=n) for n, c in _PART_COLOURS.values()],
-        loc="center right",
-        fontsize=8,
-        frameon=False,
-    )
+    _colour_key(fig, _PART_COLOURS, loc="center right")
     _save(fig, path)
 
 
@@ -322,13 +317,7 @@ def plot_mesh_overview(
             ax.set_title(f"{name}  (azimuth {view[1]:g}\N{DEGREE SIGN})", fontsize=9, pad=-4)
     _mark_node(axes[2][0], mesh, stim_node, views[0])
     fig.suptitle(title, fontsize=10)
-    fig.legend(
-        handles=[Patch(color=c, label=n) for n, c in _PART_COLOURS.values()],
-        loc="upper left",
-        bbox_to_anchor=(_key_x(fig, 0.0), 0.97),
-        fontsize=8,
-        frameon=False,
-    )
+    _colour_key(fig, _PART_COLOURS, loc="upper left", bbox_to_anchor=(_key_x(fig, 0.0), 0.97))
     cax = fig.add_axes((_key_x(fig, 0.15), 0.4, 0.2 / fig.get_figwidth(), 0.2))
     fig.colorbar(segment_colours, cax=cax, label="AHA segment", ticks=[1, 6, 7, 12, 13, 16, 17])
     cax = fig.add_axes((_key_x(fig, 0.15), 0.06, 0.2 / fig.get_figwidth(), 0.2))
