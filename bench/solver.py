@@ -1,21 +1,31 @@
-"""Benchmark: naive one-site-at-a-time NumPy loop vs the batched fused solver.
+"""Benchmark: naive one-site-at-a-time NumPy loop vs the batched fused solver, numba and torch backends.
 
-Both integrate the same Aliev-Panfilov monodomain model with explicit Euler on
+All integrate the same Aliev-Panfilov monodomain model with explicit Euler on
 the same mesh, time step, stimulus and output frames:
 
 * ``naive``   - float64, scipy CSR matvec + NumPy reaction update, one site
   after the other (written out below; it is the baseline, not project code);
 * ``batched`` - ``Simulator(mesh).run(sites, threads=T)``: float32, RCM-ordered,
-  fused numba kernel over an N x S state, for T = 1 and 2.
+  fused numba kernel over an N x S state, for T = 1 and 2;
+* ``torch``   - ``--backend torch``: ``Simulator(mesh, backend="torch", device=D)``,
+  the same steps as a torch CSR product and an elementwise step over the
+  N x S state (``--compile``: through torch.compile), on the CPU for each T or
+  once on CUDA.
 
 The ratio it exists to show is the speed-up per simulation of the batched
-solver over the naive loop, measured in the same run. Also printed: ns per
+solver over the naive loop, measured in the same run, and with ``--backend
+numba torch`` torch's over the fastest numba run. Also printed: ns per
 node-step, the effective state bandwidth (24 B per node-site-step: u and v
 read, u_new and v written, float32) to compare with what the 2-core VMs stream
-from DRAM (~27 GB/s one thread, ~53 GB/s two), and max |u_naive - u_batched|.
+from DRAM (~27 GB/s one thread, ~53 GB/s two), max |u_naive - u_batched|, and
+for torch the bytes a step moves at least (:func:`torch_step_bytes`) per second,
+on CUDA as a share of the GPU's peak memory bandwidth (:func:`peak_bandwidth`),
+and its largest differences from numba (u, activation times in steps).
 
-Run: ``.venv/bin/python bench/solver.py [--quick] [--out DIR]`` (DIR gets solver.md and solver.json).
-The table is published in docs/performance.md ("Solver speed") with its machine and command.
+Run: ``.venv/bin/python bench/solver.py [--quick] [--out DIR]`` (DIR gets solver.md and solver.json);
+``--backend numba torch --device cuda --nodes 2000 10000 50000 --naive-sites 0`` on a GPU machine.
+The numba table is published in docs/performance.md ("Solver speed"), the torch one in
+docs/solver-backends.md, each with its machine and command.
 """
 
 from __future__ import annotations
@@ -38,6 +48,35 @@ from simgen.solver.stimulus import patch_mask
 
 MESHES = [(2000, "tetra"), (2000, "triangle"), (10000, "tetra")]
 STATE_BYTES = 24  # u, v read + u_new, v written per node-site-step (float32)
+#: Peak memory bandwidth (bytes/s) by a part of torch.cuda.get_device_name(); others are measured.
+PEAK_BANDWIDTH = {"H200": 4.8e12, "H100 80GB HBM3": 3.35e12, "A100-SXM4-80GB": 2.04e12}
+
+
+def torch_step_bytes(n: int, nnz: int, sites: int) -> int:
+    """Bytes one torch step moves at least: the CSR operator (float32 values, int32 column indices and
+    row pointers, diagonal included), u read by the product and its result written, then the fused
+    step reading u, v, the product, the activation times and a, and writing u, v and activation."""
+    return 8 * nnz + 4 * (n + 1) + 4 * n + 4 * 9 * n * sites
+
+
+def peak_bandwidth(device: str) -> tuple[float, str]:
+    """``(bytes/s, source)`` of a CUDA device: :data:`PEAK_BANDWIDTH`, else a timed 1 GiB device copy."""
+    import torch
+
+    name = torch.cuda.get_device_name(device)
+    for key, value in PEAK_BANDWIDTH.items():
+        if key in name:
+            return value, f"{name}: {value / 1e12:g} TB/s (datasheet)"
+    x = torch.empty(2**28, dtype=torch.float32, device=device)
+    y = torch.empty_like(x)
+    y.copy_(x)
+    torch.cuda.synchronize(device)
+    t0 = time.perf_counter()
+    for _ in range(10):
+        y.copy_(x)
+    torch.cuda.synchronize(device)
+    value = 10 * 2 * x.nbytes / (time.perf_counter() - t0)
+    return value, f"{name}: {value / 1e12:.2f} TB/s (measured device copy)"
 
 
 def naive_run(sim: Simulator, A: sp.csr_matrix, site: int) -> np.ndarray:
@@ -62,16 +101,15 @@ def naive_run(sim: Simulator, A: sp.csr_matrix, site: int) -> np.ndarray:
     return frames
 
 
-def bench_mesh(
-    n_nodes: int, kind: str, n_naive: int, n_batch: int, threads: list[int], block: int, repeat: int
-) -> dict:
-    """Time the naive loop and the batched solver on one mesh; return raw numbers."""
+def bench_mesh(n_nodes: int, kind: str, args: argparse.Namespace) -> dict:
+    """Time the naive loop and each backend of the batched solver on one mesh; return raw numbers."""
     mesh = lv_ellipsoid(n_nodes, kind)
     t0 = time.perf_counter()
     sim = Simulator(mesh)
     setup_s = time.perf_counter() - t0
     n = mesh.n_nodes
     steps = sim.config.frames * sim.steps_per_frame
+    n_batch, n_naive = args.batch, args.naive_sites
     sites = np.random.default_rng(0).choice(n, size=max(n_batch, n_naive), replace=False)
     row = {
         "mesh": f"lv_ellipsoid({n_nodes}, {kind!r})",
@@ -96,55 +134,116 @@ def bench_mesh(
         row["variants"].append(entry)
         return entry
 
-    A = diffusion_operator(mesh, sim.config.diffusivity * np.asarray(sim.tissue.D, float))
-    naive_u, naive_s = [], []
-    for s in sites[:n_naive]:  # the fastest site stands for the loop: the least disturbed by other load
-        t0 = time.perf_counter()
-        naive_u.append(naive_run(sim, A, s))
-        naive_s.append(time.perf_counter() - t0)
-    naive_u = np.stack(naive_u)
-    base = record("naive numpy f64 (best site)", 1, min(naive_s))
-    base["state_GB_per_s"] = None  # float64 + temporaries: the 24 B model does not apply
-
-    sim.run(sites[:2], threads=max(threads))  # JIT compile (or load the cache) and warm up
-    max_diff = 0.0
-    for t in threads:
+    def best_of(simulator: Simulator, threads: int) -> tuple[float, object]:
         walls = []
-        for _ in range(repeat):  # best of `repeat` runs, as for the naive loop
+        for _ in range(args.repeat):  # best of `repeat` runs, as for the naive loop
             t0 = time.perf_counter()
-            res = sim.run(sites[:n_batch], threads=t, block_size=block)
+            res = simulator.run(sites[:n_batch], threads=threads, block_size=args.block_size)
             walls.append(time.perf_counter() - t0)
-        record(f"batched f32, {t} thread{'s' * (t > 1)}", n_batch, min(walls))
-        max_diff = max(max_diff, float(np.abs(res.u[:n_naive] - naive_u).max()))
+        return min(walls), res
+
+    naive_u, naive_s = [], []
+    if n_naive:
+        A = diffusion_operator(mesh, sim.config.diffusivity * np.asarray(sim.tissue.D, float))
+        for s in sites[:n_naive]:  # the fastest site stands for the loop: the least disturbed by other load
+            t0 = time.perf_counter()
+            naive_u.append(naive_run(sim, A, s))
+            naive_s.append(time.perf_counter() - t0)
+        base = record("naive numpy f64 (best site)", 1, min(naive_s))
+        base["state_GB_per_s"] = None  # float64 + temporaries: the 24 B model does not apply
+
+    results = {}
+    if "numba" in args.backend:
+        sim.run(sites[:2], threads=max(args.threads))  # JIT compile (or load the cache) and warm up
+        for t in args.threads:
+            wall, results["numba"] = best_of(sim, t)
+            record(f"batched f32, {t} thread{'s' * (t > 1)}", n_batch, wall)
+    if "torch" in args.backend:
+        bench_torch(mesh, args, row, record, best_of, results)
+    if "numba" in results and "torch" in results:
+        a, b = results["numba"], results["torch"]
+        row["torch_vs_numba"] = {
+            "max_abs_du": float(np.abs(a.u - b.u).max()),
+            "max_activation_steps": float(np.nanmax(np.abs(a.activation - b.activation)) / sim.dt),
+            "same_never_activated": bool(np.array_equal(np.isnan(a.activation), np.isnan(b.activation))),
+        }
+    numba_ns = [v["ns_per_node_step"] for v in row["variants"] if v["variant"].startswith("batched")]
     for entry in row["variants"]:
-        entry["speedup"] = base["ns_per_node_step"] / entry["ns_per_node_step"]
-    row["max_abs_du"] = max_diff
+        entry["speedup"] = row["variants"][0]["ns_per_node_step"] / entry["ns_per_node_step"] if n_naive else None
+        entry["vs_numba"] = min(numba_ns) / entry["ns_per_node_step"] if numba_ns else None
+    last = results.get("numba", results.get("torch"))
+    row["max_abs_du"] = float(np.abs(last.u[:n_naive] - np.stack(naive_u)).max()) if n_naive else None
     return row
 
 
+def bench_torch(mesh, args: argparse.Namespace, row: dict, record, best_of, results: dict) -> None:
+    """The torch backend's variants on ``args.device``: each thread count on the CPU, one run on CUDA."""
+    compile_ = {"auto": None, "on": True, "off": False}[args.compile]
+    sim = Simulator(mesh, backend="torch", device=args.device, compile=compile_)
+    t0 = time.perf_counter()
+    sim.run(np.arange(2), threads=max(args.threads))  # torch.compile (where chosen) and warm-up
+    row["torch_first_run_s"] = time.perf_counter() - t0
+    kernel = sim._torch
+    how = "compiled" if kernel.compiled else "eager"
+    on_cuda = kernel.device.type == "cuda"
+    for t in [1] if on_cuda else args.threads:
+        wall, results["torch"] = best_of(sim, t)
+        name = f"torch f32 {kernel.device}, {how}" + ("" if on_cuda else f", {t} thread{'s' * (t > 1)}")
+        entry = record(name, args.batch, wall)
+        step_s = wall / row["steps"]
+        entry["moved_GB_per_s"] = torch_step_bytes(mesh.n_nodes, kernel.nnz, args.batch) / step_s / 1e9
+        if on_cuda:
+            peak, source = peak_bandwidth(str(kernel.device))
+            entry["peak_share"] = entry["moved_GB_per_s"] * 1e9 / peak
+            row["peak_bandwidth"] = source
+
+
 def markdown(rows: list[dict]) -> str:
-    """Two Markdown tables: mesh settings, then timings with the speed-up over naive."""
+    """Markdown tables: mesh settings, timings with the speed-ups, and torch's differences from numba."""
     out = [
         "| mesh | nodes | nnz/row | dt | steps | Simulator setup (s) | max abs(u_naive - u_batched) |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
+        du = "-" if r["max_abs_du"] is None else f"{r['max_abs_du']:.1e}"
         out.append(
             f"| {r['mesh']} | {r['nodes']} | {r['nnz_per_row']:.1f} | {r['dt']:.4g} | {r['steps']} "
-            f"| {r['setup_s']:.2f} | {r['max_abs_du']:.1e} |"
+            f"| {r['setup_s']:.2f} | {du} |"
         )
     out += [
         "",
-        "| mesh | variant | sites | wall (s) | sims/s | ns/node-step | state GB/s | speed-up vs naive |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
+        "| mesh | variant | sites | wall (s) | sims/s | ns/node-step | state GB/s | torch bytes GB/s "
+        "| share of peak | speed-up vs naive | vs fastest numba |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
+
+    def cell(value, fmt: str) -> str:
+        return "-" if value is None else format(value, fmt)
+
     for r in rows:
         for v in r["variants"]:
-            gbs = "-" if v["state_GB_per_s"] is None else f"{v['state_GB_per_s']:.0f}"
             out.append(
                 f"| {r['mesh']} | {v['variant']} | {v['sites']} | {v['wall_s']:.2f} | {v['sims_per_s']:.1f} "
-                f"| {v['ns_per_node_step']:.3f} | {gbs} | {v['speedup']:.1f}x |"
+                f"| {v['ns_per_node_step']:.3f} | {cell(v['state_GB_per_s'], '.0f')} "
+                f"| {cell(v.get('moved_GB_per_s'), '.1f')} | {cell(v.get('peak_share'), '.1%')} "
+                f"| {cell(v['speedup'], '.1f')} | {cell(v['vs_numba'], '.2f')} |"
             )
+    compared = [r for r in rows if "torch_vs_numba" in r]
+    if compared:
+        out += [
+            "",
+            "| mesh | torch first run (s) | max abs(u_torch - u_numba) | max activation difference (steps) "
+            "| same never-activated nodes |",
+            "|---|---:|---:|---:|---|",
+        ]
+        for r in compared:
+            d = r["torch_vs_numba"]
+            out.append(
+                f"| {r['mesh']} | {r['torch_first_run_s']:.1f} | {d['max_abs_du']:.1e} "
+                f"| {d['max_activation_steps']:.1e} | {d['same_never_activated']} |"
+            )
+    if any("peak_bandwidth" in r for r in rows):
+        out += ["", f"Peak bandwidth: {next(r['peak_bandwidth'] for r in rows if 'peak_bandwidth' in r)}"]
     return "\n".join(out)
 
 
@@ -156,20 +255,32 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="thread counts (default 1 2)")
     p.add_argument("--repeat", type=int, default=2, help="timed runs of the batched solver; best kept (default 2)")
     p.add_argument("--block-size", type=int, default=BLOCK_SIZE, help=f"sites per block (default {BLOCK_SIZE})")
+    p.add_argument(
+        "--backend", nargs="+", choices=["numba", "torch"], default=["numba"], help="solver backends (default numba)"
+    )
+    p.add_argument("--device", default="cpu", help="torch device of the torch backend: cpu, cuda, cuda:N")
+    p.add_argument(
+        "--compile", choices=["auto", "on", "off"], default="auto", help="torch.compile the torch step (auto: CUDA)"
+    )
+    p.add_argument("--nodes", type=int, nargs="+", help="tetra LV sizes instead of the default meshes")
     p.add_argument("--out", type=Path, help="folder for solver.md (the table) and solver.json (raw numbers)")
     args = p.parse_args(argv)
 
-    meshes = [m for m in MESHES if m[0] <= 2000] if args.quick else MESHES
+    meshes = [(n, "tetra") for n in args.nodes] if args.nodes else MESHES
+    meshes = [m for m in meshes if m[0] <= 2000] if args.quick else meshes
     load_before = os.getloadavg()[0]
     t_start = time.perf_counter()
-    rows = [
-        bench_mesh(n, kind, args.naive_sites, args.batch, args.threads, args.block_size, args.repeat)
-        for n, kind in meshes
-    ]
+    rows = [bench_mesh(n, kind, args) for n, kind in meshes]
     total = time.perf_counter() - t_start
+    torch_note = ""
+    if "torch" in args.backend:
+        import torch
+
+        torch_note = f" (torch {torch.__version__} on {args.device}, compile {args.compile})"
     header = (
         f"Solver bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__} "
-        f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; total {total:.0f} s; "
+        f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; backends "
+        f"{' '.join(args.backend)}{torch_note}; total {total:.0f} s; "
         f"1-min load average before the run {load_before:.1f}\n"
     )
     if load_before > 0.5:  # our own threads are not running yet, so this is someone else's work
@@ -184,6 +295,9 @@ def main(argv: list[str] | None = None) -> None:
             "cpus": os.cpu_count(),
             "numba": numba.__version__,
             "block_size": args.block_size,
+            "backends": args.backend,
+            "device": args.device,
+            "compile": args.compile,
             "total_s": total,
             "load_average_before": load_before,
             "meshes": rows,

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data
-from learner.evaluate import EvalSpec, evaluate, load_model
+from learner.evaluate import EvalSpec, NeuralMethod, evaluate, load_model
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
 
@@ -43,7 +43,9 @@ def unseen_procedural(checkpoint: str, store: str, subjects: list[str], sets: in
 def real_heart(checkpoint: str, store: str, sites: int) -> dict:
     """Leave-one-site-out metrics at the sock's electrodes (noise 0.02)."""
     model, config, _ = load_model(checkpoint)
-    return real_data(model, config, BenchmarkConfig(real_data=RealDataSpec(store=store, sites=sites)))
+    cfg = BenchmarkConfig(real_data=RealDataSpec(store=store, sites=sites))
+    result = real_data([NeuralMethod(model, "model")], config.model.levels, config.model.coarsest, cfg)
+    return {**result, **result.pop("methods")["model"]}
 
 
 def markdown(results: dict, n_test: int, n_test_meshes: int, real: dict) -> str:

@@ -36,6 +36,14 @@ KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'trian
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler.")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]
 ThreadsOpt = Annotated[int, typer.Option(min=1, help="Solver threads.")]
+GpusOpt = Annotated[
+    int,
+    typer.Option(
+        min=0,
+        help="Run tasks on GPU workers with the spec's torch backend: locally one worker per GPU (replaces "
+        "--workers); with --scheduler on its workers started with --resources GPU=1.",
+    ),
+]
 # A string, not a Path: Path("s3://bucket/x.zarr") would collapse the "//" of a URL.
 StoreArg = Annotated[str, typer.Argument(help="A simgen Zarr store: a folder or an fsspec URL (s3://bucket/x.zarr).")]
 
@@ -94,6 +102,12 @@ def simulate(
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")] = "0",
     threads: ThreadsOpt = 2,
     dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
+    backend: Annotated[
+        str, typer.Option(help="Solver: 'numba' (CPU), 'torch' (any torch device) or 'auto' (torch on a GPU if any).")
+    ] = "numba",
+    device: Annotated[
+        str | None, typer.Option(help="Torch device of the torch backend: cpu, cuda, cuda:N (default: cuda if any).")
+    ] = None,
 ) -> None:
     """Simulate stimulation SITES on one mesh + tissue and save u, activation times and a figure."""
     from simgen.plot import plot_activation_maps
@@ -102,7 +116,7 @@ def simulate(
         site_ids = np.array(parse_ids(sites, "--sites"))
         m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
         spec = _tissue_spec(tissue)
-        sim = Simulator(m, tissue_fields(m, spec), SolverConfig(dt=dt))
+        sim = Simulator(m, tissue_fields(m, spec), SolverConfig(dt=dt), backend=backend, device=device)
         result = sim.run(site_ids, threads=threads)
     except (InputError, ValueError) as exc:
         _fail(exc)
@@ -117,8 +131,9 @@ def simulate(
         )
     except OSError as exc:
         _fail(exc, out)
+    where = sim.backend if sim.device is None else f"{sim.backend} on {sim.device}"
     console.print(
-        f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), dt={sim.dt:.4g}, "
+        f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), dt={sim.dt:.4g}, {where}, "
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
 
@@ -159,11 +174,13 @@ def build(
     force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
     retries: Annotated[int, typer.Option(min=0, help="Retries per failing task.")] = 2,
     dry_run: Annotated[bool, typer.Option(help="Print the plan (disk, memory, time) and write nothing.")] = False,
+    gpus: GpusOpt = 0,
 ) -> None:
     """Build (or resume) the dataset of SPEC into STORE on a Dask cluster, after printing its plan.
 
     The build is refused when a task needs more memory than a worker may use or
-    the store more disk space than is free.
+    the store more disk space than is free. With --gpus the spec must set
+    [solver] backend = "torch" or "auto" (docs/solver-backends.md).
     """
     from simgen.build import load_spec
     from simgen.build.runner import build as run_build
@@ -171,7 +188,7 @@ def build(
 
     if dry_run:
         try:
-            plan_build(load_spec(spec), store, scheduler, workers, _show_plan)
+            plan_build(load_spec(spec), store, scheduler, workers, _show_plan, gpus)
         except (InputError, OSError) as exc:
             _fail(exc, store)
         console.print("dry run: nothing written")
@@ -179,7 +196,7 @@ def build(
     _run_with_progress(
         store,
         lambda on_start, on_done: run_build(
-            load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done, _show_plan
+            load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done, _show_plan, gpus
         ),
     )
 
@@ -344,7 +361,12 @@ def unlock(
 def verify(
     store: StoreArg,
     sample: Annotated[
-        int, typer.Option(min=0, help="Chunks of every subject recomputed and compared bit for bit.")
+        int,
+        typer.Option(
+            min=0,
+            help="Chunks of every subject recomputed with numba and compared bit for bit (a store of the "
+            "torch or auto backend: within the tolerance of docs/solver-backends.md).",
+        ),
     ] = 1,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the chunk sample.")] = 0,
 ) -> None:

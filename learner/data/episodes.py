@@ -354,7 +354,8 @@ class EpisodeDataset(IterableDataset):
     """Stream of training episodes over a list of subjects.
 
     Each epoch visits the subjects in the order
-    ``np.random.default_rng([seed, epoch]).permutation(len(subjects))``,
+    ``np.random.default_rng([seed, epoch]).permutation(len(subjects))``
+    (over several training processes: grouped by cost, :meth:`order`),
     ``episodes_per_subject`` rounds over that order; DataLoader workers take
     interleaved slices of it. Episode ``k`` of ``subjects[i]`` in ``epoch``
     draws everything from ``np.random.default_rng([seed, epoch, i, k])``.
@@ -440,8 +441,30 @@ class EpisodeDataset(IterableDataset):
         return len(self.subjects) * self.episodes_per_subject
 
     def order(self) -> list[int]:
-        """Subject indices in this epoch's visiting order (before worker sharding)."""
-        return np.random.default_rng([self.seed, self.epoch]).permutation(len(self.subjects)).tolist()
+        """Subject indices in this epoch's visiting order (before sharding over processes and workers).
+
+        A permutation drawn from ``(seed, epoch)``. Sharded over ``W > 1``
+        training processes (:meth:`shard`), the same subjects are grouped into
+        steps of ``W`` episodes of similar :meth:`cost` (neighbours in cost
+        order), the full steps visited in an order drawn from ``(seed, epoch)``
+        and a short step last: DDP synchronises every step, so a process whose
+        episode is cheaper waits for the others.
+        """
+        perm = np.random.default_rng([self.seed, self.epoch]).permutation(len(self.subjects))
+        w = self.world_size
+        if w == 1:
+            return perm.tolist()
+        ranked = perm[np.argsort([self.cost(i) for i in perm], kind="stable")]
+        full = len(ranked) // w * w
+        steps = ranked[:full].reshape(-1, w)
+        steps = steps[np.random.default_rng([self.seed, self.epoch, w]).permutation(len(steps))]
+        return [*steps.ravel().tolist(), *ranked[full:].tolist()]
+
+    def cost(self, subject: int | str, k: int = 0) -> int:
+        """Relative training cost of episode ``k`` of a subject: mesh nodes x sequences (context + targets)."""
+        i = self._index(subject)
+        (context, targets), _ = self._draw(i, k)
+        return self._meta[i].n_nodes * (len(context) + len(targets))
 
     def draw_sites(self, subject: int | str, k: int = 0) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Site rows ``(context, targets)`` of episode ``k`` of a subject in the current epoch."""

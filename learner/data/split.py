@@ -47,6 +47,11 @@ class SplitSpec:
     by
         What the computed cut shuffles: ``"subject"`` or ``"mesh"`` (whole
         anatomies; the fractions are then fractions of the meshes).
+    train_count
+        ``0``: train on the whole training part; ``n > 0``: on only ``n`` of
+        its units (meshes with ``by = "mesh"``, subjects otherwise), the first
+        ``n`` of a shuffle by ``seed``, so the units of a smaller count are
+        among those of a larger one. Validation and test do not change.
     """
 
     seed: int = 0
@@ -55,6 +60,7 @@ class SplitSpec:
     held_out_meshes: tuple[str, ...] = ()
     source: Literal["computed", "store"] = "computed"
     by: Literal["subject", "mesh"] = "subject"
+    train_count: int = 0
 
     def __post_init__(self) -> None:
         # TOML gives lists; a tuple keeps the spec hashable and comparable.
@@ -71,6 +77,10 @@ class SplitSpec:
             raise InputError(f"split source must be 'computed' or 'store', got {self.source!r}")
         if self.by not in ("subject", "mesh"):
             raise InputError(f"split by must be 'subject' or 'mesh', got {self.by!r}")
+        if isinstance(self.train_count, bool) or not isinstance(self.train_count, (int, np.integer)):
+            raise InputError(f"train_count must be an integer (0 = all), got {self.train_count!r}")
+        if self.train_count < 0:
+            raise InputError(f"train_count must be >= 0 (0 = all), got {self.train_count}")
         if self.by == "mesh" and self.source == "store":
             raise InputError(
                 "split by = 'mesh' cuts anatomies, but the store's split is per subject; use source = 'computed'"
@@ -99,7 +109,8 @@ def split_subjects(
     ``round(spec.validation * n)`` and ``test`` ``round(spec.test * n)`` of them
     (then shrunk, test first, until at least one subject is left for training);
     ``train`` gets the rest. With ``spec.by == "mesh"`` the same cut is made
-    over the meshes, and each subject follows its mesh. With ``spec.source == "store"`` they take their
+    over the meshes, and each subject follows its mesh. ``spec.train_count``
+    then shrinks ``train`` (:class:`SplitSpec`). With ``spec.source == "store"`` they take their
     part in ``stored`` (the store's split, :func:`shared.reader.read_split`)
     instead. The result depends only on the *set* of subjects, their meshes,
     ``spec`` and ``stored`` (input order does not matter); each list is sorted.
@@ -137,14 +148,30 @@ def split_subjects(
     if spec.source == "store":
         if stored is None:
             raise InputError("data.split.source = 'store' needs the store's split (StoreView.stored_split)")
-        return _stored_parts(rest, held_out, stored)
-    if spec.by == "mesh":
-        part_of = {m: part for part, meshes in _cut(sorted({mesh_of[s] for s in rest}), spec).items() for m in meshes}
-        parts = {part: [s for s in rest if part_of[mesh_of[s]] == part] for part in SPLITS}
+        parts = _stored_parts(rest, held_out, stored)
     else:
-        parts = _cut(rest, spec)
-    parts["test"] = sorted(parts["test"] + held_out)
+        if spec.by == "mesh":
+            cut = _cut(sorted({mesh_of[s] for s in rest}), spec)
+            part_of = {m: part for part, meshes in cut.items() for m in meshes}
+            parts = {part: [s for s in rest if part_of[mesh_of[s]] == part] for part in SPLITS}
+        else:
+            parts = _cut(rest, spec)
+        parts["test"] = sorted(parts["test"] + held_out)
+    if spec.train_count:
+        parts["train"] = _first_units(parts["train"], mesh_of if spec.by == "mesh" else None, spec)
     return parts
+
+
+def _first_units(train: list[str], mesh_of: Mapping[str, str] | None, spec: SplitSpec) -> list[str]:
+    """The subjects of the first ``spec.train_count`` training units (meshes, or subjects when ``mesh_of`` is None)."""
+    unit = (lambda s: mesh_of[s]) if mesh_of is not None else (lambda s: s)
+    units = sorted({unit(s) for s in train})
+    if spec.train_count > len(units):
+        kind = "anatomies (meshes)" if mesh_of is not None else "subjects"
+        raise InputError(f"train_count = {spec.train_count}, but the training part has only {len(units)} {kind}")
+    order = np.random.default_rng([spec.seed, len(units)]).permutation(len(units))
+    kept = {units[i] for i in order[: spec.train_count]}
+    return [s for s in train if unit(s) in kept]
 
 
 def _cut(items: list[str], spec: SplitSpec) -> dict[str, list[str]]:

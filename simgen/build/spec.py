@@ -33,6 +33,7 @@ Example (TOML)::
 
     [solver]
     frames = 55
+    # backend = "torch"  # or "auto"; unset: numba, and out of the hash (docs/solver-backends.md)
 
     [output]
     chunk_sites = 10

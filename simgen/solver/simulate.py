@@ -3,13 +3,15 @@
 A :class:`Simulator` assembles the diffusion operator of one mesh + tissue
 once (nodes renumbered by reverse Cuthill-McKee for cache locality), picks a
 stable time step, and runs any number of stimulation sites together as an
-``N x S`` state matrix through the fused kernel of :mod:`simgen.solver.kernels`.
+``N x S`` state matrix through the fused kernel of :mod:`simgen.solver.kernels`
+(backend ``"numba"``, CPU) or the same steps in torch on any torch device
+(:mod:`simgen.solver.torch_kernel`, backend ``"torch"``; docs/solver-backends.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -22,6 +24,7 @@ from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
 from simgen.solver.aliev_panfilov import APParams
+from simgen.solver.backends import check_backend, resolve_backend
 from simgen.solver.fem import Geometry, diffusion_operator, element_gradients, lumped_mass
 from simgen.solver.kernels import run_blocks
 from simgen.solver.simd import LANES
@@ -49,6 +52,12 @@ class SolverConfig:
     mean edge lengths (8 mm on the default mesh), which launches a wave from
     every node of meshes from 500 nodes up. 55 frames every 0.6 time units (7.7 ms) cover 33 time
     units (426 ms): the whole activation and the start of repolarisation.
+
+    ``backend`` (:data:`~simgen.solver.backends.BACKENDS`, see
+    :class:`Simulator`) chooses the code that integrates, not the model:
+    ``None`` means ``"numba"`` and, unlike a value that is set, is left out of
+    a build spec's hash, so that stores built before the setting existed
+    resume.
     """
 
     diffusivity: float = 100.0
@@ -59,6 +68,7 @@ class SolverConfig:
     stimulus_radius: float | None = None
     stimulus_duration: float = 1.0
     activation_threshold: float = 0.5
+    backend: Literal["numba", "torch", "auto"] | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.diffusivity) or self.diffusivity <= 0:
@@ -73,6 +83,8 @@ class SolverConfig:
             raise InputError(f"stimulus_duration must be >= 0 time units, got {self.stimulus_duration}")
         if not 0 < self.activation_threshold < 1:
             raise InputError(f"activation_threshold must be in (0, 1), got {self.activation_threshold}")
+        if self.backend is not None:
+            check_backend(self.backend)
 
     @property
     def duration(self) -> float:
@@ -132,11 +144,33 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
 
 
 class Simulator:
-    """Operator, time step and node ordering of one mesh + tissue, reusable across runs."""
+    """Operator, time step and node ordering of one mesh + tissue, reusable across runs.
 
-    def __init__(self, mesh: Mesh, tissue: TissueFields | None = None, config: SolverConfig | None = None):
+    ``backend`` (default: ``config.backend``, else ``"numba"``) and ``device``
+    (torch only; ``None``: ``cuda`` where torch finds a GPU, else ``cpu``)
+    choose what integrates (:func:`~simgen.solver.backends.resolve_backend`):
+    ``"numba"`` the fused CPU kernel, bitwise reproducible across threads and
+    blocks; ``"torch"`` the same steps in torch, equal to numba within float32
+    rounding (docs/solver-backends.md); ``"auto"`` torch on CUDA where a GPU
+    is present, else numba. ``compile``: run the torch step through
+    ``torch.compile`` (``None``: on CUDA only,
+    :func:`simgen.solver.torch_kernel.compiles_on`).
+    """
+
+    def __init__(
+        self,
+        mesh: Mesh,
+        tissue: TissueFields | None = None,
+        config: SolverConfig | None = None,
+        backend: str | None = None,
+        device: str | None = None,
+        compile: bool | None = None,
+    ):
         self.mesh = mesh
+        self.compile = compile
         self.config = config or SolverConfig()
+        self.backend, self.device = resolve_backend(backend or self.config.backend or "numba", device)
+        self._torch = None  # the TorchKernel, built on the first torch run
         self.tissue = tissue if tissue is not None else healthy_fields(mesh.n_nodes)
         A, self.lambda_max, self.dt, self.steps_per_frame = assemble(mesh, self.tissue, self.config)
         pattern = (abs(A) + abs(A).T).tocsr()
@@ -171,15 +205,43 @@ class Simulator:
     ) -> SimulationResult:
         """Simulate one stimulus per column of the (N, S) boolean ``mask`` of excited nodes.
 
-        Sites are integrated in independent blocks of at most ``block_size``
-        columns, spread over ``threads`` threads; the result does not depend
-        on either.
+        With the numba backend sites are integrated in independent blocks of
+        at most ``block_size`` columns, spread over ``threads`` threads; the
+        result does not depend on either. The torch backend runs all columns
+        as one state matrix on :attr:`device` (``threads`` torch threads on
+        the CPU) and ignores ``block_size``.
         """
         cfg = self.config
         mask = np.asarray(mask, bool)
         if mask.ndim != 2 or mask.shape[0] != self.mesh.n_nodes or mask.shape[1] == 0:
             raise InputError(f"stimulus mask must have shape ({self.mesh.n_nodes}, S>0), got {mask.shape}")
         mask = mask[self.perm]
+        s = mask.shape[1]
+        m = cfg.model
+        f32 = np.float32
+        eps0, mu1 = (m.eps_simple, 0.0) if m.variant == "simple" else (m.eps0, m.mu1)
+        constants = (
+            int(round(cfg.stimulus_duration / self.dt)),  # stim_steps
+            cfg.frames * self.steps_per_frame,  # n_steps
+            self.steps_per_frame,  # out_every
+            *map(f32, (self.dt, m.k, eps0, mu1, m.mu2, cfg.activation_threshold)),
+        )
+        if self.backend == "torch":
+            u, act = self._run_torch(mask, constants, threads)
+        else:
+            u, act = self._run_numba(mask, constants, threads, block_size)
+        activation = act[:, self.inverse_perm]
+        activation[activation < 0] = np.nan
+        if not np.all(np.isfinite(u[:, -1])):
+            raise InputError("simulation diverged (non-finite u); reduce dt or check the tissue fields")
+        times = cfg.output_interval * np.arange(1, cfg.frames + 1)
+        sites = np.full(s, -1, np.int64) if sites is None else sites
+        return SimulationResult(sites, times, u, activation, self.dt)
+
+    def _run_numba(
+        self, mask: NDArray[np.bool_], constants: tuple, threads: int, block_size: int
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Frames (S, F, N) and activation (S, N, kernel row order) from :func:`run_blocks` in blocks of sites."""
         n, s = mask.shape
         n_blocks = max(min(int(threads), s), -(-s // block_size))
         width = -(-s // n_blocks)
@@ -188,13 +250,8 @@ class Simulator:
         padded = np.zeros((n, n_blocks * width), bool)
         padded[:, :s] = mask
         stim = np.ascontiguousarray(padded.reshape(n, n_blocks, width).transpose(1, 0, 2))
-        u0 = stim.astype(np.float32)
-        stim_steps = int(round(cfg.stimulus_duration / self.dt))
-        frames = page_aligned_empty((n_blocks, width, cfg.frames, n), np.float32)
+        frames = page_aligned_empty((n_blocks, width, self.config.frames, n), np.float32)
         act = np.where(stim, np.float32(0.0), np.float32(-1.0))  # stimulated nodes activate at t = 0
-        m = cfg.model
-        f32 = np.float32
-        eps0, mu1 = (m.eps_simple, 0.0) if m.variant == "simple" else (m.eps0, m.mu1)
         numba.set_num_threads(max(1, min(int(threads), n_blocks, numba.config.NUMBA_NUM_THREADS)))
         run_blocks(
             self._indptr,
@@ -202,29 +259,31 @@ class Simulator:
             self._data,
             self._diag,
             self._a,
-            u0,
+            stim.astype(np.float32),
             stim,
-            stim_steps,
-            cfg.frames * self.steps_per_frame,
-            self.steps_per_frame,
-            f32(self.dt),
-            f32(m.k),
-            f32(eps0),
-            f32(mu1),
-            f32(m.mu2),
-            f32(cfg.activation_threshold),
+            *constants,
             self.perm,
             frames,
             act,
         )
-        u = frames.reshape(n_blocks * width, cfg.frames, n)[:s]  # a view: no copy of the largest array
-        activation = act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s][:, self.inverse_perm]
-        activation[activation < 0] = np.nan
-        if not np.all(np.isfinite(u[:, -1])):
-            raise InputError("simulation diverged (non-finite u); reduce dt or check the tissue fields")
-        times = cfg.output_interval * np.arange(1, cfg.frames + 1)
-        sites = np.full(s, -1, np.int64) if sites is None else sites
-        return SimulationResult(sites, times, u, activation, self.dt)
+        u = frames.reshape(n_blocks * width, self.config.frames, n)[:s]  # a view: no copy of the largest array
+        return u, act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s]
+
+    def _run_torch(
+        self, mask: NDArray[np.bool_], constants: tuple, threads: int
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Frames (S, F, N) and activation (S, N, kernel row order) from the torch kernel, built on first use."""
+        if self._torch is None:
+            from simgen.solver.torch_kernel import TorchKernel  # torch is imported on this path only
+
+            self._torch = TorchKernel(
+                self._indptr, self._indices, self._data, self._diag, self._a, self.perm, self.device, self.compile
+            )
+        n, s = mask.shape
+        frames = page_aligned_empty((s, self.config.frames, n), np.float32)
+        act = np.where(mask, np.float32(0.0), np.float32(-1.0))
+        self._torch.run(mask.astype(np.float32), mask, *constants, frames, act, threads=threads)
+        return frames, act.T
 
 
 def page_aligned_empty(shape: tuple[int, ...], dtype: DTypeLike) -> NDArray:

@@ -83,7 +83,8 @@ def test_docker_compose_config_validates_the_file():
 def test_dockerfile_installs_the_cpu_torch_wheel_before_the_project():
     text = (DEPLOY / "docker" / "Dockerfile").read_text()
     assert text.startswith("#") and "FROM python:3.11-slim" in text
-    torch = text.index("pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu")
+    assert "ARG TORCH_INDEX=https://download.pytorch.org/whl/cpu\n" in text  # GPU images pass a CUDA index
+    torch = text.index('pip install torch==2.13.0 --index-url "$TORCH_INDEX"')
     assert torch < text.index('pip install ".[deploy]"')
     assert "USER simgen" in text
 
@@ -113,6 +114,21 @@ def test_kubernetes_daskcluster_and_job():
     for pod in (worker["spec"], job["spec"]["template"]["spec"]):
         assert {v["persistentVolumeClaim"]["claimName"] for v in pod["volumes"]} == {claim}
     assert "s3://" in (DEPLOY / "kubernetes" / "build-job.yaml").read_text()  # the object-store variant
+
+
+def test_kubernetes_gpu_worker_group_owns_one_gpu_per_worker():
+    docs = _k8s()
+    group, cluster = docs["DaskWorkerGroup"], docs["DaskCluster"]
+    assert group["apiVersion"] == cluster["apiVersion"] and group["spec"]["cluster"] == cluster["metadata"]["name"]
+    (wc,) = group["spec"]["worker"]["spec"]["containers"]
+    _single_threaded_worker(wc["args"])
+    assert _option(wc["args"], "--resources") == "GPU=1"  # what `simgen build --gpus` tasks ask for
+    for kind in ("requests", "limits"):
+        assert wc["resources"][kind]["nvidia.com/gpu"] == 1
+    assert {e["name"]: e["value"] for e in wc["env"]}["NUMBA_NUM_THREADS"] == "1"
+    claims = {v["persistentVolumeClaim"]["claimName"] for v in group["spec"]["worker"]["spec"]["volumes"]}
+    assert claims == {docs["PersistentVolumeClaim"]["metadata"]["name"]}
+    assert '"--gpus", "1"' in (DEPLOY / "kubernetes" / "build-job.yaml").read_text()  # the commented variant
 
 
 def test_kubernetes_training_recipes_run_torchrun_on_the_shared_volume():
@@ -164,6 +180,10 @@ def test_sbatch_script_is_valid_bash_and_runs_the_same_commands():
     _single_threaded_worker(srun[srun.index("dask") :])
     (job,) = [c for c in commands if c[:2] == ["simgen", "build"]]
     assert "--scheduler" in job and "--store" in job
+    # GPUS > 0: one GPU per worker step, the resource the build's --gpus tasks ask for
+    assert "$WORKER_GPU" in srun and "$WORKER_RESOURCES" in srun and "$BUILD_GPUS" in job
+    (gpu_options,) = [c for c in commands if c and c[0].startswith("WORKER_GPU=--gpus-per-task=1")]
+    assert gpu_options[1:] == ["WORKER_RESOURCES=--resources GPU=1", "BUILD_GPUS=--gpus $GPUS"]
 
 
 def test_slurm_cluster_job_script(tmp_path):

@@ -37,6 +37,7 @@ regions = 2
 [real_data]
 store = "{tiny_store}"
 observe = "electrodes"
+baseline_folds = 1
 """)
     result = runner.invoke(app, ["benchmark", str(cfg), "--device", "cpu"])
     assert result.exit_code == 0, result.output
@@ -48,8 +49,11 @@ observe = "electrodes"
     cal = data["calibration"]
     assert 0.0 <= cal["coverage_90_c_only"] <= cal["coverage_90"] <= 1.0  # model error only widens the band
     assert cal["mean_band_width"] > cal["mean_band_width_c_only"]
-    assert data["real_data"]["electrodes"] == 40 and "cc_spatial" in data["real_data"]["target"]
+    assert data["real_data"]["electrodes"] == 40 and set(data["real_data"]["methods"]) == {"metaPNS", "PNS"}
+    assert "cc_spatial" in data["real_data"]["methods"]["PNS"]["target"]
+    assert set(data["real_data_baseline_subset"]["methods"]) == {"metaPNS", "PNS", "fs-bo", "vae-bo"}
     md = (out / "benchmark.md").read_text()
     assert "| fs-bo |" in md and "| vae-bo |" in md and "Real-data emulation" in md
+    assert md.count("| metaPNS |") == 4  # Table 1 twice, real data on every fold and on the baselines' folds
     for name in ("table1.md", "timing.md", "fig3_context.png", f"activation_maps-{data['maps'][0]}.png"):
         assert (out / name).stat().st_size > 0, name

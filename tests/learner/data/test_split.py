@@ -141,9 +141,35 @@ def test_split_by_mesh_with_held_out_mesh_and_one_mesh_left():
     assert meshes["test"] == {"m2"} and len(meshes["train"]) == len(meshes["validation"]) == 1
 
 
+def test_train_count_keeps_nested_anatomies_and_the_same_validation_and_test():
+    ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
+    mesh_of = {sid: sid.split("-")[0] for sid in ids}
+    full = split_subjects(ids, mesh_of, SplitSpec(seed=3, by="mesh"))
+    kept = {}
+    for count in (1, 4, 14):
+        parts = split_subjects(ids, mesh_of, SplitSpec(seed=3, by="mesh", train_count=count))
+        assert parts["validation"] == full["validation"] and parts["test"] == full["test"]
+        kept[count] = {mesh_of[s] for s in parts["train"]}
+        assert len(kept[count]) == count and len(parts["train"]) == 4 * count  # every tissue of a kept anatomy
+    assert kept[1] < kept[4] < kept[14] == {mesh_of[s] for s in full["train"]}
+    by_subject = split_subjects(ids, mesh_of, SplitSpec(seed=3, train_count=5))
+    assert len(by_subject["train"]) == 5
+
+
+def test_train_count_above_the_training_part_is_refused():
+    with pytest.raises(InputError, match="train_count = 15, but the training part has only 14 anatomies"):
+        ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
+        split_subjects(ids, {sid: sid.split("-")[0] for sid in ids}, SplitSpec(by="mesh", train_count=15))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
-    [({"by": "site"}, "split by must be 'subject' or 'mesh'"), ({"by": "mesh", "source": "store"}, "per subject")],
+    [
+        ({"by": "site"}, "split by must be 'subject' or 'mesh'"),
+        ({"by": "mesh", "source": "store"}, "per subject"),
+        ({"train_count": -1}, "train_count must be >= 0"),
+        ({"train_count": 2.5}, "train_count must be an integer"),
+    ],
 )
 def test_split_by_bad_values(kwargs, message):
     with pytest.raises(InputError, match=message):

@@ -3,6 +3,7 @@ a killed rank, and validation that does not depend on the number of processes.""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -59,6 +60,21 @@ def test_ranks_share_every_epoch_once_with_the_last_step_padded(tiny_store, tiny
     assert weights == [[1.0, 2.0], [1.0, 0.0]]  # step means over 2 real episodes, then over 1
 
 
+def test_steps_of_several_processes_pair_episodes_of_similar_cost(tiny_store, tiny_config, tmp_path):
+    subjects = ["lv-healthy", "lv-scar-apex", "lv-b-healthy", "lv-b-scar-apex"]
+    spec = dataclasses.replace(tiny_config(tiny_store, tmp_path).data.episodes, context=(1, 3))
+    for epoch in range(4):
+        ds = EpisodeDataset(tiny_store, subjects, spec, seed=0, epoch=epoch)
+        single = ds.order()
+        ds.shard(1, 2)
+        order = ds.order()
+        assert sorted(order) == sorted(single)  # the same episodes, each once
+        costs = [ds.cost(i) for i in order]
+        spread = sum(abs(costs[j] - costs[j + 1]) for j in (0, 2))
+        ranked = sorted(costs)
+        assert spread == ranked[1] - ranked[0] + ranked[3] - ranked[2]  # neighbours in cost share a step
+
+
 def test_two_processes_average_the_gradients_of_one(tiny_store, tiny_toml, tmp_path):
     """Each DDP step's gradient is the mean of the single-process gradients of its episodes (odd last step too)."""
     cfg_path = _config(tmp_path, tiny_store, tiny_toml, epochs=1, grad_clip=1e6)  # clipping leaves the gradients alone
@@ -72,6 +88,7 @@ def test_two_processes_average_the_gradients_of_one(tiny_store, tiny_toml, tmp_p
     reference = Trainer(config, progress=False)
     reference.model.set_output_mean(reference.training_mean())
     episodes = EpisodeDataset(tiny_store, reference.splits["train"], config.data.episodes, seed=config.train.seed)
+    episodes.shard(0, 2)
     order = episodes.order()
     assert len(order) == 3 and len(got[0]) == len(got[1]) == 2
     for step, group in enumerate((order[:2], order[2:])):

@@ -1,0 +1,246 @@
+"""The explicit-Euler Aliev-Panfilov steps of :mod:`simgen.solver.kernels` in torch, on any torch device.
+
+:class:`TorchKernel` takes the numba kernel's inputs (the off-diagonal CSR
+part and diagonal of the diffusion operator, excitability, stimulus,
+constants, node permutation) and gives its outputs (frames in mesh node
+order, interpolated first-crossing times) for all sites of a subject at once:
+the state is one (N, S) float32 matrix per variable. A step is
+
+1. ``lap = A u``: one sparse CSR times dense product (``torch.sparse_csr_tensor``;
+   cuSPARSE on CUDA), the diagonal stored in ``A``;
+2. the reaction, the Euler update of ``u`` and ``v`` and the activation
+   record of :func:`step`, elementwise (fused into one kernel by
+   ``torch.compile`` where :func:`compiles_on` says so);
+3. nodes stimulated in that column held at ``u = 1`` during the first ``stim_steps`` steps;
+
+and every ``out_every`` steps ``u`` is copied to the host (:class:`_FrameSink`),
+so the device holds the state, never the (S, F, N) output. The arithmetic and
+its order are the numba kernel's, float32 throughout; the sums of the sparse
+product run in another order and without fused multiply-adds, so results
+agree with it to rounding that grows over the steps (docs/solver-backends.md
+gives the measured differences), not bitwise.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+from numpy.typing import NDArray
+
+from shared.errors import InputError
+
+__all__ = ["TorchKernel", "step", "compiles_on", "torch_device"]
+
+
+def torch_device(device: str | torch.device | None) -> torch.device:
+    """``device`` as a :class:`torch.device`; ``None``: ``cuda`` where torch finds a GPU, else ``cpu``.
+
+    Raises :class:`InputError` for a name torch does not know and for a CUDA
+    device this process cannot see.
+    """
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise InputError(f"unknown torch device {device!r} (use 'cpu', 'cuda' or 'cuda:N'): {exc}") from None
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise InputError(f"no CUDA device: torch {torch.__version__} finds no GPU for device {str(dev)!r}")
+        if dev.index is not None and dev.index >= count:
+            raise InputError(f"no CUDA device {dev.index}: torch finds {count} GPU(s) (cuda:0..cuda:{count - 1})")
+    elif dev.type != "cpu":
+        raise InputError(f"device {str(dev)!r} is not supported by the torch solver: use 'cpu' or 'cuda[:N]'")
+    return dev
+
+
+def compiles_on(device: torch.device) -> bool:
+    """Whether :func:`step` runs through ``torch.compile`` by default: on CUDA only.
+
+    On CUDA the eager step is about twenty kernel launches of a few
+    microseconds each, the compiled one a single fused kernel. On the CPU the
+    torch backend checks the numba kernel rather than replacing it, and the
+    eager step is kept: on a 2-core AMD EPYC VM (AVX-512; 2,000-node LV, 200 sites,
+    one thread) the compiled step made the run 3.7-4.1 ns per node-step
+    against 13-15 eager, but with inductor's cache empty the first run took
+    18 s (4-7 s with it warm), longer than the tests may wait
+    (``bench/solver.py --backend torch --compile on``; docs/solver-backends.md).
+    """
+    return device.type == "cuda"
+
+
+def step(
+    u: torch.Tensor,
+    v: torch.Tensor,
+    lap: torch.Tensor,
+    act: torch.Tensor,
+    a: torch.Tensor,
+    t0: torch.Tensor,
+    c: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One Euler step from the diffusion term ``lap``: ``(u, v, act) -> (u', v', act')``.
+
+    ``a``: (N, 1) excitability; ``t0``: the step's start time (0-d);
+    ``c = (dt, k, eps0, mu1, mu2, thr)`` (0-d float32 tensors, so that a
+    compiled step serves every subject). The reaction is
+    :func:`simgen.solver.kernels._reaction` term by term; ``act`` takes the
+    interpolated time at which ``u`` first crosses ``thr`` (it is -1 until then).
+    """
+    dt, k, eps0, mu1, mu2, thr = c
+    du = lap + k * u * (1.0 - u) * (u - a) - u * v
+    eps = eps0 + mu1 * v / (u + mu2)
+    dv = eps * (-v - k * u * (u - a - 1.0))
+    un = u + dt * du
+    crossed = (u < thr) & (un >= thr) & (act < 0.0)
+    return un, v + dt * dv, torch.where(crossed, t0 + dt * (thr - u) / (un - u), act)
+
+
+class _FrameSink:
+    """Writes frames (S, N) of device tensors into the host (S, F, N) output.
+
+    On CUDA each frame goes into one of two pinned buffers by an asynchronous
+    copy and reaches the output when that buffer is next needed (or at
+    :meth:`close`), so the device keeps stepping meanwhile; on the CPU frames
+    are written directly.
+    """
+
+    def __init__(self, frames: NDArray[np.float32], device: torch.device):
+        self.frames = torch.from_numpy(frames)
+        self.device = device
+        self.staged: list[tuple[int, torch.cuda.Event] | None] = [None, None]  # frame index, copy done
+        shape = self.frames[:, 0].shape
+        on_cuda = device.type == "cuda"
+        self.buffers = [torch.empty(shape, dtype=torch.float32, pin_memory=True) for _ in range(2)] if on_cuda else []
+
+    def put(self, index: int, frame: torch.Tensor) -> None:
+        """Frame ``index`` (S, N) of the output."""
+        if not self.buffers:
+            self.frames[:, index] = frame
+            return
+        slot = index % 2
+        self._drain(slot)
+        self.buffers[slot].copy_(frame, non_blocking=True)
+        event = torch.cuda.Event()
+        event.record(torch.cuda.current_stream(self.device))
+        self.staged[slot] = (index, event)
+
+    def close(self) -> None:
+        """Wait for the frames in flight."""
+        for slot in range(len(self.staged)):
+            self._drain(slot)
+
+    def _drain(self, slot: int) -> None:
+        if self.staged[slot] is not None:
+            index, event = self.staged[slot]
+            event.synchronize()
+            self.frames[:, index] = self.buffers[slot]
+            self.staged[slot] = None
+
+
+class TorchKernel:
+    """The diffusion operator, excitability and node order of one subject on a torch device.
+
+    Parameters are those of :func:`simgen.solver.kernels.run_blocks`:
+    ``indptr, indices, data, diag`` the off-diagonal CSR part and diagonal of
+    the (renumbered) operator, ``a`` (N,) excitability, ``perm`` (N,) the mesh
+    node of each row. ``compile``: run :func:`step` through ``torch.compile``
+    (``None``: :func:`compiles_on`); a compile that fails falls back to the
+    eager step with a warning.
+    """
+
+    def __init__(
+        self,
+        indptr: NDArray[np.int64],
+        indices: NDArray[np.int64],
+        data: NDArray[np.float32],
+        diag: NDArray[np.float32],
+        a: NDArray[np.float32],
+        perm: NDArray[np.int64],
+        device: str | torch.device | None = None,
+        compile: bool | None = None,
+    ):
+        self.device = torch_device(device)
+        n = len(diag)
+        full = (sp.csr_matrix((data, indices, indptr), shape=(n, n)) + sp.diags(diag)).tocsr()
+        full.sort_indices()
+        index = torch.int32 if full.nnz < 2**31 else torch.int64  # half the index bytes per step
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "Sparse CSR tensor support is in beta", UserWarning)
+            self.operator = torch.sparse_csr_tensor(
+                torch.from_numpy(full.indptr.astype(np.int64)).to(index),
+                torch.from_numpy(full.indices.astype(np.int64)).to(index),
+                torch.from_numpy(full.data.astype(np.float32)),
+                size=(n, n),
+                check_invariants=True,
+            ).to(self.device)
+        self.nnz = full.nnz
+        self.a = torch.from_numpy(np.asarray(a, np.float32)).reshape(n, 1).to(self.device)
+        self.inverse_perm = torch.from_numpy(np.argsort(perm)).to(self.device)
+        self.compiled = compiles_on(self.device) if compile is None else bool(compile)
+        self._step: Callable = torch.compile(step, dynamic=True) if self.compiled else step
+
+    def run(
+        self,
+        u_init: NDArray[np.float32],
+        stim: NDArray[np.bool_],
+        stim_steps: int,
+        n_steps: int,
+        out_every: int,
+        dt: float,
+        k: float,
+        eps0: float,
+        mu1: float,
+        mu2: float,
+        thr: float,
+        frames: NDArray[np.float32],
+        act: NDArray[np.float32],
+        threads: int = 1,
+    ) -> None:
+        """Integrate ``n_steps`` steps of the (N, S) initial state ``u_init`` (``v`` starts at 0).
+
+        ``stim`` (N, S): nodes held at ``u = 1`` for the first ``stim_steps``
+        steps. ``frames`` (S, F, N) receives ``u`` every ``out_every`` steps in
+        mesh node order; ``act`` (N, S), -1 for never and 0 at stimulated
+        nodes on entry, receives the activation times (both filled in place,
+        as by the numba kernel). On the CPU torch runs ``threads`` threads
+        meanwhile (its setting is restored afterwards).
+        """
+        saved = torch.get_num_threads()
+        if self.device.type == "cpu":
+            torch.set_num_threads(max(1, int(threads)))
+        try:
+            dev = self.device
+            u = torch.from_numpy(u_init).to(dev)
+            v = torch.zeros_like(u)
+            hold = torch.from_numpy(stim).to(dev)
+            act_t = torch.from_numpy(act).to(dev)
+            c = torch.tensor((dt, k, eps0, mu1, mu2, thr), dtype=torch.float32, device=dev).unbind()
+            t0 = torch.arange(n_steps, dtype=torch.float32, device=dev) * c[0]  # float32(step) * dt, as numba
+            sink = _FrameSink(frames, dev)
+            for i in range(n_steps):
+                lap = self.operator @ u
+                u, v, act_t = self._run_step(u, v, lap, act_t, self.a, t0[i], c)
+                if i < stim_steps:
+                    u.masked_fill_(hold, 1.0)
+                if (i + 1) % out_every == 0:
+                    sink.put((i + 1) // out_every - 1, u.index_select(0, self.inverse_perm).T)
+            sink.close()
+            act[...] = act_t.cpu().numpy()
+        finally:
+            torch.set_num_threads(saved)
+
+    def _run_step(self, *args: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:func:`step`, compiled where chosen; a compile error switches this kernel to the eager step."""
+        try:
+            return self._step(*args)
+        except Exception as exc:  # inductor/triton failures surface on the first call
+            if self._step is step:
+                raise
+            warnings.warn(f"torch.compile of the solver step failed, running it eagerly: {exc}", stacklevel=2)
+            self._step, self.compiled = step, False
+            return step(*args)
