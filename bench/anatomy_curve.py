@@ -84,6 +84,7 @@ def curve_figure(rows: list[dict], path: Path) -> None:
                 if r["kind"] == "pns":
                     ax.plot([r["count"]], [r[test]["target"][metric]["mean"]], "x", ms=9, label=f"PNS, {name}")
         ax.set_xscale("log", base=2)
+        ax.set_xticks([r["count"] for r in meta], [str(r["count"]) for r in meta])
         ax.set_xlabel("training anatomies")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
