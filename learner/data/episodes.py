@@ -360,8 +360,8 @@ class EpisodeDataset(IterableDataset):
     interleaved slices of it. Episode ``k`` of ``subjects[i]`` in ``epoch``
     draws everything from ``np.random.default_rng([seed, epoch, i, k])``.
     Use ``DataLoader(dataset, batch_size=None, num_workers=...)`` and call
-    :meth:`set_epoch` before each epoch (with ``persistent_workers=False``,
-    the default, so workers see the new epoch).
+    :meth:`set_epoch` before each epoch; the epoch lives in shared memory, so
+    persistent loader workers (``persistent_workers=True``) see it too.
 
     Only the store path and small metadata (site node ids, observation masks,
     done flags) live in the object, so it pickles to workers; each worker
@@ -396,7 +396,7 @@ class EpisodeDataset(IterableDataset):
         if not _is_int(seed) or seed < 0:
             raise InputError(f"seed must be a non-negative integer, got {seed!r}")
         self.seed = int(seed)
-        self.epoch = 0
+        self._epoch = torch.zeros((), dtype=torch.int64).share_memory_()  # seen by forked loader workers
         self.set_epoch(epoch)
         self.rank, self.world_size = 0, 1
         if not _is_int(episodes_per_subject) or episodes_per_subject < 1:
@@ -435,7 +435,12 @@ class EpisodeDataset(IterableDataset):
         """Select the epoch whose episodes the next iteration yields."""
         if not _is_int(epoch) or epoch < 0:
             raise InputError(f"epoch must be a non-negative integer, got {epoch!r}")
-        self.epoch = int(epoch)
+        self._epoch.fill_(int(epoch))
+
+    @property
+    def epoch(self) -> int:
+        """The epoch whose episodes the next iteration yields."""
+        return int(self._epoch)
 
     def __len__(self) -> int:
         return len(self.subjects) * self.episodes_per_subject

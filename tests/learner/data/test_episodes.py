@@ -120,6 +120,16 @@ def test_dataloader_workers_visit_each_subject_once(tiny_store, train_subjects):
     assert all(_same(e, single[e.subject_id]) for e in first)
 
 
+def test_persistent_workers_follow_set_epoch(tiny_store, train_subjects):
+    ds = EpisodeDataset(tiny_store, train_subjects, SPEC, seed=2)
+    loader = DataLoader(ds, batch_size=None, num_workers=1, persistent_workers=True)
+    for epoch in (0, 1, 0, 3):  # the same worker process each time
+        ds.set_epoch(epoch)
+        streamed = list(loader)
+        expected = [ds.episode(i) for i in ds.order()]
+        assert len(streamed) == len(expected) and all(_same(a, b) for a, b in zip(streamed, expected))
+
+
 def test_dataset_pickles_without_zarr_objects(tiny_store):
     ds = EpisodeDataset(tiny_store, ["lv-healthy"], SPEC, seed=0)
     list(ds)  # iterating in this process must not leave open handles on the object
