@@ -12,6 +12,13 @@ the same mesh, time step, stimulus and output frames:
   N x S state (``--compile``: through torch.compile), on the CPU for each T or
   once on CUDA.
 
+With ``--integrator euler rkc`` each mesh is also integrated with the RKC2
+integrator (``SolverConfig(integrator="rkc")``: the accuracy step with the
+stages the mesh's stiffness needs; the naive loop is Euler only), and the
+table gives each integrator's dt and stages, and the RKC run's wall time
+and largest differences from Euler's (u, activation times in time units).
+``--real NAME`` benches shipped real meshes (``real:tof-biv``) instead of LVs.
+
 The ratio it exists to show is the speed-up per simulation of the batched
 solver over the naive loop, measured in the same run, and with ``--backend
 numba torch`` torch's over the fastest numba run. Also printed: ns per
@@ -23,9 +30,10 @@ on CUDA as a share of the GPU's peak memory bandwidth (:func:`peak_bandwidth`),
 and its largest differences from numba (u, activation times in steps).
 
 Run: ``.venv/bin/python bench/solver.py [--quick] [--out DIR]`` (DIR gets solver.md and solver.json);
-``--backend numba torch --device cuda --nodes 2000 10000 50000 --naive-sites 0`` on a GPU machine.
-The numba table is published in docs/performance.md ("Solver speed"), the torch one in
-docs/solver-backends.md, each with its machine and command.
+``--backend numba torch --device cuda --nodes 2000 10000 50000 --naive-sites 0`` on a GPU machine;
+``--integrator euler rkc --real real:tof-biv --nodes 1000 --batch 8 --threads 1 --naive-sites 0``.
+The numba table is published in docs/performance.md ("Solver speed"), the torch one and the
+integrators' in docs/solver-backends.md, each with its machine and command.
 """
 
 from __future__ import annotations
@@ -41,9 +49,11 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
+from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
+from simgen.meshes.heart import load_heart
 from simgen.solver.fem import diffusion_operator
-from simgen.solver.simulate import BLOCK_SIZE, Simulator
+from simgen.solver.simulate import BLOCK_SIZE, INTEGRATORS, SimulationResult, Simulator, SolverConfig
 from simgen.solver.stimulus import patch_mask
 
 MESHES = [(2000, "tetra"), (2000, "triangle"), (10000, "tetra")]
@@ -101,35 +111,41 @@ def naive_run(sim: Simulator, A: sp.csr_matrix, site: int) -> np.ndarray:
     return frames
 
 
-def bench_mesh(n_nodes: int, kind: str, args: argparse.Namespace) -> dict:
-    """Time the naive loop and each backend of the batched solver on one mesh; return raw numbers."""
-    mesh = lv_ellipsoid(n_nodes, kind)
+def bench_mesh(
+    mesh: Mesh, label: str, integrator: str, args: argparse.Namespace
+) -> tuple[dict, dict[str, SimulationResult]]:
+    """Time the naive loop (Euler only) and each backend of the batched solver with ``integrator`` on one
+    mesh; return raw numbers and the results by backend."""
+    config = SolverConfig(integrator=integrator)
     t0 = time.perf_counter()
-    sim = Simulator(mesh)
+    sim = Simulator(mesh, config=config)
     setup_s = time.perf_counter() - t0
     n = mesh.n_nodes
     steps = sim.config.frames * sim.steps_per_frame
-    n_batch, n_naive = args.batch, args.naive_sites
-    sites = np.random.default_rng(0).choice(n, size=max(n_batch, n_naive), replace=False)
+    applications = steps * sim.stages  # products with the operator: ns per node-step counts these
+    n_batch, n_naive = args.batch, args.naive_sites if integrator == "euler" else 0
+    sites = np.random.default_rng(0).choice(n, size=max(n_batch, args.naive_sites), replace=False)
     row = {
-        "mesh": f"lv_ellipsoid({n_nodes}, {kind!r})",
+        "mesh": label,
         "nodes": n,
         "nnz_per_row": len(sim._data) / n + 1,
+        "integrator": integrator,
         "dt": sim.dt,
+        "stages": sim.stages,
         "steps": steps,
         "setup_s": setup_s,
         "variants": [],
     }
 
     def record(name: str, n_sites: int, wall: float) -> dict:
-        ns = wall / (steps * n * n_sites) * 1e9
+        ns = wall / (applications * n * n_sites) * 1e9
         entry = {
             "variant": name,
             "sites": n_sites,
             "wall_s": wall,
             "sims_per_s": n_sites / wall,
             "ns_per_node_step": ns,
-            "state_GB_per_s": STATE_BYTES / ns,
+            "state_GB_per_s": STATE_BYTES / ns if integrator == "euler" else None,  # 24 B: an Euler step's
         }
         row["variants"].append(entry)
         return entry
@@ -159,7 +175,7 @@ def bench_mesh(n_nodes: int, kind: str, args: argparse.Namespace) -> dict:
             wall, results["numba"] = best_of(sim, t)
             record(f"batched f32, {t} thread{'s' * (t > 1)}", n_batch, wall)
     if "torch" in args.backend:
-        bench_torch(mesh, args, row, record, best_of, results)
+        bench_torch(mesh, config, args, row, record, best_of, results)
     if "numba" in results and "torch" in results:
         a, b = results["numba"], results["torch"]
         row["torch_vs_numba"] = {
@@ -173,13 +189,37 @@ def bench_mesh(n_nodes: int, kind: str, args: argparse.Namespace) -> dict:
         entry["vs_numba"] = min(numba_ns) / entry["ns_per_node_step"] if numba_ns else None
     last = results.get("numba", results.get("torch"))
     row["max_abs_du"] = float(np.abs(last.u[:n_naive] - np.stack(naive_u)).max()) if n_naive else None
-    return row
+    return row, results
 
 
-def bench_torch(mesh, args: argparse.Namespace, row: dict, record, best_of, results: dict) -> None:
+def compare_integrators(euler: tuple[dict, dict], rkc: tuple[dict, dict]) -> dict:
+    """The RKC row's differences from the Euler row of the same mesh (same backend, same sites) and
+    its speed-up in wall time (fastest variant of each)."""
+    (e_row, e_results), (r_row, r_results) = euler, rkc
+    backend = "numba" if "numba" in e_results else "torch"
+    a, b = e_results[backend], r_results[backend]
+    diff = np.abs(a.activation - b.activation)
+    return {
+        "backend": backend,
+        "max_abs_du": float(np.abs(a.u - b.u).max()),
+        "max_activation_diff": float(np.nanmax(diff)),
+        "p99_activation_diff": float(np.nanpercentile(diff, 99)),
+        "same_never_activated": bool(np.array_equal(np.isnan(a.activation), np.isnan(b.activation))),
+        "speedup": fastest(e_row) / fastest(r_row),
+    }
+
+
+def fastest(row: dict) -> float:
+    """Wall time (s) of the fastest batched variant of a row (the naive loop excluded)."""
+    return min(v["wall_s"] for v in row["variants"] if not v["variant"].startswith("naive"))
+
+
+def bench_torch(
+    mesh, config: SolverConfig, args: argparse.Namespace, row: dict, record, best_of, results: dict
+) -> None:
     """The torch backend's variants on ``args.device``: each thread count on the CPU, one run on CUDA."""
     compile_ = {"auto": None, "on": True, "off": False}[args.compile]
-    sim = Simulator(mesh, backend="torch", device=args.device, compile=compile_)
+    sim = Simulator(mesh, config=config, backend="torch", device=args.device, compile=compile_)
     t0 = time.perf_counter()
     sim.run(np.arange(2), threads=max(args.threads))  # torch.compile (where chosen) and warm-up
     row["torch_first_run_s"] = time.perf_counter() - t0
@@ -190,6 +230,8 @@ def bench_torch(mesh, args: argparse.Namespace, row: dict, record, best_of, resu
         wall, results["torch"] = best_of(sim, t)
         name = f"torch f32 {kernel.device}, {how}" + ("" if on_cuda else f", {t} thread{'s' * (t > 1)}")
         entry = record(name, args.batch, wall)
+        if row["integrator"] != "euler":  # the byte count is an Euler step's
+            continue
         step_s = wall / row["steps"]
         entry["moved_GB_per_s"] = torch_step_bytes(mesh.n_nodes, kernel.nnz, args.batch) / step_s / 1e9
         if on_cuda:
@@ -201,20 +243,23 @@ def bench_torch(mesh, args: argparse.Namespace, row: dict, record, best_of, resu
 def markdown(rows: list[dict]) -> str:
     """Markdown tables: mesh settings, timings with the speed-ups, and torch's differences from numba."""
     out = [
-        "| mesh | nodes | nnz/row | dt | steps | Simulator setup (s) | max abs(u_naive - u_batched) |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| mesh | nodes | nnz/row | integrator | dt | steps | stages | Simulator setup (s) "
+        "| max abs(u_naive - u_batched) |",
+        "|---|---:|---:|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         du = "-" if r["max_abs_du"] is None else f"{r['max_abs_du']:.1e}"
         out.append(
-            f"| {r['mesh']} | {r['nodes']} | {r['nnz_per_row']:.1f} | {r['dt']:.4g} | {r['steps']} "
-            f"| {r['setup_s']:.2f} | {du} |"
+            f"| {r['mesh']} | {r['nodes']} | {r['nnz_per_row']:.1f} | {r['integrator']} | {r['dt']:.4g} "
+            f"| {r['steps']} | {r['stages']} | {r['setup_s']:.2f} | {du} |"
         )
     out += [
         "",
-        "| mesh | variant | sites | wall (s) | sims/s | ns/node-step | state GB/s | torch bytes GB/s "
+        "ns/node-step: per node, site and product with the operator (a step of Euler, a stage of RKC).",
+        "",
+        "| mesh | integrator | variant | sites | wall (s) | sims/s | ns/node-step | state GB/s | torch bytes GB/s "
         "| share of peak | speed-up vs naive | vs fastest numba |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
 
     def cell(value, fmt: str) -> str:
@@ -223,7 +268,8 @@ def markdown(rows: list[dict]) -> str:
     for r in rows:
         for v in r["variants"]:
             out.append(
-                f"| {r['mesh']} | {v['variant']} | {v['sites']} | {v['wall_s']:.2f} | {v['sims_per_s']:.1f} "
+                f"| {r['mesh']} | {r['integrator']} | {v['variant']} | {v['sites']} | {v['wall_s']:.2f} "
+                f"| {v['sims_per_s']:.1f} "
                 f"| {v['ns_per_node_step']:.3f} | {cell(v['state_GB_per_s'], '.0f')} "
                 f"| {cell(v.get('moved_GB_per_s'), '.1f')} | {cell(v.get('peak_share'), '.1%')} "
                 f"| {cell(v['speedup'], '.1f')} | {cell(v['vs_numba'], '.2f')} |"
@@ -232,15 +278,31 @@ def markdown(rows: list[dict]) -> str:
     if compared:
         out += [
             "",
-            "| mesh | torch first run (s) | max abs(u_torch - u_numba) | max activation difference (steps) "
-            "| same never-activated nodes |",
-            "|---|---:|---:|---:|---|",
+            "| mesh | integrator | torch first run (s) | max abs(u_torch - u_numba) "
+            "| max activation difference (steps) | same never-activated nodes |",
+            "|---|---|---:|---:|---:|---|",
         ]
         for r in compared:
             d = r["torch_vs_numba"]
             out.append(
-                f"| {r['mesh']} | {r['torch_first_run_s']:.1f} | {d['max_abs_du']:.1e} "
+                f"| {r['mesh']} | {r['integrator']} | {r['torch_first_run_s']:.1f} | {d['max_abs_du']:.1e} "
                 f"| {d['max_activation_steps']:.1e} | {d['same_never_activated']} |"
+            )
+    compared = [r for r in rows if "vs_euler" in r]
+    if compared:
+        out += [
+            "",
+            "| mesh | dt Euler / RKC | RKC stages | wall Euler / RKC (s) | RKC speed-up | max abs(u_rkc - u_euler) "
+            "| activation difference max / p99 (time units) | same never-activated nodes |",
+            "|---|---:|---:|---:|---:|---:|---:|---|",
+        ]
+        euler = {r["mesh"]: r for r in rows if r["integrator"] == "euler"}
+        for r in compared:
+            d, e = r["vs_euler"], euler[r["mesh"]]
+            out.append(
+                f"| {r['mesh']} | {e['dt']:.3g} / {r['dt']:.3g} | {r['stages']} | {fastest(e):.2f} / {fastest(r):.2f} "
+                f"| {d['speedup']:.1f} | {d['max_abs_du']:.2g} | {d['max_activation_diff']:.2g} / "
+                f"{d['p99_activation_diff']:.2g} | {d['same_never_activated']} |"
             )
     if any("peak_bandwidth" in r for r in rows):
         out += ["", f"Peak bandwidth: {next(r['peak_bandwidth'] for r in rows if 'peak_bandwidth' in r)}"]
@@ -262,15 +324,33 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--compile", choices=["auto", "on", "off"], default="auto", help="torch.compile the torch step (auto: CUDA)"
     )
+    p.add_argument(
+        "--integrator", nargs="+", choices=INTEGRATORS, default=["euler"], help="time integrators (default euler)"
+    )
     p.add_argument("--nodes", type=int, nargs="+", help="tetra LV sizes instead of the default meshes")
+    p.add_argument(
+        "--real", nargs="+", metavar="NAME", help="shipped real meshes (real:tof-biv) at each --nodes size (1000)"
+    )
     p.add_argument("--out", type=Path, help="folder for solver.md (the table) and solver.json (raw numbers)")
     args = p.parse_args(argv)
 
-    meshes = [(n, "tetra") for n in args.nodes] if args.nodes else MESHES
+    if args.real:
+        meshes = [(n, "tetra", name) for name in args.real for n in args.nodes or [1000]]
+    else:
+        meshes = [(n, "tetra", "lv") for n in args.nodes] if args.nodes else [(n, k, "lv") for n, k in MESHES]
     meshes = [m for m in meshes if m[0] <= 2000] if args.quick else meshes
     load_before = os.getloadavg()[0]
     t_start = time.perf_counter()
-    rows = [bench_mesh(n, kind, args) for n, kind in meshes]
+    rows = []
+    for n, kind, source in meshes:
+        if source == "lv":
+            mesh, label = lv_ellipsoid(n, kind), f"lv_ellipsoid({n}, {kind!r})"
+        else:
+            mesh, label = load_heart(source, n, kind), f"{source} ({n}, {kind!r})"
+        runs = {integrator: bench_mesh(mesh, label, integrator, args) for integrator in args.integrator}
+        if "euler" in runs and "rkc" in runs:
+            runs["rkc"][0]["vs_euler"] = compare_integrators(runs["euler"], runs["rkc"])
+        rows += [row for row, _ in runs.values()]
     total = time.perf_counter() - t_start
     torch_note = ""
     if "torch" in args.backend:
@@ -280,7 +360,7 @@ def main(argv: list[str] | None = None) -> None:
     header = (
         f"Solver bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__} "
         f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; backends "
-        f"{' '.join(args.backend)}{torch_note}; total {total:.0f} s; "
+        f"{' '.join(args.backend)}{torch_note}; integrators {' '.join(args.integrator)}; total {total:.0f} s; "
         f"1-min load average before the run {load_before:.1f}\n"
     )
     if load_before > 0.5:  # our own threads are not running yet, so this is someone else's work
@@ -296,6 +376,7 @@ def main(argv: list[str] | None = None) -> None:
             "numba": numba.__version__,
             "block_size": args.block_size,
             "backends": args.backend,
+            "integrators": args.integrator,
             "device": args.device,
             "compile": args.compile,
             "total_s": total,

@@ -72,7 +72,8 @@ def _created() -> str:
 def simulation_attrs(solver: SolverConfig) -> dict:
     """Root attribute ``simulation``: the model, its constants and the settings every subject shares."""
     return {
-        "model": "Aliev-Panfilov (1996), monodomain, P1 finite elements, forward Euler",
+        "model": "Aliev-Panfilov (1996), monodomain, P1 finite elements, "
+        + ("second-order Runge-Kutta-Chebyshev (RKC2)" if solver.integrator == "rkc" else "forward Euler"),
         "equations": list(AP_EQUATIONS),
         "constants": dataclasses.asdict(solver.model),
         "diffusivity": solver.diffusivity,

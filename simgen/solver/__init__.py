@@ -1,11 +1,18 @@
-"""Aliev-Panfilov solver: P1 FEM operator, stable time step, batched fused kernel."""
+"""Aliev-Panfilov solver: P1 FEM operator, stable time step, batched fused kernels (forward Euler, RKC2)."""
 
 from __future__ import annotations
 
 from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, APParams, front_speed, reaction, to_millivolts
-from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig, healthy_fields, simulate
+from simgen.solver.simulate import (
+    INTEGRATORS,
+    SimulationResult,
+    Simulator,
+    SolverConfig,
+    healthy_fields,
+    simulate,
+)
 from simgen.solver.stimulus import check_sites, patch_mask
-from simgen.solver.timestep import choose_time_step, largest_eigenvalue, stability_limit
+from simgen.solver.timestep import choose_rkc_step, choose_time_step, largest_eigenvalue, rkc_stages, stability_limit
 
 __all__ = [
     "MS_PER_TIME_UNIT",
@@ -13,6 +20,7 @@ __all__ = [
     "front_speed",
     "reaction",
     "to_millivolts",
+    "INTEGRATORS",
     "SimulationResult",
     "Simulator",
     "SolverConfig",
@@ -21,6 +29,8 @@ __all__ = [
     "check_sites",
     "patch_mask",
     "choose_time_step",
+    "choose_rkc_step",
+    "rkc_stages",
     "largest_eigenvalue",
     "stability_limit",
 ]

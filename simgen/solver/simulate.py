@@ -6,6 +6,8 @@ stable time step, and runs any number of stimulation sites together as an
 ``N x S`` state matrix through the fused kernel of :mod:`simgen.solver.kernels`
 (backend ``"numba"``, CPU) or the same steps in torch on any torch device
 (:mod:`simgen.solver.torch_kernel`, backend ``"torch"``; docs/solver-backends.md).
+The integrator is forward Euler, or with ``integrator="rkc"`` the stabilised
+second-order Runge-Kutta-Chebyshev method of :mod:`simgen.solver.rkc_kernel`.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import scipy.sparse as sp
 from numpy.typing import DTypeLike, NDArray
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from shared.errors import InputError, TissueError
+from shared.errors import ConfigError, InputError, TissueError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
@@ -27,16 +29,29 @@ from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import check_backend, resolve_backend
 from simgen.solver.fem import Geometry, diffusion_operator, element_gradients, lumped_mass
 from simgen.solver.kernels import run_blocks
+from simgen.solver.rkc_kernel import coefficients, run_blocks_rkc
 from simgen.solver.simd import LANES
 from simgen.solver.stimulus import patch_mask
-from simgen.solver.timestep import choose_time_step, largest_eigenvalue
+from simgen.solver.timestep import choose_rkc_step, choose_time_step, largest_eigenvalue
 
-__all__ = ["SolverConfig", "SimulationResult", "Assembly", "assemble", "Simulator", "simulate", "healthy_fields"]
+__all__ = [
+    "INTEGRATORS",
+    "SolverConfig",
+    "SimulationResult",
+    "Assembly",
+    "assemble",
+    "Simulator",
+    "simulate",
+    "healthy_fields",
+]
 
 #: Sites integrated together per block (see bench/solver.py --block-size). 200 sites on 2 threads at
 #: 10k nodes, alternated in one session (AMD VM, 8 lanes): 2 blocks of 104 ran 0.91 ns per node-step and
 #: site, 4 of 56 0.84-0.95, 7 of 32 0.85-0.98. With 16 lanes (AVX-512) the 2 blocks are 112 columns wide.
 BLOCK_SIZE = 128
+
+#: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`).
+INTEGRATORS = ("euler", "rkc")
 
 
 @dataclass(frozen=True)
@@ -58,6 +73,12 @@ class SolverConfig:
     ``None`` means ``"numba"`` and, unlike a value that is set, is left out of
     a build spec's hash, so that stores built before the setting existed
     resume.
+
+    ``integrator`` (:data:`INTEGRATORS`) changes the results: ``"euler"``
+    (forward Euler at the stable step) or ``"rkc"`` (RKC2 at the accuracy step
+    with as many stages as the mesh's stiffness needs, for meshes whose
+    explicit limit is far below it; ``dt`` may then exceed the Euler limit).
+    ``None`` means ``"euler"`` and, like ``backend``, stays out of the hash.
     """
 
     diffusivity: float = 100.0
@@ -69,6 +90,7 @@ class SolverConfig:
     stimulus_duration: float = 1.0
     activation_threshold: float = 0.5
     backend: Literal["numba", "torch", "auto"] | None = None
+    integrator: Literal["euler", "rkc"] | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.diffusivity) or self.diffusivity <= 0:
@@ -85,6 +107,10 @@ class SolverConfig:
             raise InputError(f"activation_threshold must be in (0, 1), got {self.activation_threshold}")
         if self.backend is not None:
             check_backend(self.backend)
+        if self.integrator is not None and self.integrator not in INTEGRATORS:
+            raise ConfigError(
+                f"unknown time integrator {self.integrator!r}; allowed: {', '.join(map(repr, INTEGRATORS))}"
+            )
 
     @property
     def duration(self) -> float:
@@ -117,12 +143,14 @@ def healthy_fields(n_nodes: int, a: float = 0.15) -> TissueFields:
 
 
 class Assembly(NamedTuple):
-    """The diffusion operator of one mesh + tissue, its largest eigenvalue and the stable time step."""
+    """The diffusion operator of one mesh + tissue, its largest eigenvalue, the time step and
+    the stages per step (1 for Euler)."""
 
     A: sp.csr_matrix
     lambda_max: float
     dt: float
     steps_per_frame: int
+    stages: int
 
 
 def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: Geometry | None = None) -> Assembly:
@@ -131,7 +159,7 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
     ``geometry``: :func:`~simgen.solver.fem.element_gradients` of the mesh, when
     the caller assembles many tissues on one mesh. Raises
     :class:`~shared.errors.TissueError` if the fields do not match the mesh and
-    :class:`~shared.errors.TimeStepError` for an unstable ``config.dt``.
+    :class:`~shared.errors.TimeStepError` for an unstable ``config.dt`` (Euler).
     """
     if len(tissue.a) != mesh.n_nodes:
         raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
@@ -139,8 +167,10 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
         geometry = element_gradients(mesh.points, mesh.cells)
     A = diffusion_operator(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
     lambda_max = largest_eigenvalue(A, lumped_mass(mesh, geometry))
-    dt, steps_per_frame = choose_time_step(lambda_max, config.model.k, config.dt, config.output_interval)
-    return Assembly(A, lambda_max, dt, steps_per_frame)
+    k = config.model.k
+    if config.integrator == "rkc":
+        return Assembly(A, lambda_max, *choose_rkc_step(lambda_max, k, config.dt, config.output_interval))
+    return Assembly(A, lambda_max, *choose_time_step(lambda_max, k, config.dt, config.output_interval), 1)
 
 
 class Simulator:
@@ -154,7 +184,9 @@ class Simulator:
     rounding (docs/solver-backends.md); ``"auto"`` torch on CUDA where a GPU
     is present, else numba. ``compile``: run the torch step through
     ``torch.compile`` (``None``: on CUDA only,
-    :func:`simgen.solver.torch_kernel.compiles_on`).
+    :func:`simgen.solver.torch_kernel.compiles_on`). The integrator is
+    ``config.integrator``; :attr:`stages` counts the operator products per
+    time step (1 for Euler).
     """
 
     def __init__(
@@ -172,7 +204,8 @@ class Simulator:
         self.backend, self.device = resolve_backend(backend or self.config.backend or "numba", device)
         self._torch = None  # the TorchKernel, built on the first torch run
         self.tissue = tissue if tissue is not None else healthy_fields(mesh.n_nodes)
-        A, self.lambda_max, self.dt, self.steps_per_frame = assemble(mesh, self.tissue, self.config)
+        A, self.lambda_max, self.dt, self.steps_per_frame, self.stages = assemble(mesh, self.tissue, self.config)
+        self._rkc = coefficients(self.stages).astype(np.float32) if self.config.integrator == "rkc" else None
         pattern = (abs(A) + abs(A).T).tocsr()
         self.perm = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
         self.inverse_perm = np.argsort(self.perm)
@@ -241,7 +274,8 @@ class Simulator:
     def _run_numba(
         self, mask: NDArray[np.bool_], constants: tuple, threads: int, block_size: int
     ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """Frames (S, F, N) and activation (S, N, kernel row order) from :func:`run_blocks` in blocks of sites."""
+        """Frames (S, F, N) and activation (S, N, kernel row order) from :func:`run_blocks` (Euler) or
+        :func:`run_blocks_rkc` in blocks of sites."""
         n, s = mask.shape
         n_blocks = max(min(int(threads), s), -(-s // block_size))
         width = -(-s // n_blocks)
@@ -253,19 +287,11 @@ class Simulator:
         frames = page_aligned_empty((n_blocks, width, self.config.frames, n), np.float32)
         act = np.where(stim, np.float32(0.0), np.float32(-1.0))  # stimulated nodes activate at t = 0
         numba.set_num_threads(max(1, min(int(threads), n_blocks, numba.config.NUMBA_NUM_THREADS)))
-        run_blocks(
-            self._indptr,
-            self._indices,
-            self._data,
-            self._diag,
-            self._a,
-            stim.astype(np.float32),
-            stim,
-            *constants,
-            self.perm,
-            frames,
-            act,
-        )
+        args = (self._indptr, self._indices, self._data, self._diag, self._a, stim.astype(np.float32), stim)
+        if self._rkc is None:
+            run_blocks(*args, *constants, self.perm, frames, act)
+        else:
+            run_blocks_rkc(*args, *constants, self.perm, frames, act, self._rkc)
         u = frames.reshape(n_blocks * width, self.config.frames, n)[:s]  # a view: no copy of the largest array
         return u, act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s]
 
@@ -282,7 +308,7 @@ class Simulator:
         n, s = mask.shape
         frames = page_aligned_empty((s, self.config.frames, n), np.float32)
         act = np.where(mask, np.float32(0.0), np.float32(-1.0))
-        self._torch.run(mask.astype(np.float32), mask, *constants, frames, act, threads=threads)
+        self._torch.run(mask.astype(np.float32), mask, *constants, frames, act, threads=threads, stages=self._rkc)
         return frames, act.T
 
 

@@ -3,7 +3,9 @@
 Forward Euler on ``du/dt = A u + f(u, v)`` is stable while ``dt`` times the
 largest magnitude of the linearised operator stays below 2. The diffusion
 part contributes ``lambda_max(M^{-1} K)``; the cubic reaction adds at most
-``k`` (its slope on [0, 1] is bounded by ``k (1 - a) < k``).
+``k`` (its slope on [0, 1] is bounded by ``k (1 - a) < k``). The RKC2
+integrator (:mod:`simgen.solver.rkc_kernel`) runs at the accuracy step with as
+many stages as that stiffness needs.
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from shared.errors import TimeStepError
+from simgen.solver.rkc_kernel import stability_bound
 
-__all__ = ["largest_eigenvalue", "stability_limit", "choose_time_step"]
+__all__ = ["largest_eigenvalue", "stability_limit", "choose_time_step", "rkc_stages", "choose_rkc_step"]
 
 #: Largest time step used for accuracy of the reaction (time units).
 DT_ACCURACY = 0.05
@@ -59,5 +62,32 @@ def choose_time_step(lam_max: float, k: float, dt: float | None, output_interval
         target = dt
     else:
         target = min(SAFETY * limit, DT_ACCURACY)
+    return _fit(target, output_interval)
+
+
+def rkc_stages(dt: float, lam_max: float, k: float) -> int:
+    """Fewest RKC2 stages (at least 2) whose stability bound covers ``dt (lam_max + k) / SAFETY``."""
+    need = dt * (lam_max + k) / SAFETY
+    s = 2
+    while stability_bound(s) < need:
+        s += 1
+    return s
+
+
+def choose_rkc_step(lam_max: float, k: float, dt: float | None, output_interval: float) -> tuple[float, int, int]:
+    """The RKC2 time step, steps per output frame and stages.
+
+    The step is ``dt`` (``None``: :data:`DT_ACCURACY`), shrunk so that a whole
+    number of steps fits one output interval; any stiffness is then covered by
+    stages (:func:`rkc_stages`), so a ``dt`` above the forward-Euler limit is allowed.
+    """
+    if dt is not None and (not np.isfinite(dt) or dt <= 0):
+        raise TimeStepError(f"time step dt={dt} must be finite and > 0")
+    dt, steps = _fit(DT_ACCURACY if dt is None else dt, output_interval)
+    return dt, steps, rkc_stages(dt, lam_max, k)
+
+
+def _fit(target: float, output_interval: float) -> tuple[float, int]:
+    """The largest step <= ``target`` that fits a whole number of times into ``output_interval``, and that number."""
     steps = max(1, int(np.ceil(output_interval / target - 1e-9)))
     return output_interval / steps, steps

@@ -19,6 +19,10 @@ its order are the numba kernel's, float32 throughout; the sums of the sparse
 product run in another order and without fused multiply-adds, so results
 agree with it to rounding that grows over the steps (docs/solver-backends.md
 gives the measured differences), not bitwise.
+
+With the RKC2 stage table of :func:`simgen.solver.rkc_kernel.coefficients`
+(``stages``), each step is instead the stages of :mod:`simgen.solver.rkc_kernel`,
+one sparse product and an elementwise update (:func:`rates`, eager) per stage.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from numpy.typing import NDArray
 
 from shared.errors import InputError
 
-__all__ = ["TorchKernel", "step", "compiles_on", "torch_device"]
+__all__ = ["TorchKernel", "step", "rates", "compiles_on", "torch_device"]
 
 
 def torch_device(device: str | torch.device | None) -> torch.device:
@@ -98,6 +102,16 @@ def step(
     un = u + dt * du
     crossed = (u < thr) & (un >= thr) & (act < 0.0)
     return un, v + dt * dv, torch.where(crossed, t0 + dt * (thr - u) / (un - u), act)
+
+
+def rates(
+    u: torch.Tensor, v: torch.Tensor, lap: torch.Tensor, a: torch.Tensor, c: tuple[torch.Tensor, ...]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(du/dt, dv/dt)`` from the diffusion term ``lap``: the terms of :func:`step` (``c`` as there)."""
+    _, k, eps0, mu1, mu2, _ = c
+    du = lap + k * u * (1.0 - u) * (u - a) - u * v
+    eps = eps0 + mu1 * v / (u + mu2)
+    return du, eps * (-v - k * u * (u - a - 1.0))
 
 
 class _FrameSink:
@@ -200,6 +214,7 @@ class TorchKernel:
         frames: NDArray[np.float32],
         act: NDArray[np.float32],
         threads: int = 1,
+        stages: NDArray[np.float32] | None = None,
     ) -> None:
         """Integrate ``n_steps`` steps of the (N, S) initial state ``u_init`` (``v`` starts at 0).
 
@@ -208,7 +223,8 @@ class TorchKernel:
         mesh node order; ``act`` (N, S), -1 for never and 0 at stimulated
         nodes on entry, receives the activation times (both filled in place,
         as by the numba kernel). On the CPU torch runs ``threads`` threads
-        meanwhile (its setting is restored afterwards).
+        meanwhile (its setting is restored afterwards). ``stages``: the (s, 5)
+        RKC2 table; ``None`` is forward Euler.
         """
         saved = torch.get_num_threads()
         if self.device.type == "cpu":
@@ -222,9 +238,15 @@ class TorchKernel:
             c = torch.tensor((dt, k, eps0, mu1, mu2, thr), dtype=torch.float32, device=dev).unbind()
             t0 = torch.arange(n_steps, dtype=torch.float32, device=dev) * c[0]  # float32(step) * dt, as numba
             sink = _FrameSink(frames, dev)
+            table = None if stages is None else self._stage_table(stages, dt)
             for i in range(n_steps):
-                lap = self.operator @ u
-                u, v, act_t = self._run_step(u, v, lap, act_t, self.a, t0[i], c)
+                if table is None:
+                    lap = self.operator @ u
+                    u, v, act_t = self._run_step(u, v, lap, act_t, self.a, t0[i], c)
+                else:
+                    un, v = self._rkc_step(u, v, hold if i < stim_steps else None, table, c)
+                    crossed = (u < c[5]) & (un >= c[5]) & (act_t < 0.0)
+                    u, act_t = un, torch.where(crossed, t0[i] + c[0] * (c[5] - u) / (un - u), act_t)
                 if i < stim_steps:
                     u.masked_fill_(hold, 1.0)
                 if (i + 1) % out_every == 0:
@@ -233,6 +255,37 @@ class TorchKernel:
             act[...] = act_t.cpu().numpy()
         finally:
             torch.set_num_threads(saved)
+
+    def _rkc_step(
+        self,
+        u: torch.Tensor,
+        v: torch.Tensor,
+        hold: torch.Tensor | None,
+        table: list[tuple[torch.Tensor, ...]],
+        c: tuple[torch.Tensor, ...],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One RKC2 step ``(u, v) -> (u', v')`` through the stages of ``table`` (:meth:`_stage_table`);
+        ``hold``: the stimulated nodes, set to ``u = 1`` in every stage (``None``: no stimulus)."""
+        f0 = rates(u, v, self.operator @ u, self.a, c)
+        prev2, prev, f = (u, v), (u, v), f0
+        for j, (c0, mu, nu, mu_dt, gamma_dt) in enumerate(table):
+            if j > 0:
+                f = rates(*prev, self.operator @ prev[0], self.a, c)
+            stage = tuple(
+                c0 * y0 + mu * y1 + nu * y2 + mu_dt * fy + gamma_dt * fy0
+                for y0, y1, y2, fy, fy0 in zip((u, v), prev, prev2, f, f0)
+            )
+            if hold is not None:
+                stage[0].masked_fill_(hold, 1.0)
+            prev2, prev = prev, stage
+        return prev
+
+    def _stage_table(self, stages: NDArray[np.float32], dt: float) -> list[tuple[torch.Tensor, ...]]:
+        """Rows ``(1 - mu - nu, mu, nu, mu~ dt, gamma~ dt)`` of the RKC2 table as 0-d float32 tensors
+        (the products in float32, as the numba kernel forms them)."""
+        scaled = np.asarray(stages, np.float32).copy()
+        scaled[:, 3:] *= np.float32(dt)
+        return [row.unbind() for row in torch.from_numpy(scaled).to(self.device)]
 
     def _run_step(self, *args: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """:func:`step`, compiled where chosen; a compile error switches this kernel to the eager step."""
