@@ -20,7 +20,11 @@ of another validation subject on the same mesh, relative to the squared error of
 predicting each target by the mean of the context sequences: near 0 when the
 context is ignored), the spread of the predictions over sites relative to the
 truth's, and the posterior's mean log-variance next to the spread of its means
-between subjects.
+between subjects. It also measures what the targets add to ``c``: the target MSE
+of validation and of (up to 12) training subjects with ``c`` the mean of
+p(c | Y) (the context alone, as at test time) and of q(c | Y u X) (the context
+and ``train.posterior_targets`` targets, as training draws it with
+``train.c_from = "posterior"``).
 
 Run: ``.venv/bin/python bench/training_stability.py --store data/default.zarr --seeds 0 1 --epochs 12
 [--config specs/train-default.toml] [--set SECTION.KEY=VALUE ...] [--out DIR]``; each seed trains
@@ -42,8 +46,9 @@ from pathlib import Path
 
 import torch
 
-from learner.config import config_from_mapping, load_config
+from learner.config import LearnerConfig, config_from_mapping, load_config
 from learner.data.episodes import EpisodeDataset
+from learner.models.surrogate import MetaPNS
 from learner.store_view import StoreView
 from learner.train.trainer import VALIDATION_EPOCH, Trainer, load_model
 
@@ -173,7 +178,25 @@ def probe(checkpoint: Path, store: str) -> dict[str, float]:
             row["context_effect"] = float(((pred - swapped) ** 2).mean()) / naive
             row["posterior_mean_spread"] = float((post[i].mu - post[other].mu).abs().mean())
         rows.append(row)
-    return {key: statistics.mean(r[key] for r in rows if key in r) for key in rows[0] | rows[-1]}
+    found = {key: statistics.mean(r[key] for r in rows if key in r) for key in rows[0] | rows[-1]}
+    for split, subjects in (("val", ckpt["splits"]["validation"]), ("train", ckpt["splits"]["train"][:12])):
+        context_c, posterior_c = _c_sources(model, cfg, store, view, subjects)
+        found |= {f"{split}_mse_context_c": context_c, f"{split}_mse_posterior_c": posterior_c}
+    return found
+
+
+def _c_sources(
+    model: MetaPNS, cfg: LearnerConfig, store: str, view: StoreView, subjects: list[str]
+) -> tuple[float, float]:
+    """Mean target MSE of ``subjects``' fixed episodes with c = mean of p(c | Y), and of q(c | Y u X)."""
+    context_c, posterior_c = [], []
+    for ep in EpisodeDataset(store, subjects, cfg.data.episodes, seed=cfg.train.seed, epoch=VALIDATION_EPOCH):
+        hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
+        extra = ep.target_u[: cfg.train.posterior_targets or None] * ep.observed.to(ep.target_u.dtype)
+        prior, posterior = model.embed_prior_and_posterior(ep.context_obs, extra, ep.observed, hier)
+        for c, out in ((prior.mu, context_c), (posterior.mu, posterior_c)):
+            out.append(float(((model.generate(ep.target_sites, hier, c) - ep.target_u) ** 2).mean()))
+    return statistics.mean(context_c), statistics.mean(posterior_c)
 
 
 def main() -> None:

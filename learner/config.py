@@ -62,6 +62,7 @@ class ModelConfig:
     stimulus_distance: bool = True  # the site's geodesic distance map joins its one-hot map as an input
     context_stride: int = 1  # the context encoder sees every k-th frame (1 = all, as in the paper)
     latent_norm: bool = True  # layer-normalise the latent state after each transition step (False: the reference)
+    context_stimulus: bool = False  # metaPNS: c joins the stimulus features before the coarse blocks
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
@@ -89,6 +90,7 @@ class TrainConfig:
     kl_anneal_epochs: int = 0  # KL weights ramp linearly from 0 over this many epochs (0 = off)
     loss_frames: int = 0  # decode only this many random frames per episode for the loss (0 = all)
     posterior_targets: int = 0  # targets that join the context in q(c | Y u X) (0 = all)
+    c_from: Literal["posterior", "context"] = "posterior"  # training draws c from q(c | Y u X) or p(c | Y)
     seed: int = 0
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)

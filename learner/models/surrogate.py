@@ -55,6 +55,11 @@ class PNS(nn.Module):
         self.initial_state = nn.Linear(lat, lat)
         self.transition = ConditionalGatedTransition(lat, self.conditioned, config.latent_norm)
         self.decoder = GraphDecoder(lat, ch, hid, skips=config.decoder_skips)
+        self.context_stimulus: nn.Linear | None = None
+        if self.conditioned and config.context_stimulus:
+            self.context_stimulus = nn.Linear(lat, lat)
+            nn.init.zeros_(self.context_stimulus.weight)  # starts as the model without it; gradients still reach it
+            nn.init.zeros_(self.context_stimulus.bias)
 
     @torch.no_grad()
     def set_output_mean(self, mean: float) -> None:
@@ -66,17 +71,24 @@ class PNS(nn.Module):
         """
         self.decoder.out.bias.fill_(mean)
 
-    def initial(self, sites: Tensor, hierarchy: MeshHierarchy) -> Tensor:
+    def initial(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
         """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""
-        return self._encode_stimulus(sites, hierarchy)[0]
+        return self._encode_stimulus(sites, hierarchy, c)[0]
 
-    def _encode_stimulus(self, sites: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, list[Tensor]]:
+    def _encode_stimulus(
+        self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None
+    ) -> tuple[Tensor, list[Tensor]]:
         """``z_0`` and the stimulus encoder's per-level features.
 
         The stimulus is a one-hot node map; with ``stimulus_distance`` its
         geodesic distance map joins it as a second channel, so every node sees
         where the site is from the first layer on (a one-hot alone fades
         through mean aggregation and pooling, and the generator learns slowly).
+        With ``context_stimulus`` a linear map of ``c`` is added to the coarse
+        stimulus features before the coarse blocks: their mesh-wide receptive
+        field can then tell whether the site lies in tissue that ``c`` marks as
+        scar, where a stimulus launches no wave. The transition runs per node,
+        so without it no node far from the site can know that.
         """
         n = hierarchy.graphs[0].num_nodes
         device = hierarchy.graphs[0].edge_index.device
@@ -85,13 +97,15 @@ class PNS(nn.Module):
         if self.config.stimulus_distance:
             x = torch.cat([x, geodesic_distances(hierarchy.graphs[0], sites).unsqueeze(-1)], dim=-1)
         e, levels = self.stimulus_encoder.forward_levels(x, hierarchy)
+        if self.context_stimulus is not None and c is not None:
+            e = e + self.context_stimulus(c)
         for block in self.coarse_blocks:
             e = block(e, hierarchy.graphs[-1])
         return self.initial_state(e), levels
 
     def latent_path(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
         """Latent states ``z_1..z_T``: ``(S, T, V, latent)``."""
-        return self._latent_path(self.initial(sites, hierarchy), c)
+        return self._latent_path(self.initial(sites, hierarchy, c), c)
 
     def _latent_path(self, z: Tensor, c: Tensor | None) -> Tensor:
         cc = None if c is None else c.unsqueeze(0).expand_as(z)
@@ -105,7 +119,7 @@ class PNS(nn.Module):
         self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, frames: Tensor | None = None
     ) -> Tensor:
         """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices)."""
-        z0, levels = self._encode_stimulus(sites, hierarchy)
+        z0, levels = self._encode_stimulus(sites, hierarchy, c)
         z = self._latent_path(z0, c)
         if frames is not None:
             z = z[:, frames]

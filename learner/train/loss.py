@@ -68,6 +68,7 @@ def episode_loss(
     frames: Tensor | None = None,
     generator: torch.Generator | None = None,
     posterior_targets: int | None = None,
+    c_from: str = "posterior",
 ) -> LossTerms:
     """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
 
@@ -75,7 +76,9 @@ def episode_loss(
     frame subset, an unbiased estimate of the full sum that decodes fewer
     frames. ``posterior_targets`` caps how many targets join the context in
     q(c | Y u X) (None: all), since encoding a sequence costs more than
-    decoding a frame.
+    decoding a frame. ``c_from`` is the distribution the generator's ``c`` is
+    drawn from: ``"posterior"`` q(c | Y u X), or ``"context"`` p(c | Y), the
+    embedding a trained model is given at test time.
     """
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
@@ -84,7 +87,7 @@ def episode_loss(
     if model.conditioned:
         extra = episode.target_u[:posterior_targets] * episode.observed.to(truth.dtype)
         prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
-        c = posterior.sample(generator)
+        c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
     pred = model.generate(sites, hierarchy, c, frames)
     if frames is not None:
@@ -101,9 +104,17 @@ def episode_loss(
 class EpisodeObjective(nn.Module):
     """:func:`episode_loss` as a module's ``forward``, the call that ``DistributedDataParallel`` wraps."""
 
-    def __init__(self, model: PNS, lambda1: float, lambda2: float, posterior_targets: int | None = None) -> None:
+    def __init__(
+        self,
+        model: PNS,
+        lambda1: float,
+        lambda2: float,
+        posterior_targets: int | None = None,
+        c_from: str = "posterior",
+    ) -> None:
         super().__init__()
-        self.model, self.lambda1, self.lambda2, self.posterior_targets = model, lambda1, lambda2, posterior_targets
+        self.model, self.lambda1, self.lambda2 = model, lambda1, lambda2
+        self.posterior_targets, self.c_from = posterior_targets, c_from
 
     def forward(
         self,
@@ -123,4 +134,5 @@ class EpisodeObjective(nn.Module):
             frames,
             generator,
             self.posterior_targets,
+            self.c_from,
         )

@@ -43,11 +43,15 @@ def test_generate_and_embed_shapes(setup, skips):
     assert torch.allclose(sub, out[:, [0, 4]], atol=1e-6)
 
 
-@pytest.mark.parametrize("kind, skips", [("metapns", False), ("pns", False), ("metapns", True)])
-def test_every_parameter_gets_a_finite_gradient(setup, kind, skips):
+@pytest.mark.parametrize(
+    "kind, skips, context_stimulus",
+    [("metapns", False, False), ("pns", False, False), ("metapns", True, False), ("metapns", False, True)],
+)
+def test_every_parameter_gets_a_finite_gradient(setup, kind, skips, context_stimulus):
     view, hier, ep = setup
     torch.manual_seed(0)
-    config = ModelConfig(**{**CONFIG.__dict__, "kind": kind, "decoder_skips": skips})
+    extra = {"decoder_skips": skips, "context_stimulus": context_stimulus}
+    config = ModelConfig(**{**CONFIG.__dict__, "kind": kind, **extra})
     model = _trained_like(build_model(config, view.frames))
     assert isinstance(model, MetaPNS) == (kind == "metapns")
     terms = episode_loss(model, ep, hier, lambda1=1e-4, lambda2=0.1, generator=torch.Generator().manual_seed(0))
@@ -119,3 +123,21 @@ def test_inference_layout_gives_the_training_paths_result(setup):
     slow = model.generate(ep.target_sites, hier, c).detach()
     torch.testing.assert_close(fast, slow, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(fast_c, c, rtol=1e-5, atol=1e-5)
+
+
+def test_context_stimulus_starts_switched_off_and_then_conditions_z0(setup):
+    """A fresh ``context_stimulus`` map is zero (the model without it); once trained, c changes z_0 at every node."""
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = MetaPNS(ModelConfig(**{**CONFIG.__dict__, "context_stimulus": True}), view.frames)
+    c1 = model.embed(ep.context_obs, ep.observed, hier).mu
+    c2 = c1 + torch.randn(c1.shape, generator=torch.Generator().manual_seed(1))
+    sites = ep.target_sites
+    fresh = model.initial(sites, hier, c1)
+    assert torch.equal(fresh, model.initial(sites, hier, c2))
+    assert torch.equal(fresh, model.initial(sites, hier))  # c given or not
+    with torch.no_grad():
+        model.context_stimulus.weight.normal_(0.0, 0.5)
+    moved = (model.initial(sites, hier, c1) - model.initial(sites, hier, c2)).abs().amax(dim=-1)
+    assert bool((moved > 0).all())
+    assert PNS(ModelConfig(**{**CONFIG.__dict__, "context_stimulus": True}), view.frames).context_stimulus is None

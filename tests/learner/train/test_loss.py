@@ -52,3 +52,29 @@ def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_c
     n_values = truth.shape[1] * truth.shape[2]
     torch.testing.assert_close(terms.total, elbo / n_values)
     assert float(terms.kl_prior.detach()) > 0
+
+
+def test_c_from_context_generates_from_the_context_embedding(tiny_store, tiny_config, tmp_path):
+    """``c_from="context"`` draws c from p(c | Y): the targets reach the loss only as targets and through KL(q || p)."""
+    from learner.data.episodes import load_episode
+    from learner.models.surrogate import build_model
+    from learner.store_view import StoreView
+    from learner.train.loss import episode_loss
+
+    cfg = tiny_config(tiny_store, tmp_path / "run")
+    view = StoreView(tiny_store)
+    ep = load_episode(tiny_store, "lv-scar-apex", [0, 1], [2, 3, 4], "surface")
+    hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
+    torch.manual_seed(0)
+    model = build_model(cfg.model, view.frames)
+    torch.nn.init.normal_(model.decoder.out.weight, std=0.1)  # a fresh decoder ignores c (zero output weights)
+
+    def terms(c_from: str):
+        return episode_loss(model, ep, hier, 0.3, 0.7, generator=torch.Generator().manual_seed(0), c_from=c_from)
+
+    context, posterior = terms("context"), terms("posterior")
+    prior = model.embed(ep.context_obs, ep.observed, hier)
+    pred = model.generate(ep.target_sites, hier, prior.sample(torch.Generator().manual_seed(0)))
+    torch.testing.assert_close(context.target_mse, ((pred - ep.target_u) ** 2).mean())
+    torch.testing.assert_close(context.kl_posterior, posterior.kl_posterior)  # the same KL terms
+    assert float(context.target_mse) != float(posterior.target_mse)

@@ -148,6 +148,8 @@ def test_bad_configs_are_refused(tiny_store, tiny_config, tmp_path):
         config_from_mapping({})
     with pytest.raises(ConfigError, match="levels"):
         config_from_mapping({"data": {"store": "x"}, "model": {"levels": 3}})
+    with pytest.raises(ConfigError, match="train.c_from: 'targets' is not one of"):
+        config_from_mapping({"data": {"store": "x"}, "train": {"c_from": "targets"}})
     with pytest.raises(InputError):
         Trainer(tiny_config(tmp_path / "missing.zarr", tmp_path / "o"), progress=False)
 
