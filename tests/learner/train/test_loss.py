@@ -27,18 +27,24 @@ def test_posterior_sample_is_reparameterised():
     assert torch.equal(post.mu.grad, torch.ones(4, 2)) and post.logvar.grad.abs().sum() > 0
 
 
-def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_config, tmp_path):
+def _model_and_episode(store, tiny_config, out):
+    """A fresh metaPNS of the tiny config, one episode (2 context, 3 targets) and its mesh hierarchy."""
     from learner.data.episodes import load_episode
     from learner.models.surrogate import build_model
     from learner.store_view import StoreView
-    from learner.train.loss import episode_loss
 
-    cfg = tiny_config(tiny_store, tmp_path / "run")
-    view = StoreView(tiny_store)
-    ep = load_episode(tiny_store, "lv-scar-apex", [0, 1], [2, 3, 4], "surface")
+    cfg = tiny_config(store, out)
+    view = StoreView(store)
+    ep = load_episode(store, "lv-scar-apex", [0, 1], [2, 3, 4], "surface")
     hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
     torch.manual_seed(0)
-    model = build_model(cfg.model, view.frames)
+    return build_model(cfg.model, view.frames), ep, hier
+
+
+def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_config, tmp_path):
+    from learner.train.loss import episode_loss
+
+    model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run")
     terms = episode_loss(
         model, ep, hier, lambda1=0.3, lambda2=0.7, kl_weight=0.5, generator=torch.Generator().manual_seed(0)
     )
@@ -56,17 +62,9 @@ def test_episode_loss_is_the_negative_elbo_per_node_and_frame(tiny_store, tiny_c
 
 def test_c_from_context_generates_from_the_context_embedding(tiny_store, tiny_config, tmp_path):
     """``c_from="context"`` draws c from p(c | Y): the targets reach the loss only as targets and through KL(q || p)."""
-    from learner.data.episodes import load_episode
-    from learner.models.surrogate import build_model
-    from learner.store_view import StoreView
     from learner.train.loss import episode_loss
 
-    cfg = tiny_config(tiny_store, tmp_path / "run")
-    view = StoreView(tiny_store)
-    ep = load_episode(tiny_store, "lv-scar-apex", [0, 1], [2, 3, 4], "surface")
-    hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
-    torch.manual_seed(0)
-    model = build_model(cfg.model, view.frames)
+    model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run")
     torch.nn.init.normal_(model.decoder.out.weight, std=0.1)  # a fresh decoder ignores c (zero output weights)
 
     def terms(c_from: str):
