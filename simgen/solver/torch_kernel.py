@@ -95,10 +95,8 @@ def step(
     :func:`simgen.solver.kernels._reaction` term by term; ``act`` takes the
     interpolated time at which ``u`` first crosses ``thr`` (it is -1 until then).
     """
-    dt, k, eps0, mu1, mu2, thr = c
-    du = lap + k * u * (1.0 - u) * (u - a) - u * v
-    eps = eps0 + mu1 * v / (u + mu2)
-    dv = eps * (-v - k * u * (u - a - 1.0))
+    dt, thr = c[0], c[5]
+    du, dv = rates(u, v, lap, a, c)
     un = u + dt * du
     crossed = (u < thr) & (un >= thr) & (act < 0.0)
     return un, v + dt * dv, torch.where(crossed, t0 + dt * (thr - u) / (un - u), act)
@@ -107,7 +105,8 @@ def step(
 def rates(
     u: torch.Tensor, v: torch.Tensor, lap: torch.Tensor, a: torch.Tensor, c: tuple[torch.Tensor, ...]
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(du/dt, dv/dt)`` from the diffusion term ``lap``: the terms of :func:`step` (``c`` as there)."""
+    """``(du/dt, dv/dt)`` from the diffusion term ``lap`` (``c`` as in :func:`step`), term by term
+    :func:`simgen.solver.kernels._reaction`'s."""
     _, k, eps0, mu1, mu2, _ = c
     du = lap + k * u * (1.0 - u) * (u - a) - u * v
     eps = eps0 + mu1 * v / (u + mu2)
