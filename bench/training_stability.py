@@ -47,7 +47,7 @@ from pathlib import Path
 import torch
 
 from learner.config import LearnerConfig, config_from_mapping, load_config
-from learner.data.episodes import EpisodeDataset
+from learner.data.episodes import Episode, EpisodeDataset
 from learner.models.surrogate import MetaPNS
 from learner.store_view import StoreView
 from learner.train.trainer import VALIDATION_EPOCH, Trainer, load_model
@@ -179,18 +179,19 @@ def probe(checkpoint: Path, store: str) -> dict[str, float]:
             row["posterior_mean_spread"] = float((post[i].mu - post[other].mu).abs().mean())
         rows.append(row)
     found = {key: statistics.mean(r[key] for r in rows if key in r) for key in rows[0] | rows[-1]}
-    for split, subjects in (("val", ckpt["splits"]["validation"]), ("train", ckpt["splits"]["train"][:12])):
-        context_c, posterior_c = _c_sources(model, cfg, store, view, subjects)
+    train = EpisodeDataset(
+        store, ckpt["splits"]["train"][:12], cfg.data.episodes, seed=cfg.train.seed, epoch=VALIDATION_EPOCH
+    )
+    for split, eps in (("val", episodes), ("train", list(train))):
+        context_c, posterior_c = _c_sources(model, cfg, view, eps)
         found |= {f"{split}_mse_context_c": context_c, f"{split}_mse_posterior_c": posterior_c}
     return found
 
 
-def _c_sources(
-    model: MetaPNS, cfg: LearnerConfig, store: str, view: StoreView, subjects: list[str]
-) -> tuple[float, float]:
-    """Mean target MSE of ``subjects``' fixed episodes with c = mean of p(c | Y), and of q(c | Y u X)."""
+def _c_sources(model: MetaPNS, cfg: LearnerConfig, view: StoreView, episodes: list[Episode]) -> tuple[float, float]:
+    """Mean target MSE of ``episodes`` with c = mean of p(c | Y), and of q(c | Y u X)."""
     context_c, posterior_c = [], []
-    for ep in EpisodeDataset(store, subjects, cfg.data.episodes, seed=cfg.train.seed, epoch=VALIDATION_EPOCH):
+    for ep in episodes:
         hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
         extra = ep.target_u[: cfg.train.posterior_targets or None] * ep.observed.to(ep.target_u.dtype)
         prior, posterior = model.embed_prior_and_posterior(ep.context_obs, extra, ep.observed, hier)
