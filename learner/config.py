@@ -63,6 +63,7 @@ class ModelConfig:
     context_stride: int = 1  # the context encoder sees every k-th frame (1 = all, as in the paper)
     latent_norm: bool = True  # layer-normalise the latent state after each transition step (False: the reference)
     context_stimulus: bool = False  # metaPNS: c joins the stimulus features before the coarse blocks
+    capture_gate: bool = False  # metaPNS: c at the site decides whether a wave starts (PNS.generate)
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:

@@ -6,6 +6,10 @@ Generation for a stimulus ``s`` (a one-hot node map on the mesh)::
     z_t = T(z_{t-1}, c),  t = 1..T            conditional gated transition, per coarse node
     x_t = G(z_t)                              graph decoder, one value per mesh node
 
+With ``capture_gate`` metaPNS mixes the sequence with a no-wave response
+``r_t``: ``x_t <- r_t + g (x_t - r_t)``, ``g = sigmoid(h(c_site, e_site))``
+read from ``c`` and the stimulus features at the site's coarse node.
+
 metaPNS draws ``c`` from the context embedding q(c | Y); PNS has no ``c``.
 """
 
@@ -26,6 +30,9 @@ from learner.nn.gated_transition import ConditionalGatedTransition
 from learner.nn.residual_block import ResidualGraphBlock
 
 __all__ = ["Posterior", "PNS", "MetaPNS", "build_model"]
+
+#: Initial logit of the capture gate: the gate starts open (0.88) and still steep (slope 0.10).
+CAPTURE_BIAS = 2.0
 
 
 @dataclass
@@ -60,6 +67,12 @@ class PNS(nn.Module):
             self.context_stimulus = nn.Linear(lat, lat)
             nn.init.zeros_(self.context_stimulus.weight)  # starts as the model without it; gradients still reach it
             nn.init.zeros_(self.context_stimulus.bias)
+        self.capture: nn.Sequential | None = None
+        if self.conditioned and config.capture_gate:
+            self.capture = nn.Sequential(nn.Linear(2 * lat, hid), nn.ELU(), nn.Linear(hid, 1))
+            nn.init.zeros_(self.capture[-1].weight)  # every site starts with the same gate, sigmoid(2) = 0.88
+            nn.init.constant_(self.capture[-1].bias, CAPTURE_BIAS)
+            self.no_capture = nn.Parameter(torch.zeros(frames))  # r_t, one value per frame
 
     @torch.no_grad()
     def set_output_mean(self, mean: float) -> None:
@@ -70,15 +83,21 @@ class PNS(nn.Module):
         around before it has learned anything (docs/training.md).
         """
         self.decoder.out.bias.fill_(mean)
+        if self.capture is not None:
+            self.no_capture.fill_(mean)  # the gate then changes nothing until the two responses differ
 
     def initial(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
         """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""
         return self._encode_stimulus(sites, hierarchy, c)[0]
 
+    def capture_probability(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor) -> Tensor:
+        """The gate ``g`` (S,): how likely a stimulus at each site starts a wave (``capture_gate`` only)."""
+        return self._encode_stimulus(sites, hierarchy, c)[2]
+
     def _encode_stimulus(
         self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None
-    ) -> tuple[Tensor, list[Tensor]]:
-        """``z_0`` and the stimulus encoder's per-level features.
+    ) -> tuple[Tensor, list[Tensor], Tensor | None]:
+        """``z_0``, the stimulus encoder's per-level features and the capture gate (None without one).
 
         The stimulus is a one-hot node map; with ``stimulus_distance`` its
         geodesic distance map joins it as a second channel, so every node sees
@@ -89,6 +108,10 @@ class PNS(nn.Module):
         field can then tell whether the site lies in tissue that ``c`` marks as
         scar, where a stimulus launches no wave. The transition runs per node,
         so without it no node far from the site can know that.
+
+        The capture gate reads ``c`` and the final coarse features at the
+        site's coarse node, the one place where both the site and the tissue
+        there are known, and gives one number per site for the whole mesh.
         """
         n = hierarchy.graphs[0].num_nodes
         device = hierarchy.graphs[0].edge_index.device
@@ -101,7 +124,14 @@ class PNS(nn.Module):
             e = e + self.context_stimulus(c)
         for block in self.coarse_blocks:
             e = block(e, hierarchy.graphs[-1])
-        return self.initial_state(e), levels
+        gate = None
+        if self.capture is not None and c is not None:
+            node = sites.long().to(device)
+            for assign in hierarchy.assign:
+                node = assign[node]
+            rows = torch.arange(len(sites), device=device)
+            gate = torch.sigmoid(self.capture(torch.cat([c[node], e[rows, node]], dim=-1))).squeeze(-1)
+        return self.initial_state(e), levels, gate
 
     def latent_path(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
         """Latent states ``z_1..z_T``: ``(S, T, V, latent)``."""
@@ -119,13 +149,17 @@ class PNS(nn.Module):
         self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, frames: Tensor | None = None
     ) -> Tensor:
         """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices)."""
-        z0, levels = self._encode_stimulus(sites, hierarchy, c)
+        z0, levels, gate = self._encode_stimulus(sites, hierarchy, c)
         z = self._latent_path(z0, c)
         if frames is not None:
             z = z[:, frames]
         s, t, v, l = z.shape
         skips = [f.repeat_interleave(t, dim=0) for f in levels] if self.config.decoder_skips else None
-        return self.decoder(z.reshape(s * t, v, l), hierarchy, skips).reshape(s, t, -1)
+        x = self.decoder(z.reshape(s * t, v, l), hierarchy, skips).reshape(s, t, -1)
+        if gate is None:
+            return x
+        rest = (self.no_capture if frames is None else self.no_capture[frames]).view(1, t, 1)
+        return rest + gate.view(s, 1, 1) * (x - rest)
 
 
 class MetaPNS(PNS):

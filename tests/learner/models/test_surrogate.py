@@ -44,15 +44,23 @@ def test_generate_and_embed_shapes(setup, skips):
 
 
 @pytest.mark.parametrize(
-    "kind, skips, context_stimulus",
-    [("metapns", False, False), ("pns", False, False), ("metapns", True, False), ("metapns", False, True)],
+    "kind, extra",
+    [
+        ("metapns", {}),
+        ("pns", {}),
+        ("metapns", {"decoder_skips": True}),
+        ("metapns", {"context_stimulus": True}),
+        ("metapns", {"capture_gate": True}),
+    ],
 )
-def test_every_parameter_gets_a_finite_gradient(setup, kind, skips, context_stimulus):
+def test_every_parameter_gets_a_finite_gradient(setup, kind, extra):
     view, hier, ep = setup
     torch.manual_seed(0)
-    extra = {"decoder_skips": skips, "context_stimulus": context_stimulus}
     config = ModelConfig(**{**CONFIG.__dict__, "kind": kind, **extra})
     model = _trained_like(build_model(config, view.frames))
+    if model.capture is not None:
+        with torch.no_grad():  # a trained gate's output layer, so that its first layer gets a gradient too
+            model.capture[-1].weight.normal_(0.0, 0.5)
     assert isinstance(model, MetaPNS) == (kind == "metapns")
     terms = episode_loss(model, ep, hier, lambda1=1e-4, lambda2=0.1, generator=torch.Generator().manual_seed(0))
     terms.total.backward()
@@ -141,3 +149,41 @@ def test_context_stimulus_starts_switched_off_and_then_conditions_z0(setup):
     moved = (model.initial(sites, hier, c1) - model.initial(sites, hier, c2)).abs().amax(dim=-1)
     assert bool((moved > 0).all())
     assert PNS(ModelConfig(**{**CONFIG.__dict__, "context_stimulus": True}), view.frames).context_stimulus is None
+
+
+def _site_cluster(hier, sites):
+    node = sites.long()
+    for assign in hier.assign:
+        node = assign[node]
+    return node
+
+
+def test_capture_gate_reads_c_only_at_the_site_and_closes_to_the_no_wave_response(setup):
+    """The gate starts at sigmoid(2) for every site, moves with c at the site's coarse node only, and at 0
+    predicts the no-capture response r_t at every node."""
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = _trained_like(MetaPNS(ModelConfig(**{**CONFIG.__dict__, "capture_gate": True}), view.frames))
+    sites = ep.target_sites
+    c = model.embed(ep.context_obs, ep.observed, hier).mu.detach()
+    fresh = model.capture_probability(sites, hier, c)
+    torch.testing.assert_close(fresh, torch.full((len(sites),), torch.sigmoid(torch.tensor(2.0)).item()))
+    with torch.no_grad():
+        model.capture[-1].weight.normal_(0.0, 0.5)
+    gate = model.capture_probability(sites, hier, c)
+    clusters = _site_cluster(hier, sites)
+    elsewhere = torch.ones(hier.graphs[-1].num_nodes, dtype=torch.bool)
+    elsewhere[clusters] = False
+    c_far = c.clone()
+    c_far[elsewhere] += 3.0
+    torch.testing.assert_close(model.capture_probability(sites, hier, c_far), gate)
+    c_site = c.clone()
+    c_site[clusters[0]] += 3.0
+    with torch.no_grad():
+        assert float((model.capture_probability(sites, hier, c_site)[0] - gate[0]).abs()) > 1e-4
+        model.capture[-1].bias.fill_(-60.0)
+        model.no_capture.copy_(torch.linspace(0.0, 1.0, view.frames))
+        out = model.generate(sites, hier, c)
+    expected = model.no_capture.view(1, -1, 1).expand_as(out)
+    torch.testing.assert_close(out, expected)
+    assert PNS(ModelConfig(**{**CONFIG.__dict__, "capture_gate": True}), view.frames).capture is None
