@@ -7,12 +7,16 @@ a model that predicts a wave there is wrong at nearly every node and frame
 the tissue at its site (healthy, border zone, core), and prints per label: the
 number of targets, their mean MSE and spatial CC, the share of all target
 error they carry, and how many are mismatched (activation mismatch > 0.5).
+With ``--checkpoints`` (one per report, models with ``model.capture_gate``) it
+also gives the mean capture gate of each group: the model's probability that a
+stimulus there starts a wave, from the same context sets.
 docs/training.md ("Where the error is") publishes the table.
 
 Run::
 
     learner evaluate runs/seed0/best.pt data/default.zarr --sets 1 --max-targets 20 --out report/eval-seed0
-    .venv/bin/python bench/site_tissue_errors.py data/default.zarr report/eval-seed0 [more reports] [--out DIR]
+    .venv/bin/python bench/site_tissue_errors.py data/default.zarr report/eval-seed0 [more reports] \
+        [--checkpoints runs/seed0/best.pt ...] [--out DIR]
 """
 
 from __future__ import annotations
@@ -22,7 +26,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+import torch
 
+from learner.data.episodes import load_episode
+from learner.store_view import StoreView
+from learner.train.trainer import load_model
 from shared.reader import read_tissue
 from shared.tissue import LABEL_BORDER, LABEL_CORE, LABEL_HEALTHY
 
@@ -39,27 +47,55 @@ def site_labels(store: str, rows: list[dict]) -> list[int]:
     return [int(tissue[r["subject"]][r["site"]]) for r in rows]
 
 
-def tissue_table(store: str, reports: dict[str, dict]) -> str:
-    """Markdown: one row per (model, site label)."""
+def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
+    """The model's capture gate for every target row, from the context set the row was evaluated with."""
+    model, config, _ = load_model(checkpoint)
+    if model.capture is None:
+        raise SystemExit(f"{checkpoint} has no capture gate (model.capture_gate is off)")
+    view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
+    gates = np.full(len(rows), np.nan)
+    for subject, context_set in sorted({(r["subject"], r["set"]) for r in rows if r["role"] == "target"}):
+        group = [r for r in rows if r["subject"] == subject and r["set"] == context_set]
+        row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[subject]))}  # node id -> site row
+        context = [row_of[r["site"]] for r in group if r["role"] == "context"]
+        targets = [i for i, r in enumerate(rows) if r in group and r["role"] == "target"]
+        target_rows = [row_of[rows[i]["site"]] for i in targets]
+        ep = load_episode(store, subject, context, target_rows, config.data.episodes.observe)
+        hier = view.hierarchy(view.mesh_of[subject], config.model.levels, config.model.coarsest)
+        with torch.no_grad():
+            c = model.embed(ep.context_obs, ep.observed, hier).mu
+            gates[targets] = model.capture_probability(ep.target_sites, hier, c).numpy()
+    return gates
+
+
+def tissue_table(store: str, reports: dict[str, dict], checkpoints: dict[str, str] | None = None) -> str:
+    """Markdown: one row per (model, site label); with ``checkpoints`` also the mean capture gate."""
+    gate_column = bool(checkpoints)
     lines = [
-        "| model | site tissue | targets | mean MSE | mean CC | share of target error | mismatched |",
-        "|---|---|---:|---:|---:|---:|---:|",
+        "| model | site tissue | targets | mean MSE | mean CC | share of target error | mismatched |"
+        + (" mean capture gate |" if gate_column else ""),
+        "|---|---|---:|---:|---:|---:|---:|" + ("---:|" if gate_column else ""),
     ]
     for name, report in reports.items():
-        rows = [r for r in report["rows"] if r["role"] == "target"]
-        labels = np.array(site_labels(store, rows))
-        mse = np.array([r["mse"] for r in rows])
-        cc = np.array([r["cc_spatial"] for r in rows], dtype=float)
-        bad = np.array([r["act_mismatch"] > MISMATCHED for r in rows])
-        for label, text in LABELS.items():
-            sel = labels == label
+        rows = report["rows"]
+        targets = [r for r in rows if r["role"] == "target"]
+        labels = np.array(site_labels(store, targets))
+        mse = np.array([r["mse"] for r in targets])
+        cc = np.array([r["cc_spatial"] for r in targets], dtype=float)
+        bad = np.array([r["act_mismatch"] > MISMATCHED for r in targets])
+        gates = None
+        if gate_column:
+            all_gates = capture_gates(store, rows, checkpoints[name])
+            gates = all_gates[[i for i, r in enumerate(rows) if r["role"] == "target"]]
+        for label, text in [*LABELS.items(), (None, "all")]:
+            sel = np.ones(len(targets), dtype=bool) if label is None else labels == label
             if not sel.any():
                 continue
-            lines.append(
+            line = (
                 f"| {name} | {text} | {sel.sum()} | {mse[sel].mean():.4f} | {np.nanmean(cc[sel]):.3f} "
                 f"| {mse[sel].sum() / mse.sum():.0%} | {bad[sel].sum()} |"
             )
-        lines.append(f"| {name} | all | {len(rows)} | {mse.mean():.4f} | {np.nanmean(cc):.3f} | 100% | {bad.sum()} |")
+            lines.append(line + (f" {gates[sel].mean():.2f} |" if gates is not None else ""))
     return "\n".join(lines)
 
 
@@ -67,10 +103,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("store", help="the store the reports evaluated")
     parser.add_argument("reports", nargs="+", type=Path, help="directories holding evaluation.json")
+    parser.add_argument("--checkpoints", nargs="*", default=[], help="the evaluated models, one per report")
     parser.add_argument("--out", type=Path, help="write site_tissue_errors.md there")
     args = parser.parse_args()
+    if args.checkpoints and len(args.checkpoints) != len(args.reports):
+        parser.error(f"give one checkpoint per report ({len(args.reports)}), got {len(args.checkpoints)}")
     reports = {p.name: json.loads((p / "evaluation.json").read_text()) for p in args.reports}
-    table = tissue_table(args.store, reports)
+    checkpoints = dict(zip(reports, args.checkpoints, strict=False)) if args.checkpoints else None
+    table = tissue_table(args.store, reports, checkpoints)
     print(table)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)

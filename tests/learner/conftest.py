@@ -33,8 +33,8 @@ coarse_blocks = 1
 """
 
 
-def tiny_config(store: Path, out: Path, kind: str = "metapns", **train):
-    """A small model and short training on :func:`tiny_store` (seconds per epoch)."""
+def tiny_config(store: Path, out: Path, kind: str = "metapns", model: dict | None = None, **train):
+    """A small model (``model``: more model keys) and short training on :func:`tiny_store` (seconds per epoch)."""
     from learner.config import config_from_mapping
 
     return config_from_mapping(
@@ -54,6 +54,7 @@ def tiny_config(store: Path, out: Path, kind: str = "metapns", **train):
                 "levels": 3,
                 "coarsest": 10,
                 "coarse_blocks": 1,
+                **(model or {}),
             },
             "train": {"epochs": 2, "validate_every": 1, **train},
         }
