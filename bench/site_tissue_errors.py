@@ -48,24 +48,26 @@ def site_labels(store: str, rows: list[dict]) -> list[int]:
 
 
 def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
-    """The model's capture gate for every target row, from the context set the row was evaluated with."""
+    """The model's capture gate for each target row, in order, from the context set it was evaluated with."""
     model, config, _ = load_model(checkpoint)
     if model.capture is None:
         raise SystemExit(f"{checkpoint} has no capture gate (model.capture_gate is off)")
     view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
-    gates = np.full(len(rows), np.nan)
-    for subject, context_set in sorted({(r["subject"], r["set"]) for r in rows if r["role"] == "target"}):
-        group = [r for r in rows if r["subject"] == subject and r["set"] == context_set]
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["subject"], r["set"]), []).append(r)
+    gates: dict[tuple[str, int, int], float] = {}
+    for (subject, context_set), group in groups.items():
         row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[subject]))}  # node id -> site row
         context = [row_of[r["site"]] for r in group if r["role"] == "context"]
-        targets = [i for i, r in enumerate(rows) if r in group and r["role"] == "target"]
-        target_rows = [row_of[rows[i]["site"]] for i in targets]
-        ep = load_episode(store, subject, context, target_rows, config.data.episodes.observe)
+        targets = [r["site"] for r in group if r["role"] == "target"]
+        ep = load_episode(store, subject, context, [row_of[t] for t in targets], config.data.episodes.observe)
         hier = view.hierarchy(view.mesh_of[subject], config.model.levels, config.model.coarsest)
         with torch.no_grad():
             c = model.embed(ep.context_obs, ep.observed, hier).mu
-            gates[targets] = model.capture_probability(ep.target_sites, hier, c).numpy()
-    return gates
+            g = model.capture_probability(ep.target_sites, hier, c).tolist()
+        gates.update({(subject, context_set, site): value for site, value in zip(targets, g, strict=True)})
+    return np.array([gates[r["subject"], r["set"], r["site"]] for r in rows if r["role"] == "target"])
 
 
 def tissue_table(store: str, reports: dict[str, dict], checkpoints: dict[str, str] | None = None) -> str:
@@ -83,10 +85,7 @@ def tissue_table(store: str, reports: dict[str, dict], checkpoints: dict[str, st
         mse = np.array([r["mse"] for r in targets])
         cc = np.array([r["cc_spatial"] for r in targets], dtype=float)
         bad = np.array([r["act_mismatch"] > MISMATCHED for r in targets])
-        gates = None
-        if gate_column:
-            all_gates = capture_gates(store, rows, checkpoints[name])
-            gates = all_gates[[i for i, r in enumerate(rows) if r["role"] == "target"]]
+        gates = capture_gates(store, rows, checkpoints[name]) if gate_column else None
         for label, text in [*LABELS.items(), (None, "all")]:
             sel = np.ones(len(targets), dtype=bool) if label is None else labels == label
             if not sel.any():
