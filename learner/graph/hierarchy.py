@@ -172,6 +172,12 @@ class MeshHierarchy:
             return cols.index_select(0, self.assign[level]).permute(2, 0, 1)
         return x.index_select(1, self.assign[level])
 
+    def coarsest_cluster(self, nodes: Tensor) -> Tensor:
+        """The coarsest-level node that each mesh node of ``nodes`` (long) belongs to."""
+        for a in self.assign:
+            nodes = a[nodes]
+        return nodes
+
     def pool_matrix(self, level: int, dtype: torch.dtype = torch.float32) -> Tensor:
         """Sparse COO ``(n_{l+1}, n_l)`` matrix ``P`` with ``pool(x)[b] == P @ x[b]``."""
         self._check_level(level, "pool_matrix")

@@ -126,9 +126,7 @@ class PNS(nn.Module):
             e = block(e, hierarchy.graphs[-1])
         gate = None
         if self.capture is not None and c is not None:
-            node = sites.long().to(device)
-            for assign in hierarchy.assign:
-                node = assign[node]
+            node = hierarchy.coarsest_cluster(sites.long().to(device))
             rows = torch.arange(len(sites), device=device)
             gate = torch.sigmoid(self.capture(torch.cat([c[node], e[rows, node]], dim=-1))).squeeze(-1)
         return self.initial_state(e), levels, gate

@@ -268,3 +268,12 @@ def test_graph_validates_its_tensors():
     g = Graph.from_edges(np.array([[0.0, 0, 0], [2.0, 1, 0]]), np.array([[1, 0]]))
     assert repr(g) == "Graph(num_nodes=2, num_edges=2)"
     torch.testing.assert_close(g.pseudo, torch.tensor([[1.0, 0.75, 0.5], [0.0, 0.25, 0.5]]))
+
+
+def test_coarsest_cluster_is_where_unpooling_brings_each_coarse_node(hier):
+    """Copying each coarsest node's id down every level gives, at each mesh node, its coarsest cluster."""
+    ids = torch.arange(hier.sizes[-1], dtype=torch.float64).view(1, -1, 1)
+    for level in reversed(range(hier.n_levels - 1)):
+        ids = hier.unpool(ids, level)
+    nodes = torch.arange(hier.sizes[0])
+    assert torch.equal(hier.coarsest_cluster(nodes), ids.view(-1).long())

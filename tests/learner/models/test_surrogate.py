@@ -151,13 +151,6 @@ def test_context_stimulus_starts_switched_off_and_then_conditions_z0(setup):
     assert PNS(ModelConfig(**{**CONFIG.__dict__, "context_stimulus": True}), view.frames).context_stimulus is None
 
 
-def _site_cluster(hier, sites):
-    node = sites.long()
-    for assign in hier.assign:
-        node = assign[node]
-    return node
-
-
 def test_capture_gate_reads_c_only_at_the_site_and_closes_to_the_no_wave_response(setup):
     """The gate starts at sigmoid(2) for every site, moves with c at the site's coarse node only, and at 0
     predicts the no-capture response r_t at every node."""
@@ -171,7 +164,7 @@ def test_capture_gate_reads_c_only_at_the_site_and_closes_to_the_no_wave_respons
     with torch.no_grad():
         model.capture[-1].weight.normal_(0.0, 0.5)
     gate = model.capture_probability(sites, hier, c)
-    clusters = _site_cluster(hier, sites)
+    clusters = hier.coarsest_cluster(sites.long())
     elsewhere = torch.ones(hier.graphs[-1].num_nodes, dtype=torch.bool)
     elsewhere[clusters] = False
     c_far = c.clone()
