@@ -1,12 +1,14 @@
 """Where a model's target error comes from: targets grouped by the tissue at their stimulation site.
 
-A stimulus inside a scar core launches no wave (the core is not excitable), so
-a model that predicts a wave there is wrong at nearly every node and frame
+A stimulus inside a scar core launches a wave only where the core can still be
+excited (about a third of the core sites of the default store), so a model
+that predicts the wrong one of the two is wrong at nearly every node and frame
 (activation mismatch near 1). This script reads the ``evaluation.json`` that
 ``learner evaluate`` writes and the store it evaluated, labels every target by
-the tissue at its site (healthy, border zone, core), and prints per label: the
-number of targets, their mean MSE and spatial CC, the share of all target
-error they carry, and how many are mismatched (activation mismatch > 0.5).
+the tissue at its site (healthy, border zone, core; the core split by whether
+the stored simulation started a wave), and prints per group: the number of
+targets, their mean MSE and spatial CC, the share of all target error they
+carry, and how many are mismatched (activation mismatch > 0.5).
 With ``--checkpoints`` (one per report, models with ``model.capture_gate``) it
 also gives the mean capture gate of each group: the model's probability that a
 stimulus there starts a wave, from the same context sets.
@@ -29,9 +31,11 @@ import numpy as np
 import torch
 
 from learner.data.episodes import load_episode
+from learner.metrics import wave_started
+from learner.models.site_evidence import SiteEvidence
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
-from shared.reader import read_tissue
+from shared.reader import read_tissue, read_u
 from shared.tissue import LABEL_BORDER, LABEL_CORE, LABEL_HEALTHY
 
 LABELS = {LABEL_HEALTHY: "healthy", LABEL_BORDER: "border zone", LABEL_CORE: "scar core"}
@@ -45,6 +49,16 @@ def site_labels(store: str, rows: list[dict]) -> list[int]:
         if r["subject"] not in tissue:
             tissue[r["subject"]] = read_tissue(store, r["subject"]).label
     return [int(tissue[r["subject"]][r["site"]]) for r in rows]
+
+
+def waves_started(store: str, rows: list[dict]) -> np.ndarray:
+    """Whether each row's stimulus started a wave in the stored simulation (:func:`learner.metrics.wave_started`)."""
+    view = StoreView(store)
+    started = []
+    for r in rows:
+        row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[r["subject"]]))}
+        started.append(bool(wave_started(read_u(store, r["subject"], [row_of[r["site"]]]))[0]))
+    return np.array(started)
 
 
 def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
@@ -65,7 +79,7 @@ def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
         hier = view.hierarchy(view.mesh_of[subject], config.model.levels, config.model.coarsest)
         with torch.no_grad():
             c = model.embed(ep.context_obs, ep.observed, hier).mu
-            g = model.capture_probability(ep.target_sites, hier, c).tolist()
+            g = model.capture_probability(ep.target_sites, hier, c, SiteEvidence.of(ep)).tolist()
         gates.update({(subject, context_set, site): value for site, value in zip(targets, g, strict=True)})
     return np.array([gates[r["subject"], r["set"], r["site"]] for r in rows if r["role"] == "target"])
 
@@ -86,8 +100,11 @@ def tissue_table(store: str, reports: dict[str, dict], checkpoints: dict[str, st
         cc = np.array([r["cc_spatial"] for r in targets], dtype=float)
         bad = np.array([r["act_mismatch"] > MISMATCHED for r in targets])
         gates = capture_gates(store, rows, checkpoints[name]) if gate_column else None
-        for label, text in [*LABELS.items(), (None, "all")]:
-            sel = np.ones(len(targets), dtype=bool) if label is None else labels == label
+        core = labels == LABEL_CORE
+        started = waves_started(store, targets)
+        groups = [(labels == label, text) for label, text in LABELS.items()]
+        groups += [(core & started, "scar core, a wave starts"), (core & ~started, "scar core, no wave")]
+        for sel, text in [*groups, (np.ones(len(targets), dtype=bool), "all")]:
             if not sel.any():
                 continue
             line = (

@@ -48,6 +48,7 @@ import torch
 
 from learner.config import LearnerConfig, config_from_mapping, load_config
 from learner.data.episodes import Episode, EpisodeDataset
+from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS
 from learner.store_view import StoreView
 from learner.train.trainer import VALIDATION_EPOCH, Trainer, load_model
@@ -164,7 +165,8 @@ def probe(checkpoint: Path, store: str) -> dict[str, float]:
     rows = []
     for i, ep in enumerate(episodes):
         truth = ep.target_u
-        pred = model.generate(ep.target_sites, hier[ep.mesh_id], post[i].mu)
+        evidence = SiteEvidence.of(ep)
+        pred = model.generate(ep.target_sites, hier[ep.mesh_id], post[i].mu, evidence=evidence)
         row = {
             "val_target_mse": float(((pred - truth) ** 2).mean()),
             "frame_mean_mse": float(((frame_mean - truth) ** 2).mean()),
@@ -173,7 +175,8 @@ def probe(checkpoint: Path, store: str) -> dict[str, float]:
         }
         other = next((j for j, o in enumerate(episodes) if j != i and o.mesh_id == ep.mesh_id), None)
         if other is not None:
-            swapped = model.generate(ep.target_sites, hier[ep.mesh_id], post[other].mu)
+            elsewhere = SiteEvidence.of(episodes[other])
+            swapped = model.generate(ep.target_sites, hier[ep.mesh_id], post[other].mu, evidence=elsewhere)
             naive = float(((truth - ep.context_u.mean(0)) ** 2).mean())
             row["context_effect"] = float(((pred - swapped) ** 2).mean()) / naive
             row["posterior_mean_spread"] = float((post[i].mu - post[other].mu).abs().mean())
@@ -196,7 +199,8 @@ def _c_sources(model: MetaPNS, cfg: LearnerConfig, view: StoreView, episodes: li
         extra = ep.target_u[: cfg.train.posterior_targets or None] * ep.observed.to(ep.target_u.dtype)
         prior, posterior = model.embed_prior_and_posterior(ep.context_obs, extra, ep.observed, hier)
         for c, out in ((prior.mu, context_c), (posterior.mu, posterior_c)):
-            out.append(float(((model.generate(ep.target_sites, hier, c) - ep.target_u) ** 2).mean()))
+            pred = model.generate(ep.target_sites, hier, c, evidence=SiteEvidence.of(ep))
+            out.append(float(((pred - ep.target_u) ** 2).mean()))
     return statistics.mean(context_c), statistics.mean(posterior_c)
 
 

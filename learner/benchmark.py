@@ -33,6 +33,7 @@ from learner.data.episodes import Episode, load_episode
 from learner.evaluate import EvalReport, EvalSpec, Method, NeuralMethod, evaluate_methods
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, mse, spatial_cc, temporal_cc
+from learner.models.site_evidence import SiteEvidence
 from learner.personalize import Observations
 from learner.plot import plot_activation_panels, plot_context_curves
 from learner.runtime import on_device, resolve_device
@@ -191,7 +192,9 @@ def calibration(
         sites = torch.cat([ep.context_sites, ep.target_sites])
         with torch.no_grad():
             post = model.embed(ep.context_obs.to(device), ep.observed.to(device), hier)
-            draws = torch.stack([model.generate(sites, hier, post.sample(g)) for _ in range(cfg.samples)]).cpu()
+            evidence = SiteEvidence.of(ep).to(device)
+            draws = [model.generate(sites, hier, post.sample(g), evidence=evidence) for _ in range(cfg.samples)]
+            draws = torch.stack(draws).cpu()
         residual = draws[:, :k][..., ep.observed] - ep.context_obs[..., ep.observed]
         noise_scale = residual.pow(2).mean().sqrt()
         targets = draws[:, k:]

@@ -64,6 +64,7 @@ class ModelConfig:
     latent_norm: bool = True  # layer-normalise the latent state after each transition step (False: the reference)
     context_stimulus: bool = False  # metaPNS: c joins the stimulus features before the coarse blocks
     capture_gate: bool = False  # metaPNS: c at the site decides whether a wave starts (PNS.generate)
+    capture_evidence: bool = False  # the gate also reads the context's peak at the site (SiteEvidence)
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
@@ -76,6 +77,8 @@ class ModelConfig:
             raise ConfigError(f"model.context_stride must be >= 1, got {self.context_stride}")
         if self.coarsest < 4:
             raise ConfigError(f"model.coarsest must be >= 4, got {self.coarsest}")
+        if self.capture_evidence and not self.capture_gate:
+            raise ConfigError("model.capture_evidence is an input of the capture gate: set model.capture_gate too")
 
 
 @dataclass(frozen=True)

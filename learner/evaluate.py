@@ -23,6 +23,7 @@ from torch import Tensor
 from learner.data.episodes import Episode, load_episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
+from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
@@ -124,23 +125,25 @@ class NeuralMethod(Method):
         self.model, self.name, self.batch = model.eval(), name, batch
         self.device = next(model.parameters()).device
         self._c: Tensor | None = None
+        self._evidence: SiteEvidence | None = None
         self._hier: MeshHierarchy | None = None
 
     def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
-        self._hier, self._c = on_device(hierarchy, self.device), None
+        self._hier, self._c, self._evidence = on_device(hierarchy, self.device), None, None
         if not self.model.conditioned:
             return {"fit_s": 0.0}
         t0 = time.perf_counter()
         ep = episode.to(self.device)
         with torch.no_grad():
             self._c = self.model.embed(ep.context_obs, ep.observed, self._hier).mu
+        self._evidence = SiteEvidence.of(ep)
         return {"fit_s": time.perf_counter() - t0}
 
     def predict(self, sites: Tensor) -> np.ndarray:
         sites = sites.to(self.device)
         with torch.no_grad():
             parts = [
-                self.model.generate(sites[i : i + self.batch], self._hier, self._c)
+                self.model.generate(sites[i : i + self.batch], self._hier, self._c, evidence=self._evidence)
                 for i in range(0, len(sites), self.batch)
             ]
         return torch.cat(parts).cpu().numpy()

@@ -36,6 +36,7 @@ __all__ = [
     "dice",
     "dice_coefficient",
     "activation_times",
+    "wave_started",
     "activation_error_ms",
     "sequence_metrics",
     "summarize",
@@ -200,6 +201,16 @@ def _check_times(times: ArrayLike, n_frames: int) -> NDArray:
     if not np.all(np.isfinite(tt)) or np.any(np.diff(tt) <= 0):
         raise InputError("times must be finite and strictly increasing")
     return tt
+
+
+def wave_started(u: ArrayLike, threshold: float = 0.5, share: float = 0.5) -> NDArray[np.bool_]:
+    """Whether each simulation's stimulus started a wave: more than ``share`` of its nodes ever reach ``threshold``.
+
+    ``u`` is ``(S, T, N)`` (or one ``(T, N)`` sequence). A stimulus in a
+    scar core that starts no wave excites a few nodes around the site only.
+    """
+    u = np.asarray(u)
+    return (u.max(axis=-2) >= threshold).mean(axis=-1) > share
 
 
 def activation_times(u: ArrayLike, times: ArrayLike, threshold: float = 0.5) -> NDArray[np.float64]:

@@ -19,6 +19,7 @@ import torch
 from learner.config import config_from_mapping
 from learner.data.episodes import load_episode
 from learner.graph.hierarchy import hierarchy_for_mesh
+from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior, build_model
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
@@ -152,6 +153,7 @@ def personalize(checkpoint: str | Path, observations: Observations, out: str | P
     hier = hierarchy_for_mesh(observations.mesh, config.model.levels, config.model.coarsest, None).to(placed)
     obs = torch.as_tensor(observations.obs, dtype=torch.float32, device=placed)
     observed = torch.as_tensor(observations.observed, device=placed)
+    sites = torch.as_tensor(np.asarray(observations.sites, np.int64))
     t0 = time.perf_counter()
     with torch.no_grad():
         post = model.embed(obs, observed, hier)
@@ -167,7 +169,9 @@ def personalize(checkpoint: str | Path, observations: Observations, out: str | P
             "c_mu": post.mu,
             "c_logvar": post.logvar,
             "subject": observations.subject,
-            "context_sites": torch.as_tensor(np.asarray(observations.sites, np.int64)),
+            "context_sites": sites,
+            "context_peaks": SiteEvidence.from_context(obs, observed, sites).peaks.cpu(),
+            "observed": observed.cpu(),
             "points": torch.as_tensor(observations.mesh.points),
             "cells": torch.as_tensor(observations.mesh.cells),
             "times": torch.as_tensor(np.asarray(observations.times, np.float64)),
@@ -206,14 +210,17 @@ def predict(
     hier = hierarchy_for_mesh(mesh, config.model.levels, config.model.coarsest, None).to(placed)
     s = torch.as_tensor(np.asarray(sites, np.int64), device=placed)
     post = Posterior(p["c_mu"].to(placed), p["c_logvar"].to(placed))
+    evidence = None
+    if "context_peaks" in p:  # missing from files that predate it; only capture_evidence models need it
+        evidence = SiteEvidence(p["context_peaks"], p["context_sites"], p["observed"]).to(placed)
     t0 = time.perf_counter()
     with torch.no_grad():
-        u = model.generate(s, hier, post.mu)
+        u = model.generate(s, hier, post.mu, evidence=evidence)
         seconds = time.perf_counter() - t0
         spread = None
         if samples > 1:
             g = torch.Generator().manual_seed(seed)
-            draws = torch.stack([model.generate(s, hier, post.sample(g)) for _ in range(samples)])
+            draws = torch.stack([model.generate(s, hier, post.sample(g), evidence=evidence) for _ in range(samples)])
             spread = draws.std(dim=0).cpu().numpy()
     return Prediction(np.asarray(sites), u.cpu().numpy(), p["times"].numpy(), mesh, spread, seconds)
 

@@ -8,7 +8,9 @@ Generation for a stimulus ``s`` (a one-hot node map on the mesh)::
 
 With ``capture_gate`` metaPNS mixes the sequence with a no-wave response
 ``r_t``: ``x_t <- r_t + g (x_t - r_t)``, ``g = sigmoid(h(c_site, e_site))``
-read from ``c`` and the stimulus features at the site's coarse node.
+read from ``c`` and the stimulus features at the site's coarse node (with
+``capture_evidence`` also from what the context set shows at the site itself,
+:class:`~learner.models.site_evidence.SiteEvidence`).
 
 metaPNS draws ``c`` from the context embedding q(c | Y); PNS has no ``c``.
 """
@@ -26,6 +28,7 @@ from learner.graph.hierarchy import MeshHierarchy
 from learner.models.context_encoder import ContextEncoder
 from learner.models.graph_decoder import GraphDecoder
 from learner.models.graph_encoder import GraphEncoder
+from learner.models.site_evidence import EVIDENCE_FEATURES, SiteEvidence
 from learner.nn.gated_transition import ConditionalGatedTransition
 from learner.nn.residual_block import ResidualGraphBlock
 
@@ -69,7 +72,8 @@ class PNS(nn.Module):
             nn.init.zeros_(self.context_stimulus.bias)
         self.capture: nn.Sequential | None = None
         if self.conditioned and config.capture_gate:
-            self.capture = nn.Sequential(nn.Linear(2 * lat, hid), nn.ELU(), nn.Linear(hid, 1))
+            inputs = 2 * lat + (EVIDENCE_FEATURES if config.capture_evidence else 0)
+            self.capture = nn.Sequential(nn.Linear(inputs, hid), nn.ELU(), nn.Linear(hid, 1))
             nn.init.zeros_(self.capture[-1].weight)  # every site starts with the same gate, sigmoid(2) = 0.88
             nn.init.constant_(self.capture[-1].bias, CAPTURE_BIAS)
             self.no_capture = nn.Parameter(torch.zeros(frames))  # r_t, one value per frame
@@ -90,12 +94,14 @@ class PNS(nn.Module):
         """``z_0`` for stimulation node ids ``sites`` (S,): ``(S, V, latent)``."""
         return self._encode_stimulus(sites, hierarchy, c)[0]
 
-    def capture_probability(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor) -> Tensor:
+    def capture_probability(
+        self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor, evidence: SiteEvidence | None = None
+    ) -> Tensor:
         """The gate ``g`` (S,): how likely a stimulus at each site starts a wave (``capture_gate`` only)."""
-        return self._encode_stimulus(sites, hierarchy, c)[2]
+        return self._encode_stimulus(sites, hierarchy, c, evidence)[2]
 
     def _encode_stimulus(
-        self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None
+        self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, evidence: SiteEvidence | None = None
     ) -> tuple[Tensor, list[Tensor], Tensor | None]:
         """``z_0``, the stimulus encoder's per-level features and the capture gate (None without one).
 
@@ -112,6 +118,7 @@ class PNS(nn.Module):
         The capture gate reads ``c`` and the final coarse features at the
         site's coarse node, the one place where both the site and the tissue
         there are known, and gives one number per site for the whole mesh.
+        With ``capture_evidence`` it also reads ``evidence`` at the site node.
         """
         n = hierarchy.graphs[0].num_nodes
         device = hierarchy.graphs[0].edge_index.device
@@ -128,7 +135,12 @@ class PNS(nn.Module):
         if self.capture is not None and c is not None:
             node = hierarchy.coarsest_cluster(sites.long().to(device))
             rows = torch.arange(len(sites), device=device)
-            gate = torch.sigmoid(self.capture(torch.cat([c[node], e[rows, node]], dim=-1))).squeeze(-1)
+            inputs = [c[node], e[rows, node]]
+            if self.config.capture_evidence:
+                if evidence is None:
+                    raise ValueError("this model's capture gate reads the context at the site: pass evidence")
+                inputs.append(evidence.at(sites).to(e.dtype))
+            gate = torch.sigmoid(self.capture(torch.cat(inputs, dim=-1))).squeeze(-1)
         return self.initial_state(e), levels, gate
 
     def latent_path(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
@@ -144,10 +156,19 @@ class PNS(nn.Module):
         return torch.stack(states, dim=1)
 
     def generate(
-        self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, frames: Tensor | None = None
+        self,
+        sites: Tensor,
+        hierarchy: MeshHierarchy,
+        c: Tensor | None = None,
+        frames: Tensor | None = None,
+        evidence: SiteEvidence | None = None,
     ) -> Tensor:
-        """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices)."""
-        z0, levels, gate = self._encode_stimulus(sites, hierarchy, c)
+        """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices).
+
+        ``evidence`` (the context set at node level) is required by a model with
+        ``capture_evidence`` and ignored by every other.
+        """
+        z0, levels, gate = self._encode_stimulus(sites, hierarchy, c, evidence)
         z = self._latent_path(z0, c)
         if frames is not None:
             z = z[:, frames]

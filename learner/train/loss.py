@@ -27,6 +27,7 @@ from torch import Tensor, nn
 
 from learner.data.episodes import Episode
 from learner.graph.hierarchy import MeshHierarchy
+from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS, Posterior
 
 __all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss", "EpisodeObjective"]
@@ -83,13 +84,14 @@ def episode_loss(
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
     zero = torch.zeros((), device=truth.device)
-    c, kl_q, kl_p = None, zero, zero
+    c, evidence, kl_q, kl_p = None, None, zero, zero
     if model.conditioned:
+        evidence = SiteEvidence.of(episode)  # the context only: a target's own sequence would give its answer away
         extra = episode.target_u[:posterior_targets] * episode.observed.to(truth.dtype)
         prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
         c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
-    pred = model.generate(sites, hierarchy, c, frames)
+    pred = model.generate(sites, hierarchy, c, frames, evidence)
     if frames is not None:
         truth = truth[:, frames]
     err = (pred - truth) ** 2

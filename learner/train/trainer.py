@@ -30,6 +30,7 @@ from learner.config import LearnerConfig, config_from_mapping
 from learner.data.episodes import Episode, EpisodeDataset
 from learner.data.split import split_subjects
 from learner.graph.hierarchy import MeshHierarchy
+from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS, build_model
 from learner.runtime import autocast, on_device, resolve_device, set_threads, tune_allocator
 from learner.store_view import StoreView
@@ -257,7 +258,7 @@ class Trainer:
             hier = self._hierarchy(ep.mesh_id)
             with autocast(self.device, self.config.train.precision):
                 c = self.model.embed(ep.context_obs, ep.observed, hier).mu if self.model.conditioned else None
-                pred = self.model.generate(ep.target_sites, hier, c)
+                pred = self.model.generate(ep.target_sites, hier, c, evidence=SiteEvidence.of(ep))
             total, n = total + float(((pred.float() - ep.target_u) ** 2).mean()), n + 1
         total, n = self.world.all_sum([total, n], self.device)
         return total / max(n, 1)

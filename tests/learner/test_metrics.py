@@ -19,6 +19,7 @@ from learner.metrics import (
     spatial_cc,
     summarize,
     temporal_cc,
+    wave_started,
 )
 from shared.errors import InputError
 from shared.units import MS_PER_TIME_UNIT
@@ -251,3 +252,13 @@ def test_summarize_hand_values_ignores_nan():
     assert s["dc"] == {"mean": 0.75, "std": 0.25, "n": 2}
     assert s["act_error_ms"]["n"] == 0 and math.isnan(s["act_error_ms"]["mean"])
     assert summarize([]) == {}
+
+
+def test_wave_started_counts_the_nodes_that_ever_reach_the_threshold():
+    """3 of 4 nodes reach 0.5 in the first sequence (a wave), 1 of 4 in the second (none): by hand."""
+    u = np.zeros((2, 3, 4))
+    u[0, 1, :3] = [0.9, 0.5, 0.7]  # the third frame may fall again: the peak counts
+    u[1, 0, 0] = 1.0  # only the stimulated node
+    u[1, 2, 1] = 0.49
+    assert wave_started(u).tolist() == [True, False]
+    assert wave_started(u[0]) and not wave_started(u[0], share=0.75)

@@ -51,6 +51,7 @@ def test_generate_and_embed_shapes(setup, skips):
         ("metapns", {"decoder_skips": True}),
         ("metapns", {"context_stimulus": True}),
         ("metapns", {"capture_gate": True}),
+        ("metapns", {"capture_gate": True, "capture_evidence": True}),
     ],
 )
 def test_every_parameter_gets_a_finite_gradient(setup, kind, extra):

@@ -36,7 +36,9 @@ def _frame_mean_mse(trainer: Trainer) -> float:
     return float(np.mean([float(((ep.target_u - frame_mean) ** 2).mean()) for ep in episodes]))
 
 
-@pytest.mark.parametrize("model", [{}, {"capture_gate": True}], ids=["default", "capture-gate"])
+@pytest.mark.parametrize(
+    "model", [{}, {"capture_gate": True, "capture_evidence": True}], ids=["default", "shipped-gate"]
+)
 def test_every_seed_learns_past_the_input_ignoring_level(tiny_store, tiny_config, tmp_path, model):
     """Three seeds, 40 epochs of 4 steps: no loss spike, and each gets well below the per-frame mean predictor.
 
@@ -44,7 +46,7 @@ def test_every_seed_learns_past_the_input_ignoring_level(tiny_store, tiny_config
     seeds 0-2 is 0.22, 0.24 and 0.33 (0.31, 0.44 and 0.44 with the reference
     transition, summed loss and initialisation; docs/training.md); one
     validation subject of 4 targets is noisy, so epochs 25-40 are averaged.
-    The shipped configs' capture gate (``model.capture_gate``) is held to the same bounds.
+    The shipped configs' capture gate (``model.capture_gate`` and ``capture_evidence``) is held to the same bounds.
     """
     for seed in (0, 1, 2):
         out = tmp_path / f"seed{seed}"
