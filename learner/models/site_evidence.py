@@ -64,11 +64,12 @@ class SiteEvidence:
         return SiteEvidence(self.peaks.to(device), self.sites.to(device), self.observed.to(device))
 
     def at(self, nodes: Tensor) -> Tensor:
-        """``(S, 2)`` features of stimulation nodes: peak there over the context sequences stimulated elsewhere, and 1.
+        """``(S, 2)`` features of stimulation nodes: the peak there over the context sequences stimulated elsewhere,
+        and a flag, 1 where there is such a peak.
 
         A sequence stimulated at the node itself is left out (its stimulus alone
-        raises ``u`` there, capture or not). Where the node is unobserved or
-        only its own sequence is in the set, both features are 0.
+        raises ``u`` there, wave or not). Where the node is unobserved or only
+        its own sequence is in the set, both features are 0.
         """
         nodes = nodes.long().to(self.peaks.device)
         others = self.sites.unsqueeze(0) != nodes.unsqueeze(1)  # (S, K)

@@ -21,6 +21,8 @@ result, bit for bit.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import fast_simplification
 import numpy as np
@@ -33,6 +35,9 @@ from shared.mesh import CellType, Mesh
 from simgen.meshes.topology import boundary_faces, extract_surface, signed_volumes
 from simgen.meshes.validate import validate_mesh
 
+if TYPE_CHECKING:
+    import tetgen
+
 __all__ = ["NODE_TOLERANCE", "resample", "decimate_surface", "tetrahedralise", "hausdorff_distance"]
 
 log = logging.getLogger("simgen.meshes")
@@ -41,6 +46,8 @@ log = logging.getLogger("simgen.meshes")
 NODE_TOLERANCE = 0.1
 _TETGEN = {"minratio": 1.5, "mindihedral": 10.0, "quiet": True}
 _TRIES = 6
+#: Files TetGen writes into the working directory when the surface intersects itself.
+_TETGEN_DEBRIS = ("_skipped.face", "_skipped.node")
 
 
 def resample(mesh: Mesh, nodes: int, kind: CellType) -> Mesh:
@@ -106,9 +113,7 @@ def tetrahedralise(
         sp, st = decimate_surface(points, tris, surface_nodes)
         edge = trimesh.Trimesh(sp, st, process=False).edges_unique_length.mean()
         try:
-            tet_points, tets, *_ = tetgen.TetGen(sp, st.astype(np.int32)).tetrahedralize(
-                maxvolume=edge**3 / (6 * np.sqrt(2)), **_TETGEN
-            )
+            tet_points, tets, *_ = _tetrahedralize(tetgen.TetGen(sp, st.astype(np.int32)), edge**3 / (6 * np.sqrt(2)))
         except RuntimeError as exc:  # a coarse decimation can intersect itself: keep more surface nodes
             if surface_nodes == len(points):
                 raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None
@@ -126,6 +131,16 @@ def tetrahedralise(
     negative = signed_volumes(tet_points, tets) < 0
     tets[negative] = tets[negative][:, [1, 0, 2, 3]]
     return tet_points, tets
+
+
+def _tetrahedralize(tet: tetgen.TetGen, maxvolume: float) -> tuple:
+    """``tet.tetrahedralize``, removing the files it leaves in the working directory when it fails."""
+    before = {name for name in _TETGEN_DEBRIS if Path(name).exists()}
+    try:
+        return tet.tetrahedralize(maxvolume=maxvolume, **_TETGEN)
+    finally:
+        for name in set(_TETGEN_DEBRIS) - before:
+            Path(name).unlink(missing_ok=True)
 
 
 def hausdorff_distance(a: Mesh, b: Mesh, neighbours: int = 8) -> float:

@@ -11,7 +11,7 @@ import pytest
 from shared.errors import MeshError
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.io import load_mesh, save_mesh
-from simgen.meshes.resample import hausdorff_distance, resample
+from simgen.meshes.resample import hausdorff_distance, resample, tetrahedralise
 from simgen.meshes.slab import slab
 from simgen.meshes.validate import mesh_problems
 
@@ -131,3 +131,18 @@ def test_an_open_surface_is_not_filled():
     half = Mesh(lv.points[used], index[open_cells], {"surface": np.arange(len(used))})
     with pytest.raises(MeshError, match="open triangle surface cannot be filled with tetrahedra"):
         resample(half, 300, "tetra")
+
+
+def test_a_self_intersecting_surface_is_refused_without_debris(tmp_path, monkeypatch):
+    """TetGen writes _skipped.face/.node into the working directory when it fails: none may be left there."""
+    pytest.importorskip("tetgen")
+    import trimesh
+
+    a, b = trimesh.creation.box(), trimesh.creation.box()
+    b.apply_translation([0.5, 0.5, 0.5])  # two overlapping cubes: one surface that intersects itself
+    points, tris = np.vstack([a.vertices, b.vertices]), np.vstack([a.faces, b.faces + len(a.vertices)])
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "keep.txt").write_text("a user's file")
+    with pytest.raises(MeshError, match="TetGen could not fill the surface"):
+        tetrahedralise(points, tris, 40, "overlap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
