@@ -54,11 +54,13 @@ def site_labels(store: str, rows: list[dict]) -> list[int]:
 def waves_started(store: str, rows: list[dict]) -> np.ndarray:
     """Whether each row's stimulus started a wave in the stored simulation (:func:`learner.metrics.wave_started`)."""
     view = StoreView(store)
-    started = []
-    for r in rows:
-        row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[r["subject"]]))}
-        started.append(bool(wave_started(read_u(store, r["subject"], [row_of[r["site"]]]))[0]))
-    return np.array(started)
+    started: dict[tuple[str, int], bool] = {}
+    for subject in dict.fromkeys(r["subject"] for r in rows):
+        row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[subject]))}  # node id -> site row
+        nodes = sorted({r["site"] for r in rows if r["subject"] == subject})
+        waves = wave_started(read_u(store, subject, [row_of[n] for n in nodes]))
+        started.update({(subject, n): bool(w) for n, w in zip(nodes, waves, strict=True)})
+    return np.array([started[r["subject"], r["site"]] for r in rows])
 
 
 def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
