@@ -51,12 +51,17 @@ def site_labels(store: str, rows: list[dict]) -> list[int]:
     return [int(tissue[r["subject"]][r["site"]]) for r in rows]
 
 
+def site_rows(view: StoreView, subject: str) -> dict[int, int]:
+    """A subject's stimulation node ids mapped to their site rows in the store."""
+    return {int(node): i for i, node in enumerate(view.sites(view.mesh_of[subject]))}
+
+
 def waves_started(store: str, rows: list[dict]) -> np.ndarray:
     """Whether each row's stimulus started a wave in the stored simulation (:func:`learner.metrics.wave_started`)."""
     view = StoreView(store)
     started: dict[tuple[str, int], bool] = {}
     for subject in dict.fromkeys(r["subject"] for r in rows):
-        row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[subject]))}  # node id -> site row
+        row_of = site_rows(view, subject)
         nodes = sorted({r["site"] for r in rows if r["subject"] == subject})
         waves = wave_started(read_u(store, subject, [row_of[n] for n in nodes]))
         started.update({(subject, n): bool(w) for n, w in zip(nodes, waves, strict=True)})
@@ -74,7 +79,7 @@ def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
         groups.setdefault((r["subject"], r["set"]), []).append(r)
     gates: dict[tuple[str, int, int], float] = {}
     for (subject, context_set), group in groups.items():
-        row_of = {int(node): i for i, node in enumerate(view.sites(view.mesh_of[subject]))}  # node id -> site row
+        row_of = site_rows(view, subject)
         context = [row_of[r["site"]] for r in group if r["role"] == "context"]
         targets = [r["site"] for r in group if r["role"] == "target"]
         ep = load_episode(store, subject, context, [row_of[t] for t in targets], config.data.episodes.observe)
