@@ -95,6 +95,7 @@ class TrainConfig:
     loss_frames: int = 0  # decode only this many random frames per episode for the loss (0 = all)
     posterior_targets: int = 0  # targets that join the context in q(c | Y u X) (0 = all)
     c_from: Literal["posterior", "context"] = "posterior"  # training draws c from q(c | Y u X) or p(c | Y)
+    gate_loss: float = 0.0  # weight of the capture gate's cross-entropy against "the stimulus starts a wave" (0 = off)
     seed: int = 0
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
@@ -108,6 +109,8 @@ class TrainConfig:
             raise ConfigError("train.epochs, train.lr and train.lr_halve_every must be positive")
         if self.lambda1 < 0 or self.lambda2 < 0 or self.grad_clip <= 0:
             raise ConfigError("train.lambda1/lambda2 must be >= 0 and train.grad_clip > 0")
+        if self.gate_loss < 0:
+            raise ConfigError(f"train.gate_loss must be >= 0, got {self.gate_loss}")
         check_device(self.device, "train.device")
         if self.precision not in PRECISIONS:
             raise ConfigError(f"train.precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
@@ -121,6 +124,10 @@ class LearnerConfig:
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+
+    def __post_init__(self) -> None:
+        if self.train.gate_loss > 0 and not (self.model.kind == "metapns" and self.model.capture_gate):
+            raise ConfigError("train.gate_loss fits the capture gate: set model.kind = 'metapns' and model.capture_gate")
 
     def to_dict(self) -> dict:
         """Plain-dict form (stored in checkpoints, reloaded with :func:`config_from_mapping`)."""

@@ -98,12 +98,12 @@ class PNS(nn.Module):
         self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor, evidence: SiteEvidence | None = None
     ) -> Tensor:
         """The gate ``g`` (S,): how likely a stimulus at each site starts a wave (``capture_gate`` only)."""
-        return self._encode_stimulus(sites, hierarchy, c, evidence)[2]
+        return torch.sigmoid(self._encode_stimulus(sites, hierarchy, c, evidence)[2])
 
     def _encode_stimulus(
         self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None, evidence: SiteEvidence | None = None
     ) -> tuple[Tensor, list[Tensor], Tensor | None]:
-        """``z_0``, the stimulus encoder's per-level features and the capture gate (None without one).
+        """``z_0``, the stimulus encoder's per-level features and the capture gate's logit (None without a gate).
 
         The stimulus is a one-hot node map; with ``stimulus_distance`` its
         geodesic distance map joins it as a second channel, so every node sees
@@ -140,7 +140,7 @@ class PNS(nn.Module):
                 if evidence is None:
                     raise ValueError("this model's capture gate reads the context at the site: pass evidence")
                 inputs.append(evidence.at(sites).to(e.dtype))
-            gate = torch.sigmoid(self.capture(torch.cat(inputs, dim=-1))).squeeze(-1)
+            gate = self.capture(torch.cat(inputs, dim=-1)).squeeze(-1)
         return self.initial_state(e), levels, gate
 
     def latent_path(self, sites: Tensor, hierarchy: MeshHierarchy, c: Tensor | None = None) -> Tensor:
@@ -168,17 +168,28 @@ class PNS(nn.Module):
         ``evidence`` (the context set at node level) is required by a model with
         ``capture_evidence`` and ignored by every other.
         """
-        z0, levels, gate = self._encode_stimulus(sites, hierarchy, c, evidence)
+        return self.generate_with_gate(sites, hierarchy, c, frames, evidence)[0]
+
+    def generate_with_gate(
+        self,
+        sites: Tensor,
+        hierarchy: MeshHierarchy,
+        c: Tensor | None = None,
+        frames: Tensor | None = None,
+        evidence: SiteEvidence | None = None,
+    ) -> tuple[Tensor, Tensor | None]:
+        """:meth:`generate`'s sequences and the capture gate's logit per site (S,), None without a gate."""
+        z0, levels, logit = self._encode_stimulus(sites, hierarchy, c, evidence)
         z = self._latent_path(z0, c)
         if frames is not None:
             z = z[:, frames]
         s, t, v, l = z.shape
         skips = [f.repeat_interleave(t, dim=0) for f in levels] if self.config.decoder_skips else None
         x = self.decoder(z.reshape(s * t, v, l), hierarchy, skips).reshape(s, t, -1)
-        if gate is None:
-            return x
+        if logit is None:
+            return x, None
         rest = (self.no_capture if frames is None else self.no_capture[frames]).view(1, t, 1)
-        return rest + gate.view(s, 1, 1) * (x - rest)
+        return rest + torch.sigmoid(logit).view(s, 1, 1) * (x - rest), logit
 
 
 class MetaPNS(PNS):

@@ -5,11 +5,18 @@ r"""The episode loss (docs/method.md, "Training objective") (negative ELBO of th
     \mathcal{L} = \mathrm{rec}(X_{target}) + \mathrm{rec}(X_{context})
       + \lambda_1 \mathrm{KL}(q(c \mid Y \cup X) \,\|\, p(c \mid Y))
       + \lambda_2 \mathrm{KL}(p(c \mid Y) \,\|\, \mathcal{N}(0, I))
+      \; [+ \, w \, \mathrm{BCE}(g, \mathrm{wave})]
 
 where ``rec`` is the squared error summed over nodes and frames and averaged
 over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
 embedding of the context set and ``q(c | Y u X)`` that of context and targets
 (both by the same network). PNS has no ``c``: its loss is the reconstruction.
+
+With a capture gate and ``train.gate_loss`` ``w > 0`` the gate ``g`` of every
+context and target site is also fitted, by binary cross-entropy, to whether
+that site's stored simulation starts a wave (:func:`learner.metrics.wave_started`):
+the reconstruction alone teaches the gate only once the decoder draws waves,
+and only through the few sites whose stimulus starts none (docs/training.md).
 
 The optimiser gets :math:`\mathcal{L} / (N T)` for a mesh of ``N`` nodes and
 ``T`` frames: mean squared errors plus KL terms weighted by
@@ -24,9 +31,11 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
+from torch.nn.functional import binary_cross_entropy_with_logits
 
 from learner.data.episodes import Episode
 from learner.graph.hierarchy import MeshHierarchy
+from learner.metrics import wave_started
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS, Posterior
 
@@ -35,13 +44,15 @@ __all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss", "Ep
 
 @dataclass
 class LossTerms:
-    """The loss and its parts: ``total`` is the negative ELBO per node and frame; the MSEs and KLs as defined above."""
+    """The loss and its parts: ``total`` is what the optimiser gets (the negative ELBO per node and frame, plus the
+    weighted gate cross-entropy); the MSEs, KLs and ``gate_bce`` (0 without a gate loss) as defined above."""
 
     total: Tensor
     target_mse: Tensor
     context_mse: Tensor
     kl_posterior: Tensor
     kl_prior: Tensor
+    gate_bce: Tensor
 
     def as_floats(self) -> dict[str, float]:
         """Detached values for logging."""
@@ -70,6 +81,7 @@ def episode_loss(
     generator: torch.Generator | None = None,
     posterior_targets: int | None = None,
     c_from: str = "posterior",
+    gate_weight: float = 0.0,
 ) -> LossTerms:
     """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
 
@@ -79,7 +91,9 @@ def episode_loss(
     q(c | Y u X) (None: all), since encoding a sequence costs more than
     decoding a frame. ``c_from`` is the distribution the generator's ``c`` is
     drawn from: ``"posterior"`` q(c | Y u X), or ``"context"`` p(c | Y), the
-    embedding a trained model is given at test time.
+    embedding a trained model is given at test time. ``gate_weight`` is the
+    weight ``w`` of the capture gate's cross-entropy (a model without a gate
+    with ``w > 0`` is an error).
     """
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
@@ -91,7 +105,13 @@ def episode_loss(
         prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
         c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
-    pred = model.generate(sites, hierarchy, c, frames, evidence)
+    pred, logit = model.generate_with_gate(sites, hierarchy, c, frames, evidence)
+    gate_bce = zero
+    if gate_weight > 0:
+        if logit is None:
+            raise ValueError("train.gate_loss fits the capture gate: this model has none (model.capture_gate)")
+        waves = torch.from_numpy(wave_started(truth.detach().cpu().numpy())).to(logit)
+        gate_bce = binary_cross_entropy_with_logits(logit, waves)
     if frames is not None:
         truth = truth[:, frames]
     err = (pred - truth) ** 2
@@ -100,7 +120,7 @@ def episode_loss(
     per_value = 1.0 / (n_nodes * n_frames)
     target_mse, context_mse = err[k:].mean(), err[:k].mean()
     total = target_mse + context_mse + kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
-    return LossTerms(total, target_mse, context_mse, kl_q, kl_p)
+    return LossTerms(total + gate_weight * gate_bce, target_mse, context_mse, kl_q, kl_p, gate_bce)
 
 
 class EpisodeObjective(nn.Module):
@@ -113,10 +133,11 @@ class EpisodeObjective(nn.Module):
         lambda2: float,
         posterior_targets: int | None = None,
         c_from: str = "posterior",
+        gate_weight: float = 0.0,
     ) -> None:
         super().__init__()
         self.model, self.lambda1, self.lambda2 = model, lambda1, lambda2
-        self.posterior_targets, self.c_from = posterior_targets, c_from
+        self.posterior_targets, self.c_from, self.gate_weight = posterior_targets, c_from, gate_weight
 
     def forward(
         self,
@@ -137,4 +158,5 @@ class EpisodeObjective(nn.Module):
             generator,
             self.posterior_targets,
             self.c_from,
+            self.gate_weight,
         )

@@ -1,7 +1,8 @@
-"""The KL terms against torch.distributions and the loss normalised per node and frame."""
+"""The KL terms against torch.distributions, the loss normalised per node and frame, and the capture gate's loss."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 from torch.distributions import Normal, kl_divergence
 
@@ -27,13 +28,14 @@ def test_posterior_sample_is_reparameterised():
     assert torch.equal(post.mu.grad, torch.ones(4, 2)) and post.logvar.grad.abs().sum() > 0
 
 
-def _model_and_episode(store, tiny_config, out):
-    """A fresh metaPNS of the tiny config, one episode (2 context, 3 targets) and its mesh hierarchy."""
+def _model_and_episode(store, tiny_config, out, model=None):
+    """A fresh metaPNS of the tiny config (``model``: more model keys), one episode (2 context, 3 targets) and its
+    mesh hierarchy."""
     from learner.data.episodes import load_episode
     from learner.models.surrogate import build_model
     from learner.store_view import StoreView
 
-    cfg = tiny_config(store, out)
+    cfg = tiny_config(store, out, model=model)
     view = StoreView(store)
     ep = load_episode(store, "lv-scar-apex", [0, 1], [2, 3, 4], "surface")
     hier = view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest)
@@ -76,3 +78,57 @@ def test_c_from_context_generates_from_the_context_embedding(tiny_store, tiny_co
     torch.testing.assert_close(context.target_mse, ((pred - ep.target_u) ** 2).mean())
     torch.testing.assert_close(context.kl_posterior, posterior.kl_posterior)  # the same KL terms
     assert float(context.target_mse) != float(posterior.target_mse)
+
+
+def test_gate_loss_is_the_gates_cross_entropy_against_waves_started(tiny_store, tiny_config, tmp_path):
+    """``gate_bce`` by hand: -mean(y log g + (1 - y) log(1 - g)) over context and target sites, y from the truth."""
+    from learner.metrics import wave_started
+    from learner.models.site_evidence import SiteEvidence
+    from learner.train.loss import episode_loss
+
+    model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run", {"capture_gate": True})
+    torch.nn.init.normal_(model.capture[-1].weight, std=1.0)  # a fresh gate is the same for every site
+
+    def terms(weight: float):
+        return episode_loss(model, ep, hier, 0.3, 0.7, generator=torch.Generator().manual_seed(0), gate_weight=weight)
+
+    with_gate, without = terms(0.5), terms(0.0)
+    c = model.embed_prior_and_posterior(ep.context_obs, ep.target_u * ep.observed, ep.observed, hier)[1].sample(
+        torch.Generator().manual_seed(0)
+    )
+    sites, truth = torch.cat([ep.context_sites, ep.target_sites]), torch.cat([ep.context_u, ep.target_u])
+    g = torch.sigmoid(model.generate_with_gate(sites, hier, c, evidence=SiteEvidence.of(ep))[1]).double()
+    y = torch.from_numpy(wave_started(truth.numpy())).double()
+    assert 0 < float(g.min()) < float(g.max()) < 1
+    hand = -(y * g.log() + (1 - y) * (1 - g).log()).mean()
+    torch.testing.assert_close(with_gate.gate_bce.double(), hand, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(with_gate.total - without.total, 0.5 * with_gate.gate_bce)
+    assert float(without.gate_bce) == 0.0
+
+
+def test_gate_loss_teaches_the_gate_before_the_decoder_draws_waves(tiny_store, tiny_config, tmp_path):
+    """A fresh model predicts the same sequence with and without a wave: the reconstruction gives the gate no
+    gradient, the gate loss does."""
+    from learner.train.loss import episode_loss
+
+    model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run", {"capture_gate": True})
+    model.set_output_mean(0.3)
+    gate = model.capture[-1].weight
+    for weight, moves in ((0.0, False), (0.1, True)):
+        model.zero_grad()
+        terms = episode_loss(model, ep, hier, 0.3, 0.7, generator=torch.Generator().manual_seed(0), gate_weight=weight)
+        terms.total.backward()
+        assert (gate.grad is not None and float(gate.grad.abs().sum()) > 0) == moves, weight
+
+
+def test_gate_loss_needs_a_capture_gate(tiny_store, tiny_config, tmp_path):
+    from learner.train.loss import episode_loss
+    from shared.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="model.capture_gate"):
+        tiny_config(tiny_store, tmp_path / "run", gate_loss=0.1)
+    with pytest.raises(ConfigError, match="gate_loss must be >= 0"):
+        tiny_config(tiny_store, tmp_path / "run", model={"capture_gate": True}, gate_loss=-1.0)
+    model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run")
+    with pytest.raises(ValueError, match="has none"):
+        episode_loss(model, ep, hier, 0.3, 0.7, gate_weight=0.1)
