@@ -127,7 +127,9 @@ class LearnerConfig:
 
     def __post_init__(self) -> None:
         if self.train.gate_loss > 0 and not (self.model.kind == "metapns" and self.model.capture_gate):
-            raise ConfigError("train.gate_loss fits the capture gate: set model.kind = 'metapns' and model.capture_gate")
+            raise ConfigError(
+                "train.gate_loss fits the capture gate: set model.kind = 'metapns' and model.capture_gate"
+            )
 
     def to_dict(self) -> dict:
         """Plain-dict form (stored in checkpoints, reloaded with :func:`config_from_mapping`)."""
