@@ -109,6 +109,12 @@ def markdown(rows: list[dict], steps: int, n_test: int) -> str:
             f"| {a['cc_spatial']['mean']:.3f} +- {a['cc_spatial']['std']:.3f} | {a['dc']['mean']:.3f} "
             f"| {b['mse']['mean']:.4f} | {b['cc_spatial']['mean']:.3f} +- {b['cc_spatial']['std']:.3f} |"
         )
+    if rows and "ceiling" in rows[0]["real"]:
+        c = rows[0]["real"]["ceiling"]["target"]
+        lines.append(
+            f"\nReal heart: the noise-free truth scores target MSE {c['mse']['mean']:.4f}, "
+            f"CC spatial {c['cc_spatial']['mean']:.3f} +- {c['cc_spatial']['std']:.3f} (the ceiling)."
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -82,7 +82,7 @@ def capture_gates(store: str, rows: list[dict], checkpoint: str) -> np.ndarray:
         row_of = site_rows(view, subject)
         context = [row_of[r["site"]] for r in group if r["role"] == "context"]
         targets = [r["site"] for r in group if r["role"] == "target"]
-        ep = load_episode(store, subject, context, [row_of[t] for t in targets], config.data.episodes.observe)
+        ep = load_episode(store, subject, context, [row_of[t] for t in targets], config.data.episodes.primary_observe)
         hier = view.hierarchy(view.mesh_of[subject], config.model.levels, config.model.coarsest)
         with torch.no_grad():
             c = model.embed(ep.context_obs, ep.observed, hier).mu

@@ -62,8 +62,11 @@ def markdown(results: dict, n_test: int, n_test_meshes: int, real: dict) -> str:
             f"| {a['dc']['mean']:.3f} | {b['mse']['mean']:.4f} | {b['cc_spatial']['mean']:.3f} +- "
             f"{b['cc_spatial']['std']:.3f} | {b['cc_temporal']['mean']:.3f} |"
         )
+    ceiling = real["ceiling"]["target"]
     lines.append(
-        f"\nReal heart: {', '.join(real['subjects'])}, {real['electrodes']} electrodes, noise {real['noise_std']}."
+        f"\nReal heart: {', '.join(real['subjects'])}, {real['electrodes']} electrodes, noise {real['noise_std']}; "
+        f"the noise-free truth scores target MSE {ceiling['mse']['mean']:.4f}, CC spatial "
+        f"{ceiling['cc_spatial']['mean']:.3f} +- {ceiling['cc_spatial']['std']:.3f} (the ceiling)."
     )
     return "\n".join(lines) + "\n"
 

@@ -225,7 +225,11 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
     only the first ``folds`` of each subject, for the slow BO baselines). Metrics
     compare the prediction with the noisy sock signals at the electrodes, as the
     paper compares with in-vivo recordings. Returns the subjects, electrodes and
-    noise, and per method ``{"context": ..., "target": ...}`` means and stds.
+    noise, per method ``{"context": ..., "target": ...}`` means and stds, and
+    the same for the ``ceiling``: the noise-free truth scored the same way, what
+    a perfect method would get (below 1: frames where the heart is at rest or
+    fully excited hold only noise, so their spatial CC is near 0 whatever the
+    prediction).
     """
     spec = cfg.real_data
     view = StoreView(spec.store)
@@ -233,6 +237,7 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
         if isinstance(m, NeuralMethod) and view.frames != m.model.frames:
             raise InputError(f"{spec.store} has {view.frames} frames per simulation, {m.name} expects {m.model.frames}")
     rows: dict[str, list[dict]] = {m.name: [] for m in methods}
+    ceiling: list[dict] = []
     for si, subject in enumerate(view.subjects):
         mesh_id = view.mesh_of[subject]
         mesh, hier = view.mesh(mesh_id), view.hierarchy(mesh_id, levels, coarsest)
@@ -244,36 +249,47 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
             noisy_target = ep.target_u[0].numpy() + rng.normal(0, spec.noise_std, ep.target_u[0].shape)
             obs_nodes = ep.observed.numpy()
             truths = [*ep.context_obs.numpy(), noisy_target]
+            fold = {"subject": subject, "left_out": left}
+            ceiling += _fold_rows([*ep.context_u.numpy(), ep.target_u[0].numpy()], truths, obs_nodes, fold)
             for m in methods:
                 m.fit(ep, mesh, hier)
                 pred = m.predict(torch.cat([ep.context_sites, ep.target_sites]))
-                for j, truth in enumerate(truths):
-                    p, t = pred[j][:, obs_nodes], truth[:, obs_nodes]
-                    rows[m.name].append(
-                        {
-                            "subject": subject,
-                            "left_out": left,
-                            "role": "target" if j == len(ctx) else "context",
-                            "mse": mse(p, t),
-                            "cc_spatial": spatial_cc(p, t),
-                            "cc_temporal": temporal_cc(p, t),
-                        }
-                    )
-    per_method = {
-        name: {
-            role: {
-                metric: {
-                    "mean": float(np.nanmean([r[metric] for r in rs if r["role"] == role])),
-                    "std": float(np.nanstd([r[metric] for r in rs if r["role"] == role])),
-                }
-                for metric in ("mse", "cc_spatial", "cc_temporal")
-            }
-            for role in ("context", "target")
-        }
-        for name, rs in rows.items()
-    }
+                rows[m.name] += _fold_rows(list(pred), truths, obs_nodes, fold)
+    per_method = {name: _role_summary(rs) for name, rs in rows.items()}
     electrodes = int(ep.observed.sum())
-    return {"subjects": view.subjects, "electrodes": electrodes, "noise_std": spec.noise_std, "methods": per_method}
+    return {
+        "subjects": view.subjects,
+        "electrodes": electrodes,
+        "noise_std": spec.noise_std,
+        "methods": per_method,
+        "ceiling": _role_summary(ceiling),
+    }
+
+
+def _fold_rows(pred: list[np.ndarray], truths: list[np.ndarray], observed: np.ndarray, fold: dict) -> list[dict]:
+    """Metrics of each sequence of a fold (the context ones, then the left-out target) at the ``observed`` nodes."""
+    rows = []
+    for j, (p, t) in enumerate(zip(pred, truths, strict=True)):
+        p, t = p[:, observed], t[:, observed]
+        role = "target" if j == len(truths) - 1 else "context"
+        rows.append(
+            {**fold, "role": role, "mse": mse(p, t), "cc_spatial": spatial_cc(p, t), "cc_temporal": temporal_cc(p, t)}
+        )
+    return rows
+
+
+def _role_summary(rows: list[dict]) -> dict:
+    """Mean and std of each metric over the context and over the target rows."""
+    return {
+        role: {
+            metric: {
+                "mean": float(np.nanmean([r[metric] for r in rows if r["role"] == role])),
+                "std": float(np.nanstd([r[metric] for r in rows if r["role"] == role])),
+            }
+            for metric in ("mse", "cc_spatial", "cc_temporal")
+        }
+        for role in ("context", "target")
+    }
 
 
 def real_data_table(result: dict) -> str:
@@ -282,7 +298,8 @@ def real_data_table(result: dict) -> str:
         "| method | target mse | target cc_spatial | target cc_temporal | context cc_spatial |",
         "|---|---|---|---|---|",
     ]
-    for name, r in result["methods"].items():
+    named = {**result["methods"], "noise-free truth (ceiling)": result["ceiling"]}
+    for name, r in named.items():
         t, c = r["target"], r["context"]
         lines.append(
             f"| {name} | {_cell(t['mse'])} | {_cell(t['cc_spatial'])} | {_cell(t['cc_temporal'])} "
@@ -336,7 +353,7 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> 
     if view.frames != meta.frames:
         raise InputError(f"{cfg.store} has {view.frames} frames per simulation, the models expect {meta.frames}")
     levels, coarsest = meta_cfg.model.levels, meta_cfg.model.coarsest
-    observe, noise = meta_cfg.data.episodes.observe, meta_cfg.data.episodes.noise_std
+    observe, noise = meta_cfg.data.episodes.primary_observe, meta_cfg.data.episodes.noise_std
     test = list(meta_ckpt["splits"]["test"])
     neural = [NeuralMethod(meta, "metaPNS"), NeuralMethod(pns, "PNS")]
     spec = EvalSpec(

@@ -155,6 +155,12 @@ def evaluate(
     context: Annotated[str, typer.Option(help="Context size range 'min,max' (or one size).")] = "1,5",
     sets: Annotated[int, typer.Option(min=1, help="Context sets per subject.")] = 3,
     max_targets: Annotated[int, typer.Option(min=0, help="Targets per context set (0 = all).")] = 40,
+    observe: Annotated[
+        str | None, typer.Option(help="Observed node set (default: the training one, the first of a mixture).")
+    ] = None,
+    noise: Annotated[
+        float | None, typer.Option(min=0, help="Observation noise std (default: the training noise).")
+    ] = None,
     seed: SeedOpt = 0,
     device: DeviceOpt = "auto",
 ) -> None:
@@ -169,7 +175,13 @@ def evaluate(
             else tuple(subjects.split(","))
         )
         spec = EvalSpec(
-            subjects=split, context=_context_range(context), context_sets=sets, max_targets=max_targets, seed=seed
+            subjects=split,
+            context=_context_range(context),
+            context_sets=sets,
+            max_targets=max_targets,
+            observe=observe,
+            noise_std=noise,
+            seed=seed,
         )
         report = run(checkpoint, store, spec, lambda i, n, s: console.print(f"[{i}/{n}] {s}"), device)
     except (InputError, ValueError) as exc:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from learner.data.episodes import Episode, load_episode
+from learner.data.episodes import OBSERVE_SETS, Episode, load_episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.site_evidence import SiteEvidence
@@ -48,11 +48,17 @@ class EvalSpec:
     context: tuple[int, int] = (1, 5)
     context_sets: int = 3
     max_targets: int = 40  # targets per context set (0 = every other simulation of the subject)
-    observe: str | None = None  # None: the training observation set
+    observe: str | None = None  # None: the training observation set (the first, for a mixture)
     noise_std: float | None = None  # None: the training noise
     seed: int = 0
     dc_frame: int | None = None  # None: default_dc_frame(T)
     batch: int = 16  # sites generated per forward pass
+
+    def __post_init__(self) -> None:
+        if self.observe is not None and self.observe not in OBSERVE_SETS:
+            raise InputError(f"unknown observation set {self.observe!r}; choose one of {', '.join(OBSERVE_SETS)}")
+        if self.noise_std is not None and not (np.isfinite(self.noise_std) and self.noise_std >= 0):
+            raise InputError(f"noise_std must be a finite number >= 0, got {self.noise_std!r}")
 
 
 @dataclass
@@ -251,13 +257,13 @@ def evaluate(
     view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
     if view.frames != model.frames:
         raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {model.frames}")
-    observe = spec.observe or config.data.episodes.observe
+    observe = spec.observe or config.data.episodes.primary_observe
     noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
     method = NeuralMethod(model, config.model.kind, spec.batch)
     reports = evaluate_methods(
         [method],
         view,
-        _subjects(spec, ckpt["splits"], view),
+        _subjects(spec, ckpt.get("splits", {}), view),
         spec,
         observe,
         noise,

@@ -255,6 +255,13 @@ CASES: dict[str, dict[str, Case]] = {
         "evaluate context 5,1": Case(
             ("learner", "evaluate", "{d}/model.pt", "{s}", "--context", "5,1"), ("--context: expected 'min,max'",)
         ),
+        "evaluate observe sock": Case(
+            ("learner", "evaluate", "{d}/model.pt", "{s}", "--observe", "sock"), ("unknown observation set 'sock'",)
+        ),
+        "evaluate a checkpoint without splits": Case(
+            ("learner", "evaluate", "{d}/model.pt", "{s}"), ("unknown split 'test'; the checkpoint has []",)
+        ),
+        "evaluate noise -1": Case(("learner", "evaluate", "{d}/model.pt", "{s}", "--noise", "-1"), usage("--noise")),
         "samples 1": Case((*PREDICT, "--samples", "1"), usage("--samples", "one draw gives no spread")),
         "samples -1": Case((*PREDICT, "--samples", "-1"), usage("--samples")),
         "predict site out of range": Case(

@@ -60,7 +60,11 @@ class EpisodeSpec:
     targets
         Number of target simulations ``M`` per episode.
     observe
-        Node set the context is observed on: one of :data:`OBSERVE_SETS`.
+        Node set the context is observed on: one of :data:`OBSERVE_SETS`, or a
+        sequence of them, one drawn uniformly per episode (e.g. ``("surface",
+        "electrodes")``: the encoder learns both the whole surface and the
+        sparse sock). Evaluation observes the first (:attr:`primary_observe`)
+        unless told otherwise.
     noise_std
         Standard deviation of Gaussian noise added to observed context values.
     chunks_per_episode
@@ -71,7 +75,7 @@ class EpisodeSpec:
 
     context: tuple[int, int] = (1, 5)
     targets: int = 20
-    observe: str = "surface"
+    observe: str | tuple[str, ...] = "surface"
     noise_std: float = 0.0
     chunks_per_episode: int = 0
 
@@ -89,12 +93,28 @@ class EpisodeSpec:
             raise InputError(f"context max must be >= context min, got context={self.context!r}")
         if not _is_int(self.targets) or self.targets < 0:
             raise InputError(f"targets must be a non-negative integer, got {self.targets!r}")
-        if self.observe not in OBSERVE_SETS:
-            raise InputError(f"unknown observation set {self.observe!r}; choose one of {', '.join(OBSERVE_SETS)}")
+        sets = (self.observe,) if isinstance(self.observe, str) else self.observe
+        if not isinstance(sets, (list, tuple)) or not sets or len(set(map(str, sets))) != len(sets):
+            raise InputError(f"observe must be an observation set or a list of distinct ones, got {self.observe!r}")
+        sets = tuple(sets)
+        for name in sets:
+            if name not in OBSERVE_SETS:
+                raise InputError(f"unknown observation set {name!r}; choose one of {', '.join(OBSERVE_SETS)}")
+        object.__setattr__(self, "observe", sets[0] if len(sets) == 1 else sets)
         if not (isinstance(self.noise_std, (int, float)) and np.isfinite(self.noise_std) and self.noise_std >= 0):
             raise InputError(f"noise_std must be a finite number >= 0, got {self.noise_std!r}")
         if not _is_int(self.chunks_per_episode) or self.chunks_per_episode < 0:
             raise InputError(f"chunks_per_episode must be an integer >= 0, got {self.chunks_per_episode!r}")
+
+    @property
+    def observe_sets(self) -> tuple[str, ...]:
+        """The observation sets episodes draw from (one, or several drawn uniformly)."""
+        return (self.observe,) if isinstance(self.observe, str) else self.observe
+
+    @property
+    def primary_observe(self) -> str:
+        """The set evaluation observes by default: the first of :attr:`observe_sets`."""
+        return self.observe_sets[0]
 
     @property
     def max_sites(self) -> int:
@@ -174,7 +194,7 @@ class _SubjectMeta:
     n_nodes: int
     chunk_sites: int
     stim_nodes: NDArray[np.int64]  # (site,) node id of each site row
-    observed: NDArray[np.bool_]  # (node,)
+    observed: tuple[NDArray[np.bool_], ...]  # (node,) mask of each observation set of the spec
     done: NDArray[np.bool_]  # (chunk,)
 
     @property
@@ -204,7 +224,10 @@ def _observed_mask(store: str, mesh_id: str, n_nodes: int, observe: str) -> NDAr
 
 
 def _subject_meta(
-    store: str, subject_id: str, observe: str, mesh_cache: dict[str, tuple[NDArray, NDArray]] | None = None
+    store: str,
+    subject_id: str,
+    observe: tuple[str, ...],
+    mesh_cache: dict[str, tuple[NDArray, tuple[NDArray, ...]]] | None = None,
 ) -> _SubjectMeta:
     """Read and check a subject's metadata; raise :class:`InputError` for an unknown subject."""
     attrs = subject_attrs(store, subject_id)
@@ -215,12 +238,13 @@ def _subject_meta(
     done = done_flags(store, subject_id)
     cache = {} if mesh_cache is None else mesh_cache
     if mesh_id not in cache:
-        cache[mesh_id] = (read_sites(store, mesh_id), _observed_mask(store, mesh_id, n_nodes, observe))
+        masks = tuple(_observed_mask(store, mesh_id, n_nodes, name) for name in observe)
+        cache[mesh_id] = (read_sites(store, mesh_id), masks)
     stim_nodes, observed = cache[mesh_id]
-    if stim_nodes.shape[0] != n_sites or observed.shape[0] != n_nodes:
+    if stim_nodes.shape[0] != n_sites or observed[0].shape[0] != n_nodes:
         raise SchemaError(
             f"subject {subject_id!r}: u has shape {(n_sites, n_frames, n_nodes)} but mesh {mesh_id!r} has "
-            f"{stim_nodes.shape[0]} stimulation sites and {observed.shape[0]} nodes"
+            f"{stim_nodes.shape[0]} stimulation sites and {observed[0].shape[0]} nodes"
         )
     n_chunks = -(-n_sites // int(chunk_sites))
     if done.shape[0] != n_chunks:
@@ -269,6 +293,7 @@ def _build_episode(
     times: NDArray[np.float64],
     context_rows: NDArray[np.int64],
     target_rows: NDArray[np.int64],
+    observed: NDArray[np.bool_],
     noise_std: float,
     rng: np.random.Generator | None,
 ) -> Episode:
@@ -283,13 +308,13 @@ def _build_episode(
     obs = context_u.copy()
     if noise_std > 0:
         obs += np.float32(noise_std) * rng.standard_normal(obs.shape, dtype=np.float32)
-    obs[:, :, ~meta.observed] = 0.0  # unobserved nodes carry no information, noise included
+    obs[:, :, ~observed] = 0.0  # unobserved nodes carry no information, noise included
     return Episode(
         subject_id=meta.subject_id,
         mesh_id=meta.mesh_id,
         context_sites=torch.from_numpy(meta.stim_nodes[context_rows]),
         context_obs=torch.from_numpy(obs),
-        observed=torch.from_numpy(meta.observed.copy()),
+        observed=torch.from_numpy(observed.copy()),
         context_u=torch.from_numpy(context_u),
         target_sites=torch.from_numpy(meta.stim_nodes[target_rows]),
         target_u=torch.from_numpy(target_u),
@@ -334,7 +359,7 @@ def load_episode(
     """
     store = str(store)
     check_store(store)
-    meta = _subject_meta(store, subject_id, observe)
+    meta = _subject_meta(store, subject_id, (observe,))
     context_rows = _as_rows(context_sites, "context sites", meta.n_sites)
     target_rows = _as_rows(target_sites, "target sites", meta.n_sites)
     if context_rows.size < 1:
@@ -347,7 +372,7 @@ def load_episode(
     # Only the chunks actually read must be finished: evaluation may run on a partial store.
     _refuse_missing(meta, meta.chunks_of(np.concatenate([context_rows, target_rows])))
     u, times = subject_array(store, subject_id, "u"), read_times(store, subject_id)
-    return _build_episode(meta, u, times, context_rows, target_rows, noise_std, rng)
+    return _build_episode(meta, u, times, context_rows, target_rows, meta.observed[0], noise_std, rng)
 
 
 class EpisodeDataset(IterableDataset):
@@ -412,8 +437,8 @@ class EpisodeDataset(IterableDataset):
         unknown = [s for s in self.subjects if s not in known]
         if unknown:
             raise InputError(f"unknown subject(s) {', '.join(unknown)} in store {self.store}")
-        mesh_cache: dict[str, tuple[NDArray, NDArray]] = {}
-        self._meta = [_subject_meta(self.store, s, spec.observe, mesh_cache) for s in self.subjects]
+        mesh_cache: dict[str, tuple[NDArray, tuple[NDArray, ...]]] = {}
+        self._meta = [_subject_meta(self.store, s, spec.observe_sets, mesh_cache) for s in self.subjects]
         for meta in self._meta:
             _refuse_missing(meta)
             available = meta.n_sites
@@ -540,4 +565,6 @@ class EpisodeDataset(IterableDataset):
         if i not in handles:
             handles[i] = (subject_array(self.store, self.subjects[i], "u"), read_times(self.store, self.subjects[i]))
         u, times = handles[i]
-        return _build_episode(self._meta[i], u, times, context_rows, target_rows, self.spec.noise_std, rng)
+        masks = self._meta[i].observed  # one set, or draw one (after the sites: one-set episodes stay as they were)
+        observed = masks[0] if len(masks) == 1 else masks[int(rng.integers(len(masks)))]
+        return _build_episode(self._meta[i], u, times, context_rows, target_rows, observed, self.spec.noise_std, rng)

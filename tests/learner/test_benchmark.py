@@ -51,9 +51,14 @@ baseline_folds = 1
     assert cal["mean_band_width"] > cal["mean_band_width_c_only"]
     assert data["real_data"]["electrodes"] == 40 and set(data["real_data"]["methods"]) == {"metaPNS", "PNS"}
     assert "cc_spatial" in data["real_data"]["methods"]["PNS"]["target"]
+    ceiling = data["real_data"]["ceiling"]["target"]  # the noise-free truth against the noisy one
+    noise = data["real_data"]["noise_std"]
+    assert abs(ceiling["mse"]["mean"] - noise**2) < 0.2 * noise**2  # E[(noise)^2] over 40 electrodes x frames
+    assert 0 < ceiling["cc_spatial"]["mean"] < 1 and ceiling["cc_temporal"]["mean"] > 0.9
     assert set(data["real_data_baseline_subset"]["methods"]) == {"metaPNS", "PNS", "fs-bo", "vae-bo"}
     md = (out / "benchmark.md").read_text()
     assert "| fs-bo |" in md and "| vae-bo |" in md and "Real-data emulation" in md
     assert md.count("| metaPNS |") == 4  # Table 1 twice, real data on every fold and on the baselines' folds
+    assert md.count("| noise-free truth (ceiling) |") == 2
     for name in ("table1.md", "timing.md", "fig3_context.png", f"activation_maps-{data['maps'][0]}.png"):
         assert (out / name).stat().st_size > 0, name

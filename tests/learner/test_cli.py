@@ -65,6 +65,27 @@ def test_evaluate_writes_json_and_markdown(trained, tiny_store):
     assert "| target |" in (out / "evaluation.md").read_text()
 
 
+def test_an_observation_mixture_trains_and_evaluates_on_its_first_set(tiny_store, tiny_toml, tmp_path):
+    cfg = tmp_path / "mixed.toml"
+    text = tiny_toml(tiny_store, train="epochs = 1")
+    cfg.write_text(text.replace("targets = 4", 'targets = 4\nobserve = ["epicardium", "surface"]\nnoise_std = 0.02'))
+    result = runner.invoke(app, ["train", str(cfg)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["data"]["episodes"]["observe"] == [
+        "epicardium",
+        "surface",
+    ]
+    out = tmp_path / "eval"
+    args = ["evaluate", str(tmp_path / "run" / "best.pt"), str(tiny_store), "--sets", "1", "--max-targets", "2"]
+    result = runner.invoke(app, [*args, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    explicit = tmp_path / "eval-epicardium"
+    result = runner.invoke(app, [*args, "--observe", "epicardium", "--out", str(explicit)])
+    assert result.exit_code == 0, result.output
+    report = lambda folder: json.loads((folder / "evaluation.json").read_text())["overall"]  # noqa: E731
+    assert report(out) == report(explicit)
+
+
 def test_personalize_then_predict_with_vtk(trained, tiny_store):
     sites = read_sites(tiny_store, "lv")
     person = trained / "p.pt"

@@ -174,6 +174,44 @@ def test_reads_only_the_chunks_of_the_selected_rows(tiny_store, chunk_reads):
         assert len(set((rows // 4).tolist())) == 1
 
 
+def test_observation_mixture_draws_one_set_per_episode(tiny_store, train_subjects):
+    mixed = EpisodeSpec(context=(1, 3), targets=6, observe=["epicardium", "all"], noise_std=0.05)
+    assert mixed.observe == ("epicardium", "all") and mixed.observe_sets == mixed.observe
+    assert mixed.primary_observe == "epicardium"
+    assert EpisodeSpec(observe=["surface"]).observe == "surface" == EpisodeSpec().primary_observe
+    one = EpisodeDataset(tiny_store, train_subjects, SPEC, seed=5, episodes_per_subject=4)
+    ds = EpisodeDataset(tiny_store, train_subjects, mixed, seed=5, episodes_per_subject=4)
+    picked = []
+    for k in range(4):
+        for i in range(len(train_subjects)):
+            ep, single = ds.episode(i, k), one.episode(i, k)
+            # the set is drawn after the sites: same sites as a one-set spec with the same seed
+            assert torch.equal(ep.context_rows, single.context_rows) and torch.equal(ep.target_rows, single.target_rows)
+            mesh_id = subject_attrs(tiny_store, ep.subject_id)["mesh_id"]
+            epicardium = np.zeros(ep.observed.numel(), bool)
+            epicardium[read_index_set(tiny_store, mesh_id, "epicardium")] = True
+            is_epi = np.array_equal(ep.observed.numpy(), epicardium)
+            assert is_epi or bool(ep.observed.all())
+            assert torch.all(ep.context_obs[:, :, ~ep.observed] == 0)
+            assert _same(ep, ds.episode(i, k))  # reproducible, mask included
+            picked.append(is_epi)
+    assert 0 < sum(picked) < len(picked)  # both sets are drawn
+
+
+@pytest.mark.parametrize(
+    ("observe", "match"),
+    [
+        ([], "a list of distinct ones"),
+        (["surface", "surface"], "distinct"),
+        (3, "observation set or a list"),
+        (["surface", "sock"], "unknown observation set 'sock'"),
+    ],
+)
+def test_refuses_bad_observation_mixtures(observe, match):
+    with pytest.raises(InputError, match=match):
+        EpisodeSpec(observe=observe)
+
+
 def test_refuses_bad_specs():
     with pytest.raises(InputError, match="context size must be >= 1"):
         EpisodeSpec(context=(0, 3))
