@@ -96,6 +96,9 @@ class TrainConfig:
     posterior_targets: int = 0  # targets that join the context in q(c | Y u X) (0 = all)
     c_from: Literal["posterior", "context"] = "posterior"  # training draws c from q(c | Y u X) or p(c | Y)
     gate_loss: float = 0.0  # weight of the capture gate's cross-entropy against "the stimulus starts a wave" (0 = off)
+    cc_loss: float = (
+        0.0  # weight of 1 - spatial correlation of each decoded frame, as learner.metrics.spatial_cc (0 = off)
+    )
     seed: int = 0
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
@@ -111,6 +114,8 @@ class TrainConfig:
             raise ConfigError("train.lambda1/lambda2 must be >= 0 and train.grad_clip > 0")
         if self.gate_loss < 0:
             raise ConfigError(f"train.gate_loss must be >= 0, got {self.gate_loss}")
+        if self.cc_loss < 0:
+            raise ConfigError(f"train.cc_loss must be >= 0, got {self.cc_loss}")
         check_device(self.device, "train.device")
         if self.precision not in PRECISIONS:
             raise ConfigError(f"train.precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")

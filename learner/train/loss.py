@@ -5,7 +5,7 @@ r"""The episode loss (docs/method.md, "Training objective") (negative ELBO of th
     \mathcal{L} = \mathrm{rec}(X_{target}) + \mathrm{rec}(X_{context})
       + \lambda_1 \mathrm{KL}(q(c \mid Y \cup X) \,\|\, p(c \mid Y))
       + \lambda_2 \mathrm{KL}(p(c \mid Y) \,\|\, \mathcal{N}(0, I))
-      \; [+ \, w \, \mathrm{BCE}(g, \mathrm{wave})]
+      \; [+ \, w \, \mathrm{BCE}(g, \mathrm{wave})] \; [+ \, w_{cc} (1 - \mathrm{CC})]
 
 where ``rec`` is the squared error summed over nodes and frames and averaged
 over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
@@ -17,6 +17,13 @@ context and target site is also fitted, by binary cross-entropy, to whether
 that site's stored simulation starts a wave (:func:`learner.metrics.wave_started`):
 the reconstruction alone teaches the gate only once the decoder draws waves,
 and only through the few sites whose stimulus starts none (docs/training.md).
+
+With ``train.cc_loss`` ``w_cc > 0`` the loss also has ``1 - CC``, CC the mean
+over decoded frames of every sequence of the Pearson correlation over nodes
+between prediction and truth (:func:`spatial_correlation`, the evaluation's
+``cc_spatial``). Its scale does not depend on a frame's spatial spread, so it
+also weighs the nearly uniform frames of a fully excited heart, whose
+variations of a few thousandths the squared error ignores (docs/anatomies.md).
 
 The optimiser gets :math:`\mathcal{L} / (N T)` for a mesh of ``N`` nodes and
 ``T`` frames: mean squared errors plus KL terms weighted by
@@ -39,13 +46,14 @@ from learner.metrics import wave_started
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS, Posterior
 
-__all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "episode_loss", "EpisodeObjective"]
+__all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "spatial_correlation", "episode_loss", "EpisodeObjective"]
 
 
 @dataclass
 class LossTerms:
     """The loss and its parts: ``total`` is what the optimiser gets (the negative ELBO per node and frame, plus the
-    weighted gate cross-entropy); the MSEs, KLs and ``gate_bce`` (0 without a gate loss) as defined above."""
+    weighted gate cross-entropy and correlation terms); the MSEs, KLs, ``gate_bce`` (0 without a gate loss) and
+    ``spatial_cc`` (0 without a correlation loss) as defined above."""
 
     total: Tensor
     target_mse: Tensor
@@ -53,6 +61,7 @@ class LossTerms:
     kl_posterior: Tensor
     kl_prior: Tensor
     gate_bce: Tensor
+    spatial_cc: Tensor
 
     def as_floats(self) -> dict[str, float]:
         """Detached values for logging."""
@@ -70,6 +79,21 @@ def standard_normal_kl(p: Posterior) -> Tensor:
     return 0.5 * torch.sum(torch.exp(p.logvar) + p.mu**2 - 1.0 - p.logvar)
 
 
+def spatial_correlation(pred: Tensor, truth: Tensor, eps: float = 1e-12) -> Tensor:
+    """Pearson correlation over the last axis (nodes), averaged over the frames whose truth is not constant.
+
+    Differentiable :func:`learner.metrics.spatial_cc`; a constant predicted frame
+    counts as correlation 0 (``eps`` keeps its gradient finite). 0 when every
+    true frame is constant.
+    """
+    p = pred - pred.mean(-1, keepdim=True)
+    t = truth - truth.mean(-1, keepdim=True)
+    t_var = (t * t).sum(-1)
+    cc = (p * t).sum(-1) / torch.sqrt((p * p).sum(-1) * t_var + eps)
+    varying = truth.amax(-1) > truth.amin(-1)  # exactly, as the metric: centring leaves rounding residue
+    return cc[varying].mean() if bool(varying.any()) else torch.zeros((), device=pred.device)
+
+
 def episode_loss(
     model: PNS,
     episode: Episode,
@@ -82,6 +106,7 @@ def episode_loss(
     posterior_targets: int | None = None,
     c_from: str = "posterior",
     gate_weight: float = 0.0,
+    cc_weight: float = 0.0,
 ) -> LossTerms:
     """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
 
@@ -93,7 +118,7 @@ def episode_loss(
     drawn from: ``"posterior"`` q(c | Y u X), or ``"context"`` p(c | Y), the
     embedding a trained model is given at test time. ``gate_weight`` is the
     weight ``w`` of the capture gate's cross-entropy (a model without a gate
-    with ``w > 0`` is an error).
+    with ``w > 0`` is an error); ``cc_weight`` that of ``1 - CC``.
     """
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
@@ -120,7 +145,9 @@ def episode_loss(
     per_value = 1.0 / (n_nodes * n_frames)
     target_mse, context_mse = err[k:].mean(), err[:k].mean()
     total = target_mse + context_mse + kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
-    return LossTerms(total + gate_weight * gate_bce, target_mse, context_mse, kl_q, kl_p, gate_bce)
+    cc = spatial_correlation(pred, truth) if cc_weight > 0 else zero
+    total = total + gate_weight * gate_bce + (cc_weight * (1 - cc) if cc_weight > 0 else zero)
+    return LossTerms(total, target_mse, context_mse, kl_q, kl_p, gate_bce, cc)
 
 
 class EpisodeObjective(nn.Module):
@@ -134,10 +161,12 @@ class EpisodeObjective(nn.Module):
         posterior_targets: int | None = None,
         c_from: str = "posterior",
         gate_weight: float = 0.0,
+        cc_weight: float = 0.0,
     ) -> None:
         super().__init__()
         self.model, self.lambda1, self.lambda2 = model, lambda1, lambda2
-        self.posterior_targets, self.c_from, self.gate_weight = posterior_targets, c_from, gate_weight
+        self.posterior_targets, self.c_from = posterior_targets, c_from
+        self.gate_weight, self.cc_weight = gate_weight, cc_weight
 
     def forward(
         self,
@@ -159,4 +188,5 @@ class EpisodeObjective(nn.Module):
             self.posterior_targets,
             self.c_from,
             self.gate_weight,
+            self.cc_weight,
         )

@@ -77,7 +77,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.model: PNS = build_model(config.model, self.view.frames).to(self.device)
         self.objective: nn.Module = EpisodeObjective(
-            self.model, cfg.lambda1, cfg.lambda2, cfg.posterior_targets or None, cfg.c_from, cfg.gate_loss
+            self.model, cfg.lambda1, cfg.lambda2, cfg.posterior_targets or None, cfg.c_from, cfg.gate_loss, cfg.cc_loss
         )
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, cfg.lr_halve_every, gamma=0.5)
@@ -318,6 +318,7 @@ class Trainer:
             "kl_posterior",
             "kl_prior",
             "gate_bce",
+            "spatial_cc",
             "grad_norm_median",
             "grad_norm_max",
             "val_target_mse",

@@ -132,3 +132,52 @@ def test_gate_loss_needs_a_capture_gate(tiny_store, tiny_config, tmp_path):
     model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run")
     with pytest.raises(ValueError, match="has none"):
         episode_loss(model, ep, hier, 0.3, 0.7, gate_weight=0.1)
+
+
+def test_spatial_correlation_is_the_metrics_cc_and_differentiable():
+    """Against learner.metrics.spatial_cc (NumPy) on random frames, with constant true frames skipped."""
+    from learner.metrics import spatial_cc
+    from learner.train.loss import spatial_correlation
+
+    g = torch.Generator().manual_seed(3)
+    truth = torch.rand(4, 6, 50, generator=g, dtype=torch.float64)
+    truth[1, 2] = 0.7  # a resting or fully excited frame: skipped by both
+    pred = (0.5 * truth + 0.5 * torch.rand(4, 6, 50, generator=g, dtype=torch.float64)).requires_grad_()
+    cc = spatial_correlation(pred, truth)
+    assert abs(float(cc) - spatial_cc(pred.detach().numpy(), truth.numpy())) < 1e-9
+    cc.backward()
+    assert torch.isfinite(pred.grad).all() and float(pred.grad[1, 2].abs().sum()) == 0.0
+    assert float(spatial_correlation(truth, truth)) == pytest.approx(1.0)
+    assert float(spatial_correlation(-truth, truth)) == pytest.approx(-1.0)
+    flat = torch.full((2, 3, 10), 0.4, requires_grad=True)  # a constant prediction: correlation 0, finite gradient
+    out = spatial_correlation(flat, torch.rand(2, 3, 10, generator=g))
+    out.backward()
+    assert float(out) == pytest.approx(0.0, abs=1e-6) and torch.isfinite(flat.grad).all()
+    assert float(spatial_correlation(flat, torch.ones(2, 3, 10))) == 0.0  # every true frame constant
+
+
+def test_cc_loss_adds_its_weight_times_one_minus_cc(tiny_store, tiny_config, tmp_path):
+    from learner.metrics import spatial_cc
+    from learner.train.loss import episode_loss
+    from shared.errors import ConfigError
+
+    model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run")
+    with torch.no_grad():  # a fresh model predicts the mean everywhere: perturb it so that its maps vary
+        for p in model.parameters():
+            p.add_(0.1 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+
+    def terms(weight: float):
+        return episode_loss(model, ep, hier, 0.3, 0.7, generator=torch.Generator().manual_seed(0), cc_weight=weight)
+
+    with_cc, without = terms(0.2), terms(0.0)
+    torch.testing.assert_close(with_cc.total - without.total, 0.2 * (1 - with_cc.spatial_cc))
+    assert float(without.spatial_cc) == 0.0
+    with torch.no_grad():
+        c = model.embed_prior_and_posterior(ep.context_obs, ep.target_u * ep.observed, ep.observed, hier)[1]
+        pred = model.generate(
+            torch.cat([ep.context_sites, ep.target_sites]), hier, c.sample(torch.Generator().manual_seed(0))
+        )
+    truth = torch.cat([ep.context_u, ep.target_u])
+    assert float(with_cc.spatial_cc) == pytest.approx(spatial_cc(pred.numpy(), truth.numpy()), abs=1e-5)
+    with pytest.raises(ConfigError, match="cc_loss must be >= 0"):
+        tiny_config(tiny_store, tmp_path / "run", cc_loss=-0.1)
