@@ -31,6 +31,7 @@ from shared.units import MS_PER_TIME_UNIT
 __all__ = [
     "mse",
     "spatial_cc",
+    "frame_cc",
     "temporal_cc",
     "otsu_threshold",
     "dice",
@@ -100,6 +101,15 @@ def spatial_cc(pred: ArrayLike, true: ArrayLike) -> float:
     p, t = _pair(pred, true)
     n = p.shape[-1]
     return _mean_skipping_nan(_rowwise_pearson(p.reshape(-1, n), t.reshape(-1, n)))
+
+
+def frame_cc(pred: ArrayLike, true: ArrayLike) -> NDArray[np.float64]:
+    """Spatial correlation of each frame of a sequence ``(T, N)``: ``(T,)``, NaN where a map is constant.
+
+    :func:`spatial_cc` is their mean over the frames that are not NaN.
+    """
+    p, t = _pair(pred, true, ndims=(2,))
+    return _rowwise_pearson(p, t)
 
 
 def temporal_cc(pred: ArrayLike, true: ArrayLike) -> float:

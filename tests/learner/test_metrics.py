@@ -13,6 +13,7 @@ from learner.metrics import (
     activation_times,
     dice,
     dice_coefficient,
+    frame_cc,
     mse,
     otsu_threshold,
     sequence_metrics,
@@ -262,3 +263,14 @@ def test_wave_started_counts_the_nodes_that_ever_reach_the_threshold():
     u[1, 2, 1] = 0.49
     assert wave_started(u).tolist() == [True, False]
     assert wave_started(u[0]) and not wave_started(u[0], share=0.75)
+
+
+def test_frame_cc_is_each_frames_pearson_and_spatial_cc_their_mean():
+    rng = np.random.default_rng(2)
+    true, pred = rng.random((5, 30)), rng.random((5, 30))
+    true[3] = 0.25  # a constant frame: NaN
+    per_frame = frame_cc(pred, true)
+    for f in (0, 1, 2, 4):
+        assert per_frame[f] == pytest.approx(np.corrcoef(pred[f], true[f])[0, 1], abs=1e-12)
+    assert np.isnan(per_frame[3])
+    assert spatial_cc(pred, true) == pytest.approx(np.nanmean(per_frame), abs=1e-12)
