@@ -40,11 +40,11 @@ def unseen_procedural(checkpoint: str, store: str, subjects: list[str], sets: in
     return {role: report.overall[role] for role in ("context", "target")}
 
 
-def real_heart(checkpoint: str, store: str, sites: int) -> dict:
-    """Leave-one-site-out metrics at the sock's electrodes (noise 0.02)."""
+def real_heart(checkpoint: str, store: str, sites: int, folds: int = 0) -> dict:
+    """Leave-one-site-out metrics at the sock's electrodes (noise 0.02); ``folds > 0``: the first of each subject."""
     model, config, _ = load_model(checkpoint)
     cfg = BenchmarkConfig(real_data=RealDataSpec(store=store, sites=sites))
-    result = real_data([NeuralMethod(model, "model")], config.model.levels, config.model.coarsest, cfg)
+    result = real_data([NeuralMethod(model, "model")], config.model.levels, config.model.coarsest, cfg, folds)
     return {**result, **result.pop("methods")["model"]}
 
 
@@ -71,6 +71,23 @@ def markdown(results: dict, n_test: int, n_test_meshes: int, real: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def subset_markdown(results: dict, n: int) -> str:
+    """The models on the baselines' subsets: the first ``n`` unseen subjects, the real heart's first folds."""
+    lines = [
+        f"\n| model | first {n} unseen subjects: target MSE | CC spatial | DC "
+        "| real heart, first fold of each subject: target MSE | CC spatial |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        a, b = r["unseen_subset"]["target"], r["real_subset"]["target"]
+        lines.append(
+            f"| {name} | {a['mse']['mean']:.4f} | {a['cc_spatial']['mean']:.3f} +- {a['cc_spatial']['std']:.3f} "
+            f"| {a['dc']['mean']:.3f} | {b['mse']['mean']:.4f} | {b['cc_spatial']['mean']:.3f} +- "
+            f"{b['cc_spatial']['std']:.3f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--store", required=True, help="anatomy-diverse store (specs/anatomies.toml)")
@@ -80,6 +97,13 @@ def main() -> None:
     parser.add_argument("--sets", type=int, default=1, help="context sets per test subject")
     parser.add_argument("--targets", type=int, default=20, help="targets per context set")
     parser.add_argument("--sites", type=int, default=8, help="pacing sites of the real heart (leave one out)")
+    parser.add_argument(
+        "--baseline-subjects",
+        type=int,
+        default=0,
+        help="also score the first N unseen subjects and the first fold of each real one, the subsets and draws "
+        "on which `learner benchmark specs/benchmark-anatomies.toml` runs the BO baselines",
+    )
     parser.add_argument("--out", type=Path, default=Path("report/unseen-anatomies"))
     args = parser.parse_args()
 
@@ -97,10 +121,16 @@ def main() -> None:
             "real": real,
             "seconds": time.perf_counter() - start,
         }
+        if args.baseline_subjects:
+            subset = test[: args.baseline_subjects]
+            results[name]["unseen_subset"] = unseen_procedural(checkpoint, args.store, subset, 1, args.targets)
+            results[name]["real_subset"] = real_heart(checkpoint, args.real, args.sites, folds=1)
         print(name, json.dumps({k: results[name]["unseen"]["target"][k]["mean"] for k in ("mse", "cc_spatial", "dc")}))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "unseen_anatomies.json").write_text(json.dumps({"test": test, **results}, indent=1, default=float))
     table = markdown(results, len(test), n_meshes, real)
+    if args.baseline_subjects:
+        table += subset_markdown(results, args.baseline_subjects)
     (args.out / "unseen_anatomies.md").write_text(table)
     print(table)
 
