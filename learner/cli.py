@@ -159,7 +159,7 @@ def evaluate(
         str | None, typer.Option(help="Observed node set (default: the training one, the first of a mixture).")
     ] = None,
     noise: Annotated[
-        float | None, typer.Option(min=0, help="Observation noise std (default: the training noise).")
+        float | None, typer.Option(min=0, callback=finite, help="Observation noise std (default: the training noise).")
     ] = None,
     seed: SeedOpt = 0,
     device: DeviceOpt = "auto",
