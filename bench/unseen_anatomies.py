@@ -9,6 +9,9 @@ Evaluates each ``--model NAME=CHECKPOINT`` on
   through the 247-electrode epicardial sock with noise 0.02, leaving one pacing site out in turn
   (``learner.benchmark.real_data``).
 
+``--refine-steps 0 30`` evaluates each model twice: with ``c`` the context encoder's mean, and with
+``c`` refined on each context set in 30 gradient steps (``learner.refine``).
+
 Models trained on other stores (e.g. the 3 fixed meshes of ``specs/default.toml``) are evaluated on
 the same subjects, so the table compares them side by side. Writes ``unseen_anatomies.json`` and
 ``unseen_anatomies.md`` to ``--out``; the table is published in docs/anatomies.md.
@@ -29,22 +32,26 @@ from pathlib import Path
 
 from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data
 from learner.evaluate import EvalSpec, NeuralMethod, evaluate, load_model
+from learner.refine import Refinement
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
 
 
-def unseen_procedural(checkpoint: str, store: str, subjects: list[str], sets: int, targets: int) -> dict:
+def unseen_procedural(
+    checkpoint: str, store: str, subjects: list[str], sets: int, targets: int, refine: Refinement = Refinement()
+) -> dict:
     """Target and context metrics (mean, std) on ``subjects`` of ``store``."""
-    spec = EvalSpec(subjects=tuple(subjects), context_sets=sets, max_targets=targets)
+    spec = EvalSpec(subjects=tuple(subjects), context_sets=sets, max_targets=targets, refine=refine)
     report = evaluate(checkpoint, store, spec)
     return {role: report.overall[role] for role in ("context", "target")}
 
 
-def real_heart(checkpoint: str, store: str, sites: int, folds: int = 0) -> dict:
+def real_heart(checkpoint: str, store: str, sites: int, folds: int = 0, refine: Refinement = Refinement()) -> dict:
     """Leave-one-site-out metrics at the sock's electrodes (noise 0.02); ``folds > 0``: the first of each subject."""
     model, config, _ = load_model(checkpoint)
     cfg = BenchmarkConfig(real_data=RealDataSpec(store=store, sites=sites))
-    result = real_data([NeuralMethod(model, "model")], config.model.levels, config.model.coarsest, cfg, folds)
+    method = NeuralMethod(model, "model", refine=refine)
+    result = real_data([method], config.model.levels, config.model.coarsest, cfg, folds)
     return {**result, **result.pop("methods")["model"]}
 
 
@@ -104,6 +111,14 @@ def main() -> None:
         help="also score the first N unseen subjects and the first fold of each real one, the subsets and draws "
         "on which `learner benchmark specs/benchmark-anatomies.toml` runs the BO baselines",
     )
+    parser.add_argument(
+        "--refine-steps",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="evaluate each model with c refined on each context set for each of these step counts "
+        "(learner.refine; 0: the encoder's mean)",
+    )
     parser.add_argument("--out", type=Path, default=Path("report/unseen-anatomies"))
     args = parser.parse_args()
 
@@ -111,20 +126,22 @@ def main() -> None:
     test = splits["test"]
     n_meshes = len({StoreView(args.store).mesh_of[s] for s in test})
     results, real = {}, {}
-    for item in args.model:
-        name, _, checkpoint = item.partition("=")
+    runs = [(item.partition("="), steps) for item in args.model for steps in args.refine_steps]
+    for (model, _, checkpoint), steps in runs:
+        name, refine = (f"{model}, refined {steps}" if steps else model), Refinement(steps=steps)
         start = time.perf_counter()
-        real = real_heart(checkpoint, args.real, args.sites)
+        real = real_heart(checkpoint, args.real, args.sites, refine=refine)
         results[name] = {
             "checkpoint": checkpoint,
-            "unseen": unseen_procedural(checkpoint, args.store, test, args.sets, args.targets),
+            "refine_steps": steps,
+            "unseen": unseen_procedural(checkpoint, args.store, test, args.sets, args.targets, refine),
             "real": real,
             "seconds": time.perf_counter() - start,
         }
         if args.baseline_subjects:
             subset = test[: args.baseline_subjects]
-            results[name]["unseen_subset"] = unseen_procedural(checkpoint, args.store, subset, 1, args.targets)
-            results[name]["real_subset"] = real_heart(checkpoint, args.real, args.sites, folds=1)
+            results[name]["unseen_subset"] = unseen_procedural(checkpoint, args.store, subset, 1, args.targets, refine)
+            results[name]["real_subset"] = real_heart(checkpoint, args.real, args.sites, folds=1, refine=refine)
         print(name, json.dumps({k: results[name]["unseen"]["target"][k]["mean"] for k in ("mse", "cc_spatial", "dc")}))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "unseen_anatomies.json").write_text(json.dumps({"test": test, **results}, indent=1, default=float))

@@ -24,6 +24,9 @@ console = Console()
 
 SeedOpt = Annotated[int, typer.Option(min=0, help="Random seed.")]
 DeviceOpt = Annotated[str, typer.Option(help="auto (CUDA where available), cpu, cuda or cuda:N.")]
+RefineOpt = Annotated[
+    int, typer.Option(min=0, help="Gradient steps refining c on each context set (0: the encoder's mean).")
+]
 
 
 def _fail(exc: Exception, path: str | Path | None = None) -> NoReturn:
@@ -162,11 +165,13 @@ def evaluate(
         float | None, typer.Option(min=0, callback=finite, help="Observation noise std (default: the training noise).")
     ] = None,
     seed: SeedOpt = 0,
+    refine_steps: RefineOpt = 0,
     device: DeviceOpt = "auto",
 ) -> None:
     """Context and target MSE / CC / DC / activation-time error, per subject and overall."""
     from learner.evaluate import EvalSpec
     from learner.evaluate import evaluate as run
+    from learner.refine import Refinement
 
     try:
         split = (
@@ -182,6 +187,7 @@ def evaluate(
             observe=observe,
             noise_std=noise,
             seed=seed,
+            refine=Refinement(steps=refine_steps),
         )
         report = run(checkpoint, store, spec, lambda i, n, s: console.print(f"[{i}/{n}] {s}"), device)
     except (InputError, ValueError) as exc:
@@ -240,11 +246,13 @@ def personalize(
     observations: Annotated[
         Path | None, typer.Option(help=".npz with points, cells, sites, obs, observed, times (instead of --store).")
     ] = None,  # noqa: E501
+    refine_steps: RefineOpt = 0,
     device: DeviceOpt = "auto",
 ) -> None:
     """Embed a subject's few observations into a saved personalised surrogate."""
     from learner.personalize import observations_from_file, observations_from_store
     from learner.personalize import personalize as run
+    from learner.refine import Refinement
 
     try:
         if observations is not None:
@@ -253,11 +261,12 @@ def personalize(
             obs = observations_from_store(store, subject, parse_ids(sites, "--sites"), observe)
         else:
             raise InputError("give either --observations FILE or --store, --subject and --sites")
-        info = run(checkpoint, obs, out, device)
+        info = run(checkpoint, obs, out, device, Refinement(steps=refine_steps))
     except (InputError, OSError) as exc:
         _fail(exc, out)
     console.print(
-        f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms -> {out}"
+        f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms"
+        f"{info['refined']} -> {out}"
     )
 
 

@@ -2,7 +2,8 @@
 
 For each subject, ``context_sets`` context sets are drawn (sizes uniform in
 ``context``); every method (:class:`Method`: metaPNS, PNS, the BO baselines)
-is personalised on each - for metaPNS c = mean of p(c | Y) - and predicts both
+is personalised on each - for metaPNS c = mean of p(c | Y), optionally refined on the
+context (``EvalSpec.refine``) - and predicts both
 its context (fit) and the subject's other simulations (targets, prediction),
 the same sets for every method. Metrics are per sequence (``learner.metrics``), summarised per
 subject and overall for each role.
@@ -25,6 +26,7 @@ from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS
+from learner.refine import Refinement, refine_context
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
@@ -53,6 +55,7 @@ class EvalSpec:
     seed: int = 0
     dc_frame: int | None = None  # None: default_dc_frame(T)
     batch: int = 16  # sites generated per forward pass
+    refine: Refinement = Refinement()  # steps > 0: refine c on each context set (learner.refine)
 
     def __post_init__(self) -> None:
         if self.observe is not None and self.observe not in OBSERVE_SETS:
@@ -125,10 +128,10 @@ class Method(ABC):
 
 
 class NeuralMethod(Method):
-    """metaPNS (c = mean of p(c | Y)) or PNS (no c) behind the :class:`Method` interface."""
+    """metaPNS (c = mean of p(c | Y), or refined on the context: ``refine``) or PNS (no c) as a :class:`Method`."""
 
-    def __init__(self, model: PNS, name: str, batch: int = 16) -> None:
-        self.model, self.name, self.batch = model.eval(), name, batch
+    def __init__(self, model: PNS, name: str, batch: int = 16, refine: Refinement = Refinement()) -> None:
+        self.model, self.name, self.batch, self.refine = model.eval(), name, batch, refine
         self.device = next(model.parameters()).device
         self._c: Tensor | None = None
         self._evidence: SiteEvidence | None = None
@@ -141,8 +144,20 @@ class NeuralMethod(Method):
         t0 = time.perf_counter()
         ep = episode.to(self.device)
         with torch.no_grad():
-            self._c = self.model.embed(ep.context_obs, ep.observed, self._hier).mu
+            posterior = self.model.embed(ep.context_obs, ep.observed, self._hier)
         self._evidence = SiteEvidence.of(ep)
+        self._c = posterior.mu
+        if self.refine.steps:
+            self._c, _ = refine_context(
+                self.model,
+                posterior,
+                ep.context_obs,
+                ep.observed,
+                ep.context_sites,
+                self._hier,
+                self._evidence,
+                self.refine,
+            )
         return {"fit_s": time.perf_counter() - t0}
 
     def predict(self, sites: Tensor) -> np.ndarray:
@@ -259,7 +274,7 @@ def evaluate(
         raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {model.frames}")
     observe = spec.observe or config.data.episodes.primary_observe
     noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
-    method = NeuralMethod(model, config.model.kind, spec.batch)
+    method = NeuralMethod(model, config.model.kind, spec.batch, spec.refine)
     reports = evaluate_methods(
         [method],
         view,

@@ -21,6 +21,7 @@ from learner.data.episodes import load_episode
 from learner.graph.hierarchy import hierarchy_for_mesh
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior, build_model
+from learner.refine import Refinement, refine_context
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
@@ -142,8 +143,18 @@ def observations_from_file(path: str | Path) -> Observations:
     )
 
 
-def personalize(checkpoint: str | Path, observations: Observations, out: str | Path, device: str = "cpu") -> dict:
-    """Embed the context set (on ``device``) and save a personalised surrogate; returns timing and shape facts."""
+def personalize(
+    checkpoint: str | Path,
+    observations: Observations,
+    out: str | Path,
+    device: str = "cpu",
+    refine: Refinement = Refinement(),
+) -> dict:
+    """Embed the context set (on ``device``) and save a personalised surrogate; returns timing and shape facts.
+
+    ``refine.steps > 0`` refines ``c`` on the context set (:mod:`learner.refine`):
+    the file's ``c_mu`` is then the refined ``c``, its ``c_logvar`` the encoder's.
+    """
     placed = resolve_device(device)
     model, config, ckpt = load_model(checkpoint, placed)
     if not isinstance(model, MetaPNS):
@@ -157,7 +168,12 @@ def personalize(checkpoint: str | Path, observations: Observations, out: str | P
     t0 = time.perf_counter()
     with torch.no_grad():
         post = model.embed(obs, observed, hier)
-        post = Posterior(post.mu.cpu(), post.logvar.cpu())
+    evidence = SiteEvidence.from_context(obs, observed, sites.to(placed))
+    objective = []
+    if refine.steps:
+        c, objective = refine_context(model, post, obs, observed, sites.to(placed), hier, evidence, refine)
+        post = Posterior(c, post.logvar)
+    post = Posterior(post.mu.cpu(), post.logvar.cpu())
     seconds = time.perf_counter() - t0
     save_checkpoint(
         out,
@@ -170,14 +186,18 @@ def personalize(checkpoint: str | Path, observations: Observations, out: str | P
             "c_logvar": post.logvar,
             "subject": observations.subject,
             "context_sites": sites,
-            "context_peaks": SiteEvidence.from_context(obs, observed, sites).peaks.cpu(),
+            "context_peaks": evidence.peaks.cpu(),
+            "refine_steps": refine.steps,
             "observed": observed.cpu(),
             "points": torch.as_tensor(observations.mesh.points),
             "cells": torch.as_tensor(observations.mesh.cells),
             "times": torch.as_tensor(np.asarray(observations.times, np.float64)),
         },
     )
-    return {"embed_seconds": seconds, "context_size": len(observations.sites), "out": str(out)}
+    refined = (
+        f", refined in {refine.steps} steps (objective {objective[0]:.4g} -> {objective[-1]:.4g})" if objective else ""
+    )
+    return {"embed_seconds": seconds, "context_size": len(observations.sites), "out": str(out), "refined": refined}
 
 
 @dataclass

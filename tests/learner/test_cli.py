@@ -129,6 +129,31 @@ def test_personalize_then_predict_with_vtk(trained, tiny_store):
     assert "u_011" in mesh.point_data and "activation_ms" in mesh.point_data
 
 
+def test_refined_personalisation_fits_the_context_better(trained, tiny_store):
+    """``--refine-steps`` in personalize and evaluate: c moves, and the context is reproduced more closely."""
+    sites = read_sites(tiny_store, "lv")
+    common = ["--store", str(tiny_store), "--subject", "lv-scar-apex", "--sites", f"{sites[0]},{sites[3]}"]
+    files = {}
+    for steps in (0, 10):
+        files[steps] = trained / f"p-refined-{steps}.pt"
+        args = ["personalize", str(trained / "run" / "best.pt"), "--out", str(files[steps]), *common]
+        result = runner.invoke(app, [*args, "--refine-steps", str(steps)])
+        assert result.exit_code == 0, result.output
+        assert ("refined in 10 steps" in result.output) == (steps == 10)
+    plain, refined = (torch.load(files[s], weights_only=True) for s in (0, 10))
+    assert refined["refine_steps"] == 10 and plain["refine_steps"] == 0
+    assert not torch.equal(plain["c_mu"], refined["c_mu"])
+    assert torch.equal(plain["c_logvar"], refined["c_logvar"])
+    context_mse = {}
+    for steps in (0, 10):
+        out = trained / f"eval-refined-{steps}"
+        args = ["evaluate", str(trained / "run" / "best.pt"), str(tiny_store), "--sets", "1", "--max-targets", "2"]
+        result = runner.invoke(app, [*args, "--refine-steps", str(steps), "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        context_mse[steps] = json.loads((out / "evaluation.json").read_text())["overall"]["context"]["mse"]["mean"]
+    assert context_mse[10] < context_mse[0]
+
+
 @pytest.mark.parametrize(
     "args, message",
     [

@@ -1,0 +1,114 @@
+"""Refining c on the context set: the objective it minimises, what it leaves alone, bad settings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from learner.config import ModelConfig
+from learner.data.episodes import load_episode
+from learner.evaluate import NeuralMethod
+from learner.models.site_evidence import SiteEvidence
+from learner.models.surrogate import MetaPNS
+from learner.refine import Refinement, refine_context
+from learner.store_view import StoreView
+from shared.errors import InputError
+
+CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10, coarse_blocks=1)
+
+
+@pytest.fixture(scope="module")
+def setup(tiny_store):
+    view = StoreView(tiny_store)
+    hier = view.hierarchy("lv", CONFIG.levels, CONFIG.coarsest)
+    episode = load_episode(tiny_store, "lv-scar-apex", [0, 5], [1, 2, 3], "surface")
+    torch.manual_seed(0)
+    model = MetaPNS(CONFIG, view.frames).eval()
+    with torch.no_grad():  # a fresh decoder predicts a constant; give it a trained-like output layer
+        model.decoder.out.weight.normal_(0.0, 0.5)
+    return view, hier, episode, model
+
+
+def _refine(setup, refinement: Refinement):
+    view, hier, ep, model = setup
+    post = model.embed(ep.context_obs, ep.observed, hier)
+    c, history = refine_context(
+        model, post, ep.context_obs, ep.observed, ep.context_sites, hier, SiteEvidence.of(ep), refinement
+    )
+    return post, c, history
+
+
+def _negative_log_posterior(setup, post, c, sigma: float) -> float:
+    """The documented objective, written out directly."""
+    view, hier, ep, model = setup
+    with torch.no_grad():
+        pred = model.generate(ep.context_sites, hier, c).numpy()
+    m = ep.observed.numpy()
+    residual = pred[..., m] - ep.context_obs.numpy()[..., m]
+    mu, var = post.mu.detach().numpy(), post.logvar.detach().exp().numpy()
+    return 0.5 * float((residual**2).sum()) / sigma**2 + 0.5 * float(((c.numpy() - mu) ** 2 / var).sum())
+
+
+def test_no_steps_keeps_the_encoders_mean(setup):
+    post, c, history = _refine(setup, Refinement(steps=0))
+    assert torch.equal(c, post.mu.detach())
+    assert len(history) == 1
+
+
+def test_steps_lower_the_negative_log_posterior_as_documented(setup):
+    refinement = Refinement(steps=15, lr=0.05, sigma=0.2)
+    post, c, history = _refine(setup, refinement)
+    assert len(history) == 16
+    assert history[-1] < 0.9 * history[0]
+    assert not torch.equal(c, post.mu.detach())
+    # the reported objective is the formula of the docstring, at the start and at the returned c
+    assert history[0] == pytest.approx(_negative_log_posterior(setup, post, post.mu.detach(), 0.2), rel=1e-4)
+    assert history[-1] == pytest.approx(_negative_log_posterior(setup, post, c, 0.2), rel=1e-4)
+
+
+def test_a_large_sigma_keeps_c_near_the_encoders_mean(setup):
+    post, tight, _ = _refine(setup, Refinement(steps=10, sigma=0.05))
+    _, loose, _ = _refine(setup, Refinement(steps=10, sigma=50.0))
+    mu = post.mu.detach()
+    assert (loose - mu).norm() < (tight - mu).norm()
+
+
+def test_refinement_leaves_the_weights_alone(setup):
+    model = setup[3]
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    _refine(setup, Refinement(steps=3))
+    for name, value in model.state_dict().items():
+        assert torch.equal(value, before[name]), name
+    assert all(p.grad is None for p in model.parameters())
+
+
+def test_a_refined_method_fits_its_context_better(setup, tiny_store):
+    view, hier, ep, model = setup
+    mesh = view.mesh("lv")
+    sites = torch.cat([ep.context_sites, ep.target_sites])
+    errors = {}
+    for steps in (0, 20):
+        method = NeuralMethod(model, "m", refine=Refinement(steps=steps))
+        method.fit(ep, mesh, hier)
+        pred = method.predict(sites)
+        m = ep.observed.numpy()
+        errors[steps] = float(np.mean((pred[: len(ep.context_sites)][..., m] - ep.context_obs.numpy()[..., m]) ** 2))
+    assert errors[20] < errors[0]
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        ({"steps": -1}, "steps"),
+        ({"steps": 2.5}, "steps"),
+        ({"steps": True}, "steps"),
+        ({"lr": 0.0}, "lr"),
+        ({"lr": float("nan")}, "lr"),
+        ({"sigma": -1.0}, "sigma"),
+        ({"sigma": float("inf")}, "sigma"),
+    ],
+)
+def test_bad_settings_are_refused_by_name(kwargs, word):
+    with pytest.raises(InputError, match=word):
+        Refinement(**kwargs)
