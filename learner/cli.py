@@ -264,9 +264,11 @@ def personalize(
         info = run(checkpoint, obs, out, device, Refinement(steps=refine_steps))
     except (InputError, OSError) as exc:
         _fail(exc, out)
+    history = info["refine_objective"]
+    refined = f", refined in {refine_steps} steps (objective {history[0]:.4g} -> {history[-1]:.4g})" if history else ""
     console.print(
         f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms"
-        f"{info['refined']} -> {out}"
+        f"{refined} -> {out}"
     )
 
 

@@ -153,7 +153,8 @@ def personalize(
     """Embed the context set (on ``device``) and save a personalised surrogate; returns timing and shape facts.
 
     ``refine.steps > 0`` refines ``c`` on the context set (:mod:`learner.refine`):
-    the file's ``c_mu`` is then the refined ``c``, its ``c_logvar`` the encoder's.
+    the file's ``c_mu`` is then the refined ``c``, its ``c_logvar`` the encoder's,
+    and the result's ``refine_objective`` the objective per step (empty without).
     """
     placed = resolve_device(device)
     model, config, ckpt = load_model(checkpoint, placed)
@@ -194,10 +195,12 @@ def personalize(
             "times": torch.as_tensor(np.asarray(observations.times, np.float64)),
         },
     )
-    refined = (
-        f", refined in {refine.steps} steps (objective {objective[0]:.4g} -> {objective[-1]:.4g})" if objective else ""
-    )
-    return {"embed_seconds": seconds, "context_size": len(observations.sites), "out": str(out), "refined": refined}
+    return {
+        "embed_seconds": seconds,
+        "context_size": len(observations.sites),
+        "out": str(out),
+        "refine_objective": objective,
+    }
 
 
 @dataclass
