@@ -229,7 +229,8 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
     the same for the ``ceiling``: the noise-free truth scored the same way, what
     a perfect method would get (below 1: frames where the heart is at rest or
     fully excited hold only noise, so their spatial CC is near 0 whatever the
-    prediction).
+    prediction). ``folds`` holds the target row of every fold, per method and
+    for the ``ceiling``: where the error is.
     """
     spec = cfg.real_data
     view = StoreView(spec.store)
@@ -263,6 +264,7 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
         "noise_std": spec.noise_std,
         "methods": per_method,
         "ceiling": _role_summary(ceiling),
+        "folds": {**{name: _targets(rs) for name, rs in rows.items()}, "ceiling": _targets(ceiling)},
     }
 
 
@@ -276,6 +278,11 @@ def _fold_rows(pred: list[np.ndarray], truths: list[np.ndarray], observed: np.nd
             {**fold, "role": role, "mse": mse(p, t), "cc_spatial": spatial_cc(p, t), "cc_temporal": temporal_cc(p, t)}
         )
     return rows
+
+
+def _targets(rows: list[dict]) -> list[dict]:
+    """The target rows of a fold-by-fold list: one per fold."""
+    return [r for r in rows if r["role"] == "target"]
 
 
 def _role_summary(rows: list[dict]) -> dict:

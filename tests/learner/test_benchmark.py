@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from learner.cli import app
@@ -55,6 +57,14 @@ baseline_folds = 1
     noise = data["real_data"]["noise_std"]
     assert abs(ceiling["mse"]["mean"] - noise**2) < 0.2 * noise**2  # E[(noise)^2] over 40 electrodes x frames
     assert 0 < ceiling["cc_spatial"]["mean"] < 1 and ceiling["cc_temporal"]["mean"] > 0.9
+    folds = data["real_data"]["folds"]  # one target row per fold, per method and for the ceiling
+    assert set(folds) == {"metaPNS", "PNS", "ceiling"}
+    pairs = [(r["subject"], r["left_out"]) for r in folds["ceiling"]]
+    assert [(r["subject"], r["left_out"]) for r in folds["PNS"]] == pairs and len(set(pairs)) == len(pairs)
+    assert {subject for subject, _ in pairs} == set(data["real_data"]["subjects"])
+    mean_cc = np.nanmean([r["cc_spatial"] for r in folds["metaPNS"]])
+    assert mean_cc == pytest.approx(data["real_data"]["methods"]["metaPNS"]["target"]["cc_spatial"]["mean"])
+    assert len(data["real_data_baseline_subset"]["folds"]["fs-bo"]) == len(data["real_data"]["subjects"])
     assert set(data["real_data_baseline_subset"]["methods"]) == {"metaPNS", "PNS", "fs-bo", "vae-bo"}
     md = (out / "benchmark.md").read_text()
     assert "| fs-bo |" in md and "| vae-bo |" in md and "Real-data emulation" in md
