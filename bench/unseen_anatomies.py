@@ -99,17 +99,16 @@ def subset_markdown(results: dict, n: int) -> str:
 
 def fold_markdown(results: dict) -> str:
     """The real heart fold by fold: target CC spatial and MSE of each model, and the ceiling's CC."""
-    names = list(results)
-    folds = results[names[0]]["real"]["folds"]
+    per_model = [r["real"]["folds"]["model"] for r in results.values()]
     lines = [
-        "\n| real heart: subject | left-out site | ceiling CC | " + " | ".join(f"{n}: CC | MSE" for n in names) + " |",
-        "|---|---:|---:|" + "---:|---:|" * len(names),
+        "\n| real heart: subject | left-out site | ceiling CC | "
+        + " | ".join(f"{n}: CC | MSE" for n in results)
+        + " |",
+        "|---|---:|---:|" + "---:|---:|" * len(results),
     ]
-    for i, ceiling in enumerate(folds["ceiling"]):
-        cells = [
-            f"{r['real']['folds']['model'][i]['cc_spatial']:.3f} | {r['real']['folds']['model'][i]['mse']:.4f}"
-            for r in results.values()
-        ]
+    ceilings = next(iter(results.values()))["real"]["folds"]["ceiling"]  # the same folds for every model
+    for i, ceiling in enumerate(ceilings):
+        cells = [f"{folds[i]['cc_spatial']:.3f} | {folds[i]['mse']:.4f}" for folds in per_model]
         lines.append(
             f"| {ceiling['subject']} | {ceiling['left_out']} | {ceiling['cc_spatial']:.3f} | {' | '.join(cells)} |"
         )
