@@ -169,10 +169,10 @@ def personalize(
     t0 = time.perf_counter()
     with torch.no_grad():
         post = model.embed(obs, observed, hier)
-    evidence = SiteEvidence.from_context(obs, observed, sites.to(placed))
+    evidence = SiteEvidence.from_context(obs, observed, sites)  # its sites on obs's device
     objective = []
     if refine.steps:
-        c, objective = refine_context(model, post, obs, observed, sites.to(placed), hier, evidence, refine)
+        c, objective = refine_context(model, post, obs, observed, evidence.sites, hier, evidence, refine)
         post = Posterior(c, post.logvar)
     post = Posterior(post.mu.cpu(), post.logvar.cpu())
     seconds = time.perf_counter() - t0
