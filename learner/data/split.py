@@ -3,7 +3,8 @@
 Splitting is by subject, never by simulation: every simulation of a subject
 lands in the same part, so a test subject's tissue is never seen in training.
 Subjects on a held-out mesh all go to ``test`` (an unseen geometry, the
-paper's real-data setting); the others are shuffled by ``seed`` and cut by
+paper's real-data setting), those on a training mesh all to ``train`` (for
+example real anatomies that must be trained on, whatever the shuffle); the others are shuffled by ``seed`` and cut by
 fractions (``source = "computed"``, the default) or take the part the store
 records for them (``source = "store"``: the canonical split of
 :mod:`shared.split`, which subjects added later never change). With
@@ -41,6 +42,10 @@ class SplitSpec:
         sum ``< 1``.
     held_out_meshes
         Mesh ids whose subjects all go to ``test``.
+    train_meshes
+        Mesh ids whose subjects all go to ``train``; they take no part in the
+        shuffle and the cut, so adding them leaves validation and test as
+        they were.
     source
         ``"computed"``: shuffle and cut as above; ``"store"``: the split
         recorded in the store (``seed`` and the fractions are then unused).
@@ -58,15 +63,21 @@ class SplitSpec:
     validation: float = 0.1
     test: float = 0.2
     held_out_meshes: tuple[str, ...] = ()
+    train_meshes: tuple[str, ...] = ()
     source: Literal["computed", "store"] = "computed"
     by: Literal["subject", "mesh"] = "subject"
     train_count: int = 0
 
     def __post_init__(self) -> None:
         # TOML gives lists; a tuple keeps the spec hashable and comparable.
-        if isinstance(self.held_out_meshes, str):
-            raise InputError(f"held_out_meshes must be a list of mesh ids, not the string {self.held_out_meshes!r}")
-        object.__setattr__(self, "held_out_meshes", tuple(self.held_out_meshes))
+        for name in ("held_out_meshes", "train_meshes"):
+            value = getattr(self, name)
+            if isinstance(value, str):
+                raise InputError(f"{name} must be a list of mesh ids, not the string {value!r}")
+            object.__setattr__(self, name, tuple(value))
+        both = sorted(set(self.held_out_meshes) & set(self.train_meshes))
+        if both:
+            raise InputError(f"mesh(es) {', '.join(both)} are both held out and training meshes")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise InputError(f"split seed must be a non-negative integer, got {self.seed!r}")
         for name in ("validation", "test"):
@@ -130,16 +141,19 @@ def split_subjects(
     if missing:
         raise InputError(f"no mesh id given for subject(s): {', '.join(sorted(missing))}")
     used_meshes = {mesh_of[s] for s in ids}
-    unknown = [m for m in spec.held_out_meshes if m not in used_meshes]
-    if unknown:
-        raise InputError(
-            f"held-out mesh(es) {', '.join(unknown)} not used by any subject; "
-            f"meshes are {', '.join(sorted(used_meshes))}"
-        )
+    for kind, meshes in (("held-out", spec.held_out_meshes), ("training", spec.train_meshes)):
+        unknown = [m for m in meshes if m not in used_meshes]
+        if unknown:
+            raise InputError(
+                f"{kind} mesh(es) {', '.join(unknown)} not used by any subject; "
+                f"meshes are {', '.join(sorted(used_meshes))}"
+            )
 
-    held = set(spec.held_out_meshes)
+    held, trained = set(spec.held_out_meshes), set(spec.train_meshes)
     held_out = sorted(s for s in ids if mesh_of[s] in held)
-    rest = sorted(s for s in ids if mesh_of[s] not in held)  # sorted first: order of the input must not matter
+    always_train = sorted(s for s in ids if mesh_of[s] in trained)
+    # sorted first: order of the input must not matter
+    rest = sorted(s for s in ids if mesh_of[s] not in held | trained)
     if not rest:
         raise InputError(
             f"no subject left for training: all {len(ids)} subject(s) are on held-out meshes "
@@ -159,6 +173,7 @@ def split_subjects(
         parts["test"] = sorted(parts["test"] + held_out)
     if spec.train_count:
         parts["train"] = _first_units(parts["train"], mesh_of if spec.by == "mesh" else None, spec)
+    parts["train"] = sorted(parts["train"] + always_train)
     return parts
 
 

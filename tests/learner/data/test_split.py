@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from learner.data import SPLITS, SplitSpec, split_subjects
@@ -51,6 +53,7 @@ def test_rounding_keeps_one_training_subject():
     [
         (["a"], {"a": "m"}, SplitSpec(held_out_meshes=("m",)), "no subject left for training"),
         (["a"], {"a": "m"}, SplitSpec(held_out_meshes=("x",)), "held-out mesh.*x.*not used"),
+        (["a"], {"a": "m"}, SplitSpec(train_meshes=("x",)), "training mesh.*x.*not used"),
         (["a", "b"], {"a": "m"}, SplitSpec(), "no mesh id given for subject.*b"),
         (["a", "a"], {"a": "m"}, SplitSpec(), "duplicate subject ids: a"),
     ],
@@ -68,6 +71,8 @@ def test_refusals(ids, mesh_of, spec, match):
         ({"validation": 1.0}, r"validation fraction must be in \[0, 1\)"),
         ({"seed": -1}, "non-negative integer"),
         ({"held_out_meshes": "lv"}, "list of mesh ids"),
+        ({"train_meshes": "lv"}, "list of mesh ids"),
+        ({"train_meshes": ["lv"], "held_out_meshes": ["lv"]}, "lv are both held out and training"),
     ],
 )
 def test_bad_spec(kwargs, match):
@@ -154,6 +159,21 @@ def test_train_count_keeps_nested_anatomies_and_the_same_validation_and_test():
     assert kept[1] < kept[4] < kept[14] == {mesh_of[s] for s in full["train"]}
     by_subject = split_subjects(ids, mesh_of, SplitSpec(seed=3, train_count=5))
     assert len(by_subject["train"]) == 5
+
+
+@pytest.mark.parametrize("train_count", [0, 3])
+def test_training_meshes_join_train_and_leave_validation_and_test_as_they_were(train_count):
+    ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
+    mesh_of = {sid: sid.split("-")[0] for sid in ids}
+    real = [f"{m}-s{s}" for m in ("real1", "real2") for s in range(4)]
+    with_real = {**mesh_of, **{sid: sid.split("-")[0] for sid in real}}
+    spec = SplitSpec(seed=2, by="mesh", train_count=train_count)
+    before = split_subjects(ids, mesh_of, spec)
+    after = split_subjects(ids + real, with_real, replace(spec, train_meshes=("real1", "real2")))
+    if not train_count:  # train_count leaves training anatomies out: no partition of all subjects then
+        _check_partition(after, ids + real)
+    assert after["validation"] == before["validation"] and after["test"] == before["test"]
+    assert after["train"] == sorted(before["train"] + real)
 
 
 def test_train_count_above_the_training_part_is_refused():
