@@ -3,11 +3,12 @@
 Splitting is by subject, never by simulation: every simulation of a subject
 lands in the same part, so a test subject's tissue is never seen in training.
 Subjects on a held-out mesh all go to ``test`` (an unseen geometry, the
-paper's real-data setting), those on a training mesh all to ``train`` (for
-example real anatomies that must be trained on, whatever the shuffle); the others are shuffled by ``seed`` and cut by
-fractions (``source = "computed"``, the default) or take the part the store
-records for them (``source = "store"``: the canonical split of
-:mod:`shared.split`, which subjects added later never change). With
+paper's real-data setting), those on a training mesh all to ``train`` (real
+anatomies that must be trained on, whatever the shuffle); the others are
+shuffled by ``seed`` and cut by fractions (``source = "computed"``, the
+default) or take the part the store records for them (``source = "store"``:
+the canonical split of :mod:`shared.split`, which subjects added later never
+change). With
 ``by = "mesh"`` the computed cut is over meshes (anatomies) instead of
 subjects: every subject of an anatomy lands in the same part, so validation
 and test anatomies are never seen in training, whatever their tissue.
@@ -116,22 +117,24 @@ def split_subjects(
 ) -> dict[str, list[str]]:
     """Split subjects into disjoint ``train``, ``validation`` and ``test`` lists.
 
-    With ``n`` subjects off the held-out meshes, ``validation`` gets
+    With ``n`` subjects off the held-out and training meshes, ``validation`` gets
     ``round(spec.validation * n)`` and ``test`` ``round(spec.test * n)`` of them
     (then shrunk, test first, until at least one subject is left for training);
     ``train`` gets the rest. With ``spec.by == "mesh"`` the same cut is made
     over the meshes, and each subject follows its mesh. ``spec.train_count``
-    then shrinks ``train`` (:class:`SplitSpec`). With ``spec.source == "store"`` they take their
-    part in ``stored`` (the store's split, :func:`shared.reader.read_split`)
-    instead. The result depends only on the *set* of subjects, their meshes,
+    then shrinks ``train`` (:class:`SplitSpec`). With ``spec.source == "store"``
+    they take their part in ``stored`` (the store's split,
+    :func:`shared.reader.read_split`) instead. The subjects on
+    ``spec.train_meshes`` then join ``train``. The result depends only on the *set* of subjects, their meshes,
     ``spec`` and ``stored`` (input order does not matter); each list is sorted.
 
     Raises
     ------
     InputError
         Duplicate subjects, a subject missing from ``mesh_of`` (or, from the
-        store, from ``stored``), a held-out mesh that no subject uses, or no
-        subject left for training.
+        store, from ``stored``), a held-out or training mesh that no subject
+        uses, or no subject left for training (or, with training meshes, for
+        validation and test).
     """
     ids = list(subject_ids)
     if len(set(ids)) != len(ids):
@@ -154,6 +157,11 @@ def split_subjects(
     always_train = sorted(s for s in ids if mesh_of[s] in trained)
     # sorted first: order of the input must not matter
     rest = sorted(s for s in ids if mesh_of[s] not in held | trained)
+    if not rest and always_train:
+        raise InputError(
+            f"no subject left for validation and test: all {len(ids)} subject(s) are on held-out or "
+            f"training meshes {', '.join(spec.held_out_meshes + spec.train_meshes)}"
+        )
     if not rest:
         raise InputError(
             f"no subject left for training: all {len(ids)} subject(s) are on held-out meshes "

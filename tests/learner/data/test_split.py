@@ -54,6 +54,7 @@ def test_rounding_keeps_one_training_subject():
         (["a"], {"a": "m"}, SplitSpec(held_out_meshes=("m",)), "no subject left for training"),
         (["a"], {"a": "m"}, SplitSpec(held_out_meshes=("x",)), "held-out mesh.*x.*not used"),
         (["a"], {"a": "m"}, SplitSpec(train_meshes=("x",)), "training mesh.*x.*not used"),
+        (["a"], {"a": "m"}, SplitSpec(train_meshes=("m",)), "no subject left for validation and test"),
         (["a", "b"], {"a": "m"}, SplitSpec(), "no mesh id given for subject.*b"),
         (["a", "a"], {"a": "m"}, SplitSpec(), "duplicate subject ids: a"),
     ],
