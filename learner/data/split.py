@@ -8,10 +8,10 @@ anatomies that must be trained on, whatever the shuffle); the others are
 shuffled by ``seed`` and cut by fractions (``source = "computed"``, the
 default) or take the part the store records for them (``source = "store"``:
 the canonical split of :mod:`shared.split`, which subjects added later never
-change). With
-``by = "mesh"`` the computed cut is over meshes (anatomies) instead of
-subjects: every subject of an anatomy lands in the same part, so validation
-and test anatomies are never seen in training, whatever their tissue.
+change). With ``by = "mesh"`` the computed cut is over meshes (anatomies)
+instead of subjects: every subject of an anatomy lands in the same part, so
+validation and test anatomies are never seen in training, whatever their
+tissue.
 """
 
 from __future__ import annotations
@@ -125,8 +125,9 @@ def split_subjects(
     then shrinks ``train`` (:class:`SplitSpec`). With ``spec.source == "store"``
     they take their part in ``stored`` (the store's split,
     :func:`shared.reader.read_split`) instead. The subjects on
-    ``spec.train_meshes`` then join ``train``. The result depends only on the *set* of subjects, their meshes,
-    ``spec`` and ``stored`` (input order does not matter); each list is sorted.
+    ``spec.train_meshes`` then join ``train``. The result depends only on the
+    *set* of subjects, their meshes, ``spec`` and ``stored`` (input order does
+    not matter); each list is sorted.
 
     Raises
     ------
@@ -155,8 +156,8 @@ def split_subjects(
     held, trained = set(spec.held_out_meshes), set(spec.train_meshes)
     held_out = sorted(s for s in ids if mesh_of[s] in held)
     always_train = sorted(s for s in ids if mesh_of[s] in trained)
-    # sorted first: order of the input must not matter
-    rest = sorted(s for s in ids if mesh_of[s] not in held | trained)
+    placed = held | trained
+    rest = sorted(s for s in ids if mesh_of[s] not in placed)  # sorted first: order of the input must not matter
     if not rest and always_train:
         raise InputError(
             f"no subject left for validation and test: all {len(ids)} subject(s) are on held-out or "

@@ -9,8 +9,15 @@ import pytest
 from learner.data import SPLITS, SplitSpec, split_subjects
 from shared.errors import InputError
 
+
+def _mesh_of(ids: list[str]) -> dict[str, str]:
+    """Each subject's mesh: the part of its id before the first dash."""
+    return {sid: sid.split("-")[0] for sid in ids}
+
+
 IDS = [f"m{m}-s{s:02d}" for m in range(3) for s in range(20)]
-MESH_OF = {sid: sid.split("-")[0] for sid in IDS}
+MESH_OF = _mesh_of(IDS)
+ANATOMY_IDS = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]  # 20 anatomies x 4 tissue settings
 
 
 def _check_partition(parts: dict[str, list[str]], ids: list[str]) -> None:
@@ -130,8 +137,7 @@ def test_adding_a_subject_moves_no_stored_subject(store_copy):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_split_by_mesh_keeps_anatomies_whole(seed):
-    ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
-    mesh_of = {sid: sid.split("-")[0] for sid in ids}
+    ids, mesh_of = ANATOMY_IDS, _mesh_of(ANATOMY_IDS)
     parts = split_subjects(ids, mesh_of, SplitSpec(seed=seed, validation=0.1, test=0.2, by="mesh"))
     _check_partition(parts, ids)
     meshes = {name: {mesh_of[s] for s in parts[name]} for name in SPLITS}
@@ -148,8 +154,7 @@ def test_split_by_mesh_with_held_out_mesh_and_one_mesh_left():
 
 
 def test_train_count_keeps_nested_anatomies_and_the_same_validation_and_test():
-    ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
-    mesh_of = {sid: sid.split("-")[0] for sid in ids}
+    ids, mesh_of = ANATOMY_IDS, _mesh_of(ANATOMY_IDS)
     full = split_subjects(ids, mesh_of, SplitSpec(seed=3, by="mesh"))
     kept = {}
     for count in (1, 4, 14):
@@ -164,13 +169,11 @@ def test_train_count_keeps_nested_anatomies_and_the_same_validation_and_test():
 
 @pytest.mark.parametrize("train_count", [0, 3])
 def test_training_meshes_join_train_and_leave_validation_and_test_as_they_were(train_count):
-    ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
-    mesh_of = {sid: sid.split("-")[0] for sid in ids}
+    ids, mesh_of = ANATOMY_IDS, _mesh_of(ANATOMY_IDS)
     real = [f"{m}-s{s}" for m in ("real1", "real2") for s in range(4)]
-    with_real = {**mesh_of, **{sid: sid.split("-")[0] for sid in real}}
     spec = SplitSpec(seed=2, by="mesh", train_count=train_count)
     before = split_subjects(ids, mesh_of, spec)
-    after = split_subjects(ids + real, with_real, replace(spec, train_meshes=("real1", "real2")))
+    after = split_subjects(ids + real, _mesh_of(ids + real), replace(spec, train_meshes=("real1", "real2")))
     if not train_count:  # train_count leaves training anatomies out: no partition of all subjects then
         _check_partition(after, ids + real)
     assert after["validation"] == before["validation"] and after["test"] == before["test"]
@@ -179,8 +182,7 @@ def test_training_meshes_join_train_and_leave_validation_and_test_as_they_were(t
 
 def test_train_count_above_the_training_part_is_refused():
     with pytest.raises(InputError, match="train_count = 15, but the training part has only 14 anatomies"):
-        ids = [f"a{m:02d}-s{s}" for m in range(20) for s in range(4)]
-        split_subjects(ids, {sid: sid.split("-")[0] for sid in ids}, SplitSpec(by="mesh", train_count=15))
+        split_subjects(ANATOMY_IDS, _mesh_of(ANATOMY_IDS), SplitSpec(by="mesh", train_count=15))
 
 
 @pytest.mark.parametrize(
