@@ -166,6 +166,10 @@ def evaluate(
     ] = None,
     seed: SeedOpt = 0,
     refine_steps: RefineOpt = 0,
+    ensemble: Annotated[
+        list[Path] | None,
+        typer.Option(help="Another checkpoint to average with CHECKPOINT's predictions (repeat for more)."),
+    ] = None,
     device: DeviceOpt = "auto",
 ) -> None:
     """Context and target MSE / CC / DC / activation-time error, per subject and overall."""
@@ -189,7 +193,8 @@ def evaluate(
             seed=seed,
             refine=Refinement(steps=refine_steps),
         )
-        report = run(checkpoint, store, spec, lambda i, n, s: console.print(f"[{i}/{n}] {s}"), device)
+        checkpoints = [checkpoint, *(ensemble or [])]
+        report = run(checkpoints, store, spec, lambda i, n, s: console.print(f"[{i}/{n}] {s}"), device)
     except (InputError, ValueError) as exc:
         _fail(exc)
     try:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from learner.config import LearnerConfig
 from learner.data.episodes import OBSERVE_SETS, Episode, load_episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
@@ -34,7 +36,17 @@ from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.units import MS_PER_TIME_UNIT
 
-__all__ = ["EvalSpec", "EvalReport", "Method", "NeuralMethod", "evaluate_methods", "evaluate", "default_dc_frame"]
+__all__ = [
+    "EvalSpec",
+    "EvalReport",
+    "Method",
+    "NeuralMethod",
+    "EnsembleMethod",
+    "load_method",
+    "evaluate_methods",
+    "evaluate",
+    "default_dc_frame",
+]
 
 
 def default_dc_frame(frames: int) -> int:
@@ -170,6 +182,80 @@ class NeuralMethod(Method):
         return torch.cat(parts).cpu().numpy()
 
 
+class EnsembleMethod(Method):
+    """Several methods fitted on the same context set, their predictions averaged: a deep ensemble.
+
+    Surrogates trained from other seeds or on other data place a wave
+    differently where the training hearts say little about a new one; the mean of
+    their predictions errs less than each of them on average (Lakshminarayanan
+    et al. 2017, *Simple and Scalable Predictive Uncertainty Estimation using
+    Deep Ensembles*). Fitting and predicting cost the sum of the members'.
+    """
+
+    def __init__(self, members: Sequence[Method], name: str) -> None:
+        if len(members) < 2:
+            raise InputError(f"an ensemble needs at least 2 members, got {len(members)}")
+        self.members, self.name = list(members), name
+        self.device = getattr(self.members[0], "device", "cpu")
+
+    def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
+        costs = [m.fit(episode, mesh, hierarchy) for m in self.members]
+        return {"fit_s": sum(c["fit_s"] for c in costs), "calls": sum(c.get("calls", 0.0) for c in costs)}
+
+    def predict(self, sites: Tensor) -> np.ndarray:
+        return np.mean([m.predict(sites) for m in self.members], axis=0)
+
+
+#: What the members of an ensemble must share: the sequences they predict and the mesh hierarchy they run on.
+_ENSEMBLE_KEYS = ("kind", "levels", "coarsest")
+
+
+def load_method(
+    checkpoints: str | Path | Sequence[str | Path],
+    device: torch.device | str = "cpu",
+    batch: int = 16,
+    refine: Refinement = Refinement(),
+) -> tuple[Method, LearnerConfig, list[dict]]:
+    """A :class:`NeuralMethod` for one checkpoint, an :class:`EnsembleMethod` of several.
+
+    Returns the method, the first checkpoint's config (observation set and
+    noise of the evaluation) and every checkpoint dict. Ensemble members must
+    agree on the model kind, the frames and the mesh hierarchy (``levels``,
+    ``coarsest``); anything else (seed, data, widths) may differ.
+    """
+    paths = [checkpoints] if isinstance(checkpoints, str | Path) else list(checkpoints)
+    if not paths:
+        raise InputError("no checkpoint to evaluate")
+    loaded = [load_model(p, device) for p in paths]
+    (model, config, _), methods = loaded[0], []
+    for path, (member, member_config, _) in zip(paths, loaded, strict=True):
+        for key in _ENSEMBLE_KEYS:
+            if getattr(member_config.model, key) != getattr(config.model, key):
+                raise InputError(
+                    f"{path}: model.{key} = {getattr(member_config.model, key)!r}, but {paths[0]} has "
+                    f"{getattr(config.model, key)!r}; ensemble members must agree on {', '.join(_ENSEMBLE_KEYS)}"
+                )
+        if member.frames != model.frames:
+            raise InputError(f"{path} predicts {member.frames} frames, {paths[0]} {model.frames}")
+        methods.append(NeuralMethod(member, config.model.kind, batch, refine))
+    method = (
+        methods[0] if len(methods) == 1 else EnsembleMethod(methods, f"ensemble of {len(methods)} {config.model.kind}")
+    )
+    return method, config, [ckpt for _, _, ckpt in loaded]
+
+
+def _ensemble_splits(paths: Sequence[str | Path], ckpts: list[dict], split: str) -> dict:
+    """The splits of the first checkpoint, after checking that every member has the same ``split``."""
+    first = ckpts[0].get("splits", {})
+    for path, ckpt in zip(paths[1:], ckpts[1:], strict=True):
+        if ckpt.get("splits", {}).get(split) != first.get(split):
+            raise InputError(
+                f"{path} has another {split!r} split than {paths[0]}: a subject one member holds out "
+                "may be in another's training; evaluate an ensemble on a split its members share"
+            )
+    return first
+
+
 def _subjects(spec: EvalSpec, splits: dict, view: StoreView) -> list[str]:
     if isinstance(spec.subjects, str):
         if spec.subjects not in splits:
@@ -265,20 +351,31 @@ def evaluate_methods(
 
 
 def evaluate(
-    checkpoint: str | Path, store: str | Path, spec: EvalSpec = EvalSpec(), progress=None, device: str = "cpu"
+    checkpoint: str | Path | Sequence[str | Path],
+    store: str | Path,
+    spec: EvalSpec = EvalSpec(),
+    progress=None,
+    device: str = "cpu",
 ) -> EvalReport:
-    """Evaluate ``checkpoint`` on ``store`` (see :class:`EvalSpec`), the model on ``device`` (``auto``, ``cuda``...)."""
-    model, config, ckpt = load_model(checkpoint, resolve_device(device))
-    view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
-    if view.frames != model.frames:
-        raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {model.frames}")
+    """Evaluate ``checkpoint`` on ``store`` (see :class:`EvalSpec`), the model on ``device`` (``auto``, ``cuda``...).
+
+    Several checkpoints are evaluated as one ensemble (:func:`load_method`); a
+    split named in ``spec.subjects`` must then be the same in each of them.
+    """
+    paths = [checkpoint] if isinstance(checkpoint, str | Path) else list(checkpoint)
+    method, config, ckpts = load_method(paths, resolve_device(device), spec.batch, spec.refine)
+    view = StoreView(store, cache_dir=Path(paths[0]).parent / "hierarchies")
+    if view.frames != ckpts[0]["frames"]:
+        raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {ckpts[0]['frames']}")
     observe = spec.observe or config.data.episodes.primary_observe
     noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
-    method = NeuralMethod(model, config.model.kind, spec.batch, spec.refine)
+    splits = ckpts[0].get("splits", {})
+    if len(paths) > 1 and isinstance(spec.subjects, str):
+        splits = _ensemble_splits(paths, ckpts, spec.subjects)
     reports = evaluate_methods(
         [method],
         view,
-        _subjects(spec, ckpt.get("splits", {}), view),
+        _subjects(spec, splits, view),
         spec,
         observe,
         noise,
