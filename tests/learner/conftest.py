@@ -1,10 +1,11 @@
-"""A small model configuration on the tiny store of ``tests/conftest.py``."""
+"""A small model configuration on the tiny store of ``tests/conftest.py``, and untrained models made to act trained."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+import torch
 
 
 def tiny_toml(store: Path, workers: int = 0, validation: float = 0.2, test: float = 0.2, train: str = "") -> str:
@@ -71,3 +72,16 @@ def tiny_config_fixture():
 def tiny_toml_fixture():
     """The :func:`tiny_toml` factory."""
     return tiny_toml
+
+
+def trained_like(model):
+    """``model`` with a trained-like random output layer: a fresh decoder (zero output weights) predicts a constant."""
+    with torch.no_grad():
+        model.decoder.out.weight.normal_(0.0, 0.5)
+    return model
+
+
+@pytest.fixture(name="trained_like", scope="session")
+def trained_like_fixture():
+    """The :func:`trained_like` helper."""
+    return trained_like

@@ -23,20 +23,15 @@ CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10
 runner = CliRunner()
 
 
-def _model(seed: int, frames: int) -> MetaPNS:
-    torch.manual_seed(seed)
-    model = MetaPNS(CONFIG, frames).eval()
-    with torch.no_grad():  # a fresh decoder predicts a constant; give it a trained-like output layer
-        model.decoder.out.weight.normal_(0.0, 0.5)
-    return model
-
-
 @pytest.fixture(scope="module")
-def fitted(tiny_store):
+def fitted(tiny_store, trained_like):
     view = StoreView(tiny_store)
     hier = view.hierarchy("lv", CONFIG.levels, CONFIG.coarsest)
     episode = load_episode(tiny_store, "lv-scar-apex", [0, 5], [1, 2, 3], "surface")
-    members = [NeuralMethod(_model(seed, view.frames), f"m{seed}") for seed in (0, 1)]
+    members = []
+    for seed in (0, 1):
+        torch.manual_seed(seed)
+        members.append(NeuralMethod(trained_like(MetaPNS(CONFIG, view.frames).eval()), f"m{seed}"))
     return view, hier, episode, members
 
 

@@ -19,14 +19,12 @@ CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10
 
 
 @pytest.fixture(scope="module")
-def setup(tiny_store):
+def setup(tiny_store, trained_like):
     view = StoreView(tiny_store)
     hier = view.hierarchy("lv", CONFIG.levels, CONFIG.coarsest)
     episode = load_episode(tiny_store, "lv-scar-apex", [0, 5], [1, 2, 3], "surface")
     torch.manual_seed(0)
-    model = MetaPNS(CONFIG, view.frames).eval()
-    with torch.no_grad():  # a fresh decoder predicts a constant; give it a trained-like output layer
-        model.decoder.out.weight.normal_(0.0, 0.5)
+    model = trained_like(MetaPNS(CONFIG, view.frames).eval())
     return view, hier, episode, model
 
 

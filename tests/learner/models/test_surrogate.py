@@ -14,13 +14,6 @@ from learner.train.loss import episode_loss
 CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10, coarse_blocks=1)
 
 
-def _trained_like(model: PNS) -> PNS:
-    """A fresh decoder predicts a constant (zero output weights); give it the random output layer of a trained one."""
-    with torch.no_grad():
-        model.decoder.out.weight.normal_(0.0, 0.5)
-    return model
-
-
 @pytest.fixture(scope="module")
 def setup(tiny_store):
     view = StoreView(tiny_store)
@@ -30,10 +23,10 @@ def setup(tiny_store):
 
 
 @pytest.mark.parametrize("skips", [False, True])
-def test_generate_and_embed_shapes(setup, skips):
+def test_generate_and_embed_shapes(setup, skips, trained_like):
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = _trained_like(MetaPNS(ModelConfig(**{**CONFIG.__dict__, "decoder_skips": skips}), view.frames))
+    model = trained_like(MetaPNS(ModelConfig(**{**CONFIG.__dict__, "decoder_skips": skips}), view.frames))
     n, v = hier.graphs[0].num_nodes, hier.graphs[-1].num_nodes
     post = model.embed(ep.context_obs, ep.observed, hier)
     assert post.mu.shape == post.logvar.shape == (v, CONFIG.latent)
@@ -54,11 +47,11 @@ def test_generate_and_embed_shapes(setup, skips):
         ("metapns", {"capture_gate": True, "capture_evidence": True}),
     ],
 )
-def test_every_parameter_gets_a_finite_gradient(setup, kind, extra):
+def test_every_parameter_gets_a_finite_gradient(setup, kind, extra, trained_like):
     view, hier, ep = setup
     torch.manual_seed(0)
     config = ModelConfig(**{**CONFIG.__dict__, "kind": kind, **extra})
-    model = _trained_like(build_model(config, view.frames))
+    model = trained_like(build_model(config, view.frames))
     if model.capture is not None:
         with torch.no_grad():  # a trained gate's output layer, so that its first layer gets a gradient too
             model.capture[-1].weight.normal_(0.0, 0.5)
@@ -119,11 +112,11 @@ def test_context_stride_encodes_every_kth_frame(setup):
     )
 
 
-def test_inference_layout_gives_the_training_paths_result(setup):
+def test_inference_layout_gives_the_training_paths_result(setup, trained_like):
     """Under no_grad the blocks, pooling and output layer run on the (N, C, B) layout: same sequences."""
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = _trained_like(MetaPNS(CONFIG, view.frames)).eval()
+    model = trained_like(MetaPNS(CONFIG, view.frames)).eval()
     c = model.embed(ep.context_obs, ep.observed, hier).mu.detach()
     with torch.no_grad():
         fast = model.generate(ep.target_sites, hier, c)
@@ -152,12 +145,12 @@ def test_context_stimulus_starts_switched_off_and_then_conditions_z0(setup):
     assert PNS(ModelConfig(**{**CONFIG.__dict__, "context_stimulus": True}), view.frames).context_stimulus is None
 
 
-def test_capture_gate_reads_c_only_at_the_site_and_closes_to_the_no_wave_response(setup):
+def test_capture_gate_reads_c_only_at_the_site_and_closes_to_the_no_wave_response(setup, trained_like):
     """The gate starts at sigmoid(2) for every site, moves with c at the site's coarse node only, and at 0
     predicts the no-capture response r_t at every node."""
     view, hier, ep = setup
     torch.manual_seed(0)
-    model = _trained_like(MetaPNS(ModelConfig(**{**CONFIG.__dict__, "capture_gate": True}), view.frames))
+    model = trained_like(MetaPNS(ModelConfig(**{**CONFIG.__dict__, "capture_gate": True}), view.frames))
     sites = ep.target_sites
     c = model.embed(ep.context_obs, ep.observed, hier).mu.detach()
     fresh = model.capture_probability(sites, hier, c)
