@@ -27,6 +27,8 @@ Example (TOML)::
     seed = 3
     [meshes.shape_params]
     wall_thickness = 9.0  # fixed; the others are drawn (docs/anatomies.md)
+    [meshes.shape_ranges]
+    rv_width = [24.0, 36.0]  # drawn from this interval instead of the default one
 
     [sites]
     count = 20
@@ -318,20 +320,21 @@ def _expand_meshes(data: dict[str, Any]) -> dict[str, Any]:
 def _expand_entry(entry: Any) -> list[Any]:
     """One ``[[meshes]]`` table as the tables it stands for (ids ``<id>-000``, ... for random shapes).
 
-    ``shape``, ``count`` and ``seed`` are consumed here; each random anatomy
-    gets its complete drawn parameters as ``shape_params``
+    ``shape``, ``count``, ``seed`` and ``shape_ranges`` are consumed here;
+    each random anatomy gets its complete drawn parameters as ``shape_params``
     (:func:`simgen.meshes.anatomy.sample_shapes`, fixed ones from the table's
-    ``shape_params``).
+    ``shape_params``, sampling intervals from its ``shape_ranges``).
     """
-    if not isinstance(entry, dict) or not {"shape", "count", "seed"} & entry.keys():
+    if not isinstance(entry, dict) or not {"shape", "count", "seed", "shape_ranges"} & entry.keys():
         return [entry]
     table = dict(entry)
     shape, count, seed = table.pop("shape", "default"), table.pop("count", None), table.pop("seed", None)
+    ranges = table.pop("shape_ranges", None)
     _check_id(table.get("id"), "[[meshes]] id")
     where = f"mesh {table['id']!r}"
     if shape == "default":
-        if count is not None or seed is not None:
-            raise ConfigError(f"{where}: count and seed apply to shape = 'random' only")
+        if count is not None or seed is not None or ranges is not None:
+            raise ConfigError(f"{where}: count, seed and shape_ranges apply to shape = 'random' only")
         return [table]
     if shape != "random":
         raise ConfigError(f"{where}: shape {shape!r} is not one of ['default', 'random']")
@@ -347,8 +350,10 @@ def _expand_entry(entry: Any) -> list[Any]:
     fixed = table.get("shape_params", {})
     if not isinstance(fixed, dict):
         raise ConfigError(f"{where}: shape_params must be a table, got {fixed!r}")
+    if ranges is not None and not isinstance(ranges, dict):
+        raise ConfigError(f"{where}: shape_ranges must be a table, got {ranges!r}")
     try:
-        shapes = sample_shapes(source, count, seed, fixed)
+        shapes = sample_shapes(source, count, seed, fixed, ranges)
     except InputError as exc:
         raise type(exc)(f"{where}: {exc}") from None
     return [

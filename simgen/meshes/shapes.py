@@ -5,7 +5,9 @@
 turns them into the :class:`~simgen.meshes.ellipsoid.LVGeometry` /
 :class:`~simgen.meshes.biventricular.BiVGeometry` the mesh generators take.
 Every ranged parameter is checked against its range (inclusive); the ranges
-and their sources are in ``docs/anatomies.md``. The defaults give the default
+and their sources are in ``docs/anatomies.md``. The sampler draws from the
+same range unless the parameter has a narrower default sampling interval
+(the RV's size, which extends to dilated RVs). The defaults give the default
 geometries (the BiV's RV breadth to within 0.1 mm, since it is set through a
 wrap angle).
 """
@@ -35,17 +37,28 @@ _RV_CENTRE_FRACTION = 0.5
 
 @dataclass(frozen=True)
 class Range:
-    """Admissible (and sampled) interval of a shape parameter."""
+    """Admissible interval of a shape parameter, and the interval it is sampled from by default.
+
+    ``sampled`` is ``None`` when the sampler draws from the whole admissible range.
+    """
 
     lo: float
     hi: float
     unit: str
     meaning: str
+    sampled: tuple[float, float] | None = None
+
+    @property
+    def draw(self) -> tuple[float, float]:
+        """The default sampling interval."""
+        return self.sampled or (self.lo, self.hi)
 
 
-def _ranged(default: float, lo: float, hi: float, unit: str, meaning: str) -> Any:
+def _ranged(
+    default: float, lo: float, hi: float, unit: str, meaning: str, sampled: tuple[float, float] | None = None
+) -> Any:
     """A dataclass field with its :class:`Range` in the metadata."""
-    return field(default=default, metadata={"range": Range(lo, hi, unit, meaning)})
+    return field(default=default, metadata={"range": Range(lo, hi, unit, meaning, sampled)})
 
 
 def parameter_ranges(cls: type[LVShape]) -> dict[str, Range]:
@@ -107,11 +120,17 @@ class LVShape:
 class BiVShape(LVShape):
     """An LV plus an RV on its +x (septal) side; defaults give :class:`BiVGeometry`'s defaults."""
 
-    rv_width: float = _ranged(19.0, 14.0, 28.0, "mm", "RV cavity width beyond the LV epicardium at the equator")
-    rv_wrap_angle: float = _ranged(
-        168.0, 120.0, 190.0, "deg", "arc of the LV between the RV insertion points at the equator"
+    # The RV's size extends to dilated RVs (e.g. repaired tetralogy of Fallot); by default the
+    # sampler keeps to typical adult RVs, and a spec's shape_ranges can draw dilated ones.
+    rv_width: float = _ranged(
+        19.0, 14.0, 36.0, "mm", "RV cavity width beyond the LV epicardium at the equator", (14.0, 28.0)
     )
-    rv_length: float = _ranged(0.8125, 0.7, 0.85, "", "depth of the RV cavity below the base plane / length")
+    rv_wrap_angle: float = _ranged(
+        168.0, 120.0, 200.0, "deg", "arc of the LV between the RV insertion points at the equator", (120.0, 190.0)
+    )
+    rv_length: float = _ranged(
+        0.8125, 0.7, 0.9, "", "depth of the RV cavity below the base plane / length", (0.7, 0.85)
+    )
     rv_wall_thickness: float = _ranged(5.0, 3.0, 6.0, "mm", "RV free-wall thickness")
 
     def geometry(self) -> BiVGeometry:
@@ -127,7 +146,7 @@ class BiVShape(LVShape):
         centre = _RV_CENTRE_FRACTION * a_x
         half = np.radians(self.rv_wrap_angle / 2)
         rho = 1.0 / np.hypot(np.cos(half) / epi_x, np.sin(half) / epi_y)  # LV epicardial equator at that angle
-        # Within the ranges |rho cos(half) - centre| < 0.7 a_x, so the root is real.
+        # Within the ranges |rho cos(half) - centre| < 0.72 a_x, so the root is real.
         a_y = float(rho * np.sin(half) / np.sqrt(1.0 - ((rho * np.cos(half) - centre) / a_x) ** 2))
         a_z = self.rv_length * self.length - self.base_height
         endo = (a_x, a_y, a_z)

@@ -55,6 +55,35 @@ def test_plain_specs_keep_their_meaning_and_record():
     assert spec({"id": "lv", "shape": "default"}).meshes == (MeshEntry("lv"),)
 
 
+def test_shipped_anatomy_spec_keeps_its_hash():
+    # Stores built from specs/anatomies.toml record this hash: its draws must not change.
+    assert spec_hash(load_spec(SPECS / "anatomies.toml")) == (
+        "9ed1970c7b160df01056d2c81be0e1b0be1addce77b45105c97ceb3034210396"
+    )
+
+
+def test_dilated_rv_spec_adds_to_the_anatomies_of_the_shipped_one():
+    base, dilated = load_spec(SPECS / "anatomies.toml"), load_spec(SPECS / "anatomies-rv.toml")
+    assert dilated.meshes[: len(base.meshes)] == base.meshes  # the same hearts, so the same split
+    extra = dilated.meshes[len(base.meshes) :]
+    assert [m.id for m in extra] == [f"bivd-{i:03d}" for i in range(16)]
+    for m in extra:
+        p = m.shape_params
+        assert 24 <= p["rv_width"] <= 36 and 170 <= p["rv_wrap_angle"] <= 200 and 0.8 <= p["rv_length"] <= 0.9
+    assert sum(m.shape_params["rv_width"] > 28 for m in extra) >= 8  # beyond the default sampling interval
+
+
+def test_shape_ranges_set_the_sampling_intervals():
+    table = {**RANDOM_BIV, "count": 6, "shape_ranges": {"rv_width": [30.0, 36.0], "length": [70, 70]}}
+    meshes = spec(table).meshes
+    assert all(30.0 <= m.shape_params["rv_width"] <= 36.0 for m in meshes)
+    assert all(m.shape_params["length"] == 70.0 for m in meshes)
+    expected = sample_shapes("biv", 6, seed=3, fixed={"wall_thickness": 9.0}, ranges=table["shape_ranges"])
+    assert [m.shape_params for m in meshes] == [s.params() for s in expected]
+    # The record holds the drawn parameters only: it reads back to the same spec.
+    assert spec_from_mapping(spec_to_dict(spec(table))) == spec(table)
+
+
 def test_fixed_shape_without_random_is_completed():
     (entry,) = spec({"id": "lv", "source": "lv", "shape_params": {"length": 90}}).meshes
     assert entry.shape_params["length"] == 90.0 and entry.shape_params["wall_thickness"] == 10.0
@@ -63,7 +92,17 @@ def test_fixed_shape_without_random_is_completed():
 @pytest.mark.parametrize(
     "table, error, match",
     [
-        ({"count": 2}, ConfigError, "count and seed apply to shape = 'random' only"),
+        ({"count": 2}, ConfigError, "count, seed and shape_ranges apply to shape = 'random' only"),
+        ({"shape_ranges": {}}, ConfigError, "count, seed and shape_ranges apply to shape = 'random' only"),
+        ({"shape": "random", "shape_ranges": [1, 2]}, ConfigError, "shape_ranges must be a table"),
+        (
+            {"shape": "random", "shape_ranges": {"length": [60.0, 80.0]}},
+            MeshError,
+            r"mesh 'x': shape_ranges: length = \[60, 80\] must satisfy lo <= hi within the admissible "
+            r"range 70\.\.100 mm",
+        ),
+        ({"shape": "random", "shape_ranges": {"rv_width": [20, 30]}}, MeshError, "unknown parameter"),
+        ({"shape": "random", "shape_ranges": {"length": 80.0}}, MeshError, r"length must be \[lo, hi\]"),
         ({"shape": "ellipsoid"}, ConfigError, r"shape 'ellipsoid' is not one of \['default', 'random'\]"),
         ({"shape": "random", "source": "heart.vtu"}, ConfigError, "needs source 'lv' or 'biv'"),
         ({"shape": "random", "count": 0}, ConfigError, "count must be an integer >= 1"),

@@ -9,9 +9,9 @@ import pytest
 
 from shared.errors import ConfigError, MeshError
 from shared.mesh import Mesh
-from simgen.meshes.anatomy import Anatomy, sample_anatomies, sample_shapes
+from simgen.meshes.anatomy import Anatomy, sample_anatomies, sample_shapes, sampling_intervals
 from simgen.meshes.catalog import get_mesh
-from simgen.meshes.shapes import parameter_ranges
+from simgen.meshes.shapes import SHAPES, LVShape, parameter_ranges
 from simgen.meshes.topology import boundary_faces, signed_volumes
 from simgen.meshes.validate import validate_mesh
 from simgen.tissue.aha import aha_segments
@@ -69,13 +69,49 @@ def test_sample_does_not_depend_on_count_and_fixed_leaves_the_rest():
         assert {**free.params(), "wall_thickness": 9.0, "bump_amplitude": 0.0} == pinned.params()
 
 
-def test_samples_spread_over_the_ranges():
-    shapes = sample_shapes("lv", 40, seed=0)
+@pytest.mark.parametrize("family", ["lv", "biv"])
+def test_samples_spread_over_the_sampling_intervals(family):
+    shapes = sample_shapes(family, 40, seed=0)
     for name, r in parameter_ranges(type(shapes[0])).items():
+        lo, hi = r.draw
+        assert r.lo <= lo < hi <= r.hi, name
         values = np.array([getattr(s, name) for s in shapes])
-        assert r.lo <= values.min() < r.lo + 0.25 * (r.hi - r.lo), name
-        assert r.hi - 0.25 * (r.hi - r.lo) < values.max() <= r.hi, name
+        assert lo <= values.min() < lo + 0.25 * (hi - lo), name
+        assert hi - 0.25 * (hi - lo) < values.max() <= hi, name
     assert len({s.bump_seed for s in shapes}) == 40
+
+
+def test_shape_ranges_replace_the_default_intervals_only():
+    default = sample_shapes("biv", 20, seed=4)
+    dilated = sample_shapes("biv", 20, seed=4, ranges={"rv_width": (30.0, 36.0), "rv_wrap_angle": [195, 200]})
+    for a, b in zip(default, dilated):
+        assert 30.0 <= b.rv_width <= 36.0 and 195.0 <= b.rv_wrap_angle <= 200.0
+        assert {**a.params(), "rv_width": b.rv_width, "rv_wrap_angle": b.rv_wrap_angle} == b.params()
+    assert sampling_intervals("biv")["rv_width"] == (14.0, 28.0)  # the admissible range goes to 36
+    assert sampling_intervals("lv", {"length": (80, 90)})["length"] == (80.0, 90.0)
+
+
+def _extreme_shapes(family: str) -> list[tuple[str, LVShape]]:
+    """Each ranged parameter at each end of its admissible range, the others at their defaults;
+    then 4 shapes with every parameter at an end (ends drawn at random) and the largest apex shift and bumps."""
+    cls = SHAPES[family]
+    ranges = parameter_ranges(cls)
+    shapes = [(f"{name}={value:g}", cls(**{name: value})) for name, r in ranges.items() for value in (r.lo, r.hi)]
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        ends = {name: (r.lo, r.hi)[rng.integers(2)] for name, r in ranges.items()}
+        ends.update(apex_offset=ranges["apex_offset"].hi, bump_amplitude=ranges["bump_amplitude"].hi, bump_seed=i)
+        shapes.append((f"corner {i}", cls(**ends)))
+    return shapes
+
+
+@pytest.mark.parametrize("family", ["lv", "biv"])
+def test_every_parameter_at_both_ends_of_its_range_gives_a_valid_mesh(family):
+    for label, shape in _extreme_shapes(family):
+        mesh = get_mesh(family, NODES[family], shape_params=shape.params())
+        assert validate_mesh(mesh) is mesh, label
+        assert (signed_volumes(mesh.points, mesh.cells) > 0).all(), label
+        assert (np.bincount(aha_segments(mesh), minlength=18)[1:] > 0).all(), label
 
 
 def test_bad_requests_are_refused():

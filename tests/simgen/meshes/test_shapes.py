@@ -134,7 +134,8 @@ def test_lv_geometry_checks_its_deformations(kwargs, match):
         LVGeometry(**kwargs)
 
 
-def test_docs_list_every_parameter_with_its_range():
+def test_docs_list_every_parameter_with_its_ranges():
     text = (Path(__file__).resolve().parents[3] / "docs" / "anatomies.md").read_text()
     for name, r in RANGES.items():
-        assert re.search(rf"\| `{name}` \| [^|]+ \| {r.lo:g} to {r.hi:g} \|", text), name
+        sampled = "the range" if r.sampled is None else f"{r.sampled[0]:g} to {r.sampled[1]:g}"
+        assert re.search(rf"\| `{name}` \| [^|]+ \| {r.lo:g} to {r.hi:g} \| {sampled} \|", text), name
