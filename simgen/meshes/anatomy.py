@@ -15,7 +15,7 @@ from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
-from shared.errors import MeshError
+from shared.errors import ConfigError, MeshError
 from shared.mesh import Mesh
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.shapes import SHAPES, LVShape, parameter_ranges, shape_from_params
@@ -59,13 +59,14 @@ def sampling_intervals(family: str, ranges: dict[str, Any] | None = None) -> dic
     """Each ranged parameter's sampling interval: its default, or the one ``ranges`` gives.
 
     An interval must be two numbers ``lo <= hi`` within the parameter's
-    admissible range; unknown parameters are refused (:class:`MeshError`).
+    admissible range (else :class:`MeshError`); unknown parameters and
+    malformed intervals raise :class:`ConfigError`.
     """
     admissible = parameter_ranges(SHAPES[family])
     ranges = dict(ranges or {})
     unknown = sorted(set(ranges) - set(admissible))
     if unknown:
-        raise MeshError(
+        raise ConfigError(
             f"shape_ranges: unknown parameter(s) {', '.join(unknown)}; ranged ones are {', '.join(admissible)}"
         )
     intervals = {name: r.draw for name, r in admissible.items()}
@@ -76,7 +77,7 @@ def sampling_intervals(family: str, ranges: dict[str, Any] | None = None) -> dic
             or len(value) != 2
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
         ):
-            raise MeshError(f"shape_ranges: {name} must be [lo, hi], two numbers, got {value!r}")
+            raise ConfigError(f"shape_ranges: {name} must be [lo, hi], two numbers, got {value!r}")
         lo, hi = float(value[0]), float(value[1])
         if not (r.lo <= lo <= hi <= r.hi):
             raise MeshError(

@@ -101,8 +101,10 @@ def test_fixed_shape_without_random_is_completed():
             r"mesh 'x': shape_ranges: length = \[60, 80\] must satisfy lo <= hi within the admissible "
             r"range 70\.\.100 mm",
         ),
-        ({"shape": "random", "shape_ranges": {"rv_width": [20, 30]}}, MeshError, "unknown parameter"),
-        ({"shape": "random", "shape_ranges": {"length": 80.0}}, MeshError, r"length must be \[lo, hi\]"),
+        ({"shape": "random", "shape_ranges": {"length": [90.0, 80.0]}}, MeshError, "must satisfy lo <= hi"),
+        ({"shape": "random", "shape_ranges": {"length": [float("nan"), 80.0]}}, MeshError, "must satisfy lo <= hi"),
+        ({"shape": "random", "shape_ranges": {"rv_width": [20, 30]}}, ConfigError, "unknown parameter"),
+        ({"shape": "random", "shape_ranges": {"length": 80.0}}, ConfigError, r"length must be \[lo, hi\]"),
         ({"shape": "ellipsoid"}, ConfigError, r"shape 'ellipsoid' is not one of \['default', 'random'\]"),
         ({"shape": "random", "source": "heart.vtu"}, ConfigError, "needs source 'lv' or 'biv'"),
         ({"shape": "random", "count": 0}, ConfigError, "count must be an integer >= 1"),
