@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import logging
 
 import meshio
@@ -11,8 +12,10 @@ import pytest
 from shared.errors import MeshError
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.io import load_mesh, save_mesh
+from simgen.meshes.repair import split_hexahedra
 from simgen.meshes.resample import hausdorff_distance, resample, tetrahedralise
 from simgen.meshes.slab import slab
+from simgen.meshes.topology import signed_volumes
 from simgen.meshes.validate import mesh_problems
 
 LV = lv_ellipsoid(1500, kind="triangle")
@@ -146,3 +149,93 @@ def test_a_self_intersecting_surface_is_refused_without_debris(tmp_path, monkeyp
     with pytest.raises(MeshError, match="TetGen could not fill the surface"):
         tetrahedralise(points, tris, 40, "overlap")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
+
+
+# Unit cube corners in VTK hexahedron order (bottom 0-3, top 4-7).
+CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
+
+
+def cube_symmetries() -> np.ndarray:
+    """The 48 relabellings of a hexahedron's corners by the rotations and reflections of the cube, (48, 8)."""
+    found = []
+    for axes in itertools.permutations(range(3)):
+        for flip in itertools.product((0, 1), repeat=3):
+            moved = np.abs(CUBE[:, axes] - np.array(flip))  # corner i goes to corner perm[i]
+            found.append([int(np.flatnonzero((CUBE == m).all(axis=1))[0]) for m in moved])
+    return np.array(found)
+
+
+def permuted_hex_grid(shape=(4, 3, 2), h=(15.0, 20.0, 25.0), seed=0) -> tuple[np.ndarray, np.ndarray]:
+    """A structured hexahedral grid, nodes numbered at random, every hexahedron listing its corners in a random
+    order of the cube's symmetry."""
+    n = np.array(shape) + 1
+    axes = [np.arange(k) * step for k, step in zip(n, h, strict=True)]
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    index = np.arange(len(points)).reshape(n)
+    corner = index[:-1, :-1, :-1].ravel()
+    hexes = corner[:, None] + (CUBE * [n[1] * n[2], n[2], 1]).sum(axis=1)
+    rng = np.random.default_rng(seed)
+    number = rng.permutation(len(points))  # node i becomes number[i]
+    symmetry = cube_symmetries()[rng.integers(0, 48, len(hexes))]
+    renumbered = np.empty_like(points)
+    renumbered[number] = points
+    return renumbered, number[np.take_along_axis(hexes, symmetry, axis=1)]
+
+
+def assert_tiles_the_box(points, tets, volume):
+    """Positive tetrahedra filling ``volume``, conforming, with a closed 2-manifold boundary on the box."""
+    assert (signed_volumes(points, tets) > 0).all()
+    assert signed_volumes(points, tets).sum() == pytest.approx(volume)
+    faces = np.sort(tets[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3), axis=1)
+    triangles, counts = np.unique(faces, axis=0, return_counts=True)
+    assert set(counts.tolist()) <= {1, 2}  # interior faces in exactly two tetrahedra
+    boundary = triangles[counts == 1]
+    on_box = (points[boundary] == points.min(axis=0)) | (points[boundary] == points.max(axis=0))
+    assert on_box.all(axis=1).any(axis=1).all()  # every boundary triangle lies in a side of the box
+    _, edge_counts = np.unique(
+        np.sort(boundary[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1), axis=0, return_counts=True
+    )
+    assert (edge_counts == 2).all()
+
+
+def test_hexahedra_in_any_node_order_split_conformingly():
+    points, hexes = permuted_hex_grid()
+    tets = split_hexahedra(points, hexes, "grid")
+    assert len(tets) in range(5 * len(hexes), 6 * len(hexes) + 1)
+    assert_tiles_the_box(points, tets, 60.0 * 60.0 * 50.0)
+
+
+def test_every_node_numbering_of_a_hexahedron_is_tiled():
+    """All 8! orders of a cube's global node numbers: each cube is tiled by 5 or 6 tetrahedra."""
+    orders = np.array(list(itertools.permutations(range(8))))
+    hexes = 8 * np.arange(len(orders))[:, None] + orders  # local corner i has the orders[k, i]-th smallest number
+    points = np.empty((hexes.size, 3))
+    points[hexes.ravel()] = np.tile(CUBE, (len(orders), 1))
+    tets = split_hexahedra(points, hexes, "cubes")
+    owner = tets[:, 0] // 8
+    volume = signed_volumes(points, tets)
+    assert (volume > 0).all() and np.isin(np.bincount(owner), (5, 6)).all()
+    np.testing.assert_allclose(np.bincount(owner, volume), 1.0)
+    faces = np.sort(tets[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3), axis=1)
+    triangles, counts = np.unique(faces, axis=0, return_counts=True)
+    assert set(counts.tolist()) <= {1, 2} and (counts == 1).sum() == 12 * len(orders)
+    boundary = triangles[counts == 1]
+    corners = points[boundary]
+    in_side = (corners == corners[:, :1]).all(axis=1)  # (triangle, axis): the side of its cube it lies in
+    assert (in_side.sum(axis=1) == 1).all()
+    axis = in_side.argmax(axis=1)
+    cube = points.reshape(-1, 8, 3)[boundary[:, 0] // 8]
+    side = cube[np.arange(len(boundary)), :, axis] == corners[np.arange(len(boundary)), 0, axis][:, None]
+    smallest = 8 * (boundary[:, 0] // 8) + side.argmax(axis=1)  # the side's smallest node number
+    assert (boundary == smallest[:, None]).any(axis=1).all()  # each side cut along its diagonal through it
+
+
+def test_permuted_hexahedral_grid_loads(tmp_path, caplog):
+    points, hexes = permuted_hex_grid(shape=(3, 2, 2), seed=1)
+    path = tmp_path / "grid.vtu"
+    meshio.write(path, meshio.Mesh(points, [("hexahedron", hexes)]))
+    with caplog.at_level(logging.WARNING, logger="simgen.meshes"):
+        mesh = load_mesh(path, units="mm")
+    assert mesh.cell_type == "tetra" and mesh.n_nodes == len(points)
+    assert_tiles_the_box(mesh.points, mesh.cells, 45.0 * 40.0 * 50.0)
+    assert f"split {len(hexes)} hexahedra into {mesh.n_cells} tetrahedra" in caplog.text
