@@ -6,8 +6,11 @@ stable time step, and runs any number of stimulation sites together as an
 ``N x S`` state matrix through the fused kernel of :mod:`simgen.solver.kernels`
 (backend ``"numba"``, CPU) or the same steps in torch on any torch device
 (:mod:`simgen.solver.torch_kernel`, backend ``"torch"``; docs/solver-backends.md).
-The integrator is forward Euler, or with ``integrator="rkc"`` the stabilised
-second-order Runge-Kutta-Chebyshev method of :mod:`simgen.solver.rkc_kernel`.
+The integrator is forward Euler, the stabilised second-order
+Runge-Kutta-Chebyshev method of :mod:`simgen.solver.rkc_kernel` (``"rkc"``), or
+the implicit-explicit SBDF2 method of :mod:`simgen.solver.imex_kernel`
+(``"imex"``), whose step no element of the mesh limits; ``"auto"`` (the
+default) picks the cheaper of Euler and IMEX on each mesh.
 """
 
 from __future__ import annotations
@@ -27,12 +30,20 @@ from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
 from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import check_backend, resolve_backend
-from simgen.solver.fem import Geometry, diffusion_operator, element_gradients, lumped_mass
+from simgen.solver.fem import Geometry, element_gradients, lumped_mass, stiffness_matrix
+from simgen.solver.imex_kernel import Factor, factorise, run_imex
 from simgen.solver.kernels import run_blocks
 from simgen.solver.rkc_kernel import coefficients, run_blocks_rkc
 from simgen.solver.simd import LANES
 from simgen.solver.stimulus import patch_mask
-from simgen.solver.timestep import choose_rkc_step, choose_time_step, largest_eigenvalue
+from simgen.solver.timestep import (
+    cheaper_integrator,
+    choose_imex_step,
+    choose_rkc_step,
+    choose_time_step,
+    largest_eigenvalue,
+    stability_limit,
+)
 
 __all__ = [
     "INTEGRATORS",
@@ -50,8 +61,12 @@ __all__ = [
 #: site, 4 of 56 0.84-0.95, 7 of 32 0.85-0.98. With 16 lanes (AVX-512) the 2 blocks are 112 columns wide.
 BLOCK_SIZE = 128
 
-#: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`).
-INTEGRATORS = ("euler", "rkc")
+#: Sites the IMEX kernel integrates together per block: its state (seven N x B float32 arrays) stays small.
+IMEX_BLOCK = 32
+
+#: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`),
+#: implicit-explicit SBDF2 (:mod:`simgen.solver.imex_kernel`), and the cheaper of Euler and IMEX per mesh.
+INTEGRATORS = ("euler", "rkc", "imex", "auto")
 
 
 @dataclass(frozen=True)
@@ -75,10 +90,16 @@ class SolverConfig:
     resume.
 
     ``integrator`` (:data:`INTEGRATORS`) changes the results: ``"euler"``
-    (forward Euler at the stable step) or ``"rkc"`` (RKC2 at the accuracy step
-    with as many stages as the mesh's stiffness needs, for meshes whose
-    explicit limit is far below it; ``dt`` may then exceed the Euler limit).
-    ``None`` means ``"euler"`` and, like ``backend``, stays out of the hash.
+    (forward Euler at the stable step), ``"rkc"`` (RKC2 at the accuracy step
+    with as many stages as the mesh's stiffness needs), ``"imex"`` (SBDF2 with
+    implicit diffusion at :data:`~simgen.solver.timestep.DT_IMEX`, whatever
+    the mesh), or ``"auto"``: Euler where it is cheaper than IMEX (procedural
+    meshes of a few thousand nodes), else IMEX
+    (:func:`~simgen.solver.timestep.cheaper_integrator`). With ``rkc``,
+    ``imex`` and ``auto`` ``dt`` may exceed the Euler limit. ``None`` means
+    ``"auto"`` and, like ``backend``, stays out of a spec's hash; a store
+    records the integrator that ran on each subject, and a subject without
+    that record (stores written before it existed) runs forward Euler.
     """
 
     diffusivity: float = 100.0
@@ -90,7 +111,7 @@ class SolverConfig:
     stimulus_duration: float = 1.0
     activation_threshold: float = 0.5
     backend: Literal["numba", "torch", "auto"] | None = None
-    integrator: Literal["euler", "rkc"] | None = None
+    integrator: Literal["euler", "rkc", "imex", "auto"] | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.diffusivity) or self.diffusivity <= 0:
@@ -143,14 +164,17 @@ def healthy_fields(n_nodes: int, a: float = 0.15) -> TissueFields:
 
 
 class Assembly(NamedTuple):
-    """The diffusion operator of one mesh + tissue, its largest eigenvalue, the time step and
-    the stages per step (1 for Euler)."""
+    """The diffusion operator ``A = -M^{-1} K`` of one mesh + tissue, its largest eigenvalue, the
+    integrator that runs (never ``"auto"``), its time step, steps per frame, operator products or solves
+    per step (1 for Euler and IMEX), and for IMEX the factored implicit matrix."""
 
     A: sp.csr_matrix
     lambda_max: float
+    integrator: str
     dt: float
     steps_per_frame: int
     stages: int
+    factor: Factor | None = None
 
 
 def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: Geometry | None = None) -> Assembly:
@@ -165,12 +189,26 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
         raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
     if geometry is None:
         geometry = element_gradients(mesh.points, mesh.cells)
-    A = diffusion_operator(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
-    lambda_max = largest_eigenvalue(A, lumped_mass(mesh, geometry))
-    k = config.model.k
-    if config.integrator == "rkc":
-        return Assembly(A, lambda_max, *choose_rkc_step(lambda_max, k, config.dt, config.output_interval))
-    return Assembly(A, lambda_max, *choose_time_step(lambda_max, k, config.dt, config.output_interval), 1)
+    K = stiffness_matrix(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
+    mass = lumped_mass(mesh, geometry)
+    A = -(sp.diags(1.0 / mass) @ K).tocsr()
+    lambda_max = largest_eigenvalue(A, mass)
+    k, dt, interval = config.model.k, config.dt, config.output_interval
+    integrator = config.integrator or "auto"
+    if integrator == "rkc":
+        return Assembly(A, lambda_max, "rkc", *choose_rkc_step(lambda_max, k, dt, interval))
+    if integrator == "euler" or (integrator == "auto" and dt is not None and dt < stability_limit(lambda_max, k)):
+        return Assembly(A, lambda_max, "euler", *choose_time_step(lambda_max, k, dt, interval), 1)
+    imex_dt, imex_steps = choose_imex_step(dt, interval)
+    if integrator == "auto" and dt is None:
+        euler_dt, euler_steps = choose_time_step(lambda_max, k, None, interval)
+        if euler_steps <= imex_steps:  # as few steps, each cheaper
+            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1)
+        factor = factorise(K, mass, imex_dt)
+        if cheaper_integrator(euler_steps, A.nnz, imex_steps, factor.nnz, mesh.n_nodes) == "euler":
+            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1)
+        return Assembly(A, lambda_max, "imex", imex_dt, imex_steps, 1, factor)
+    return Assembly(A, lambda_max, "imex", imex_dt, imex_steps, 1, factorise(K, mass, imex_dt))
 
 
 class Simulator:
@@ -184,9 +222,10 @@ class Simulator:
     rounding (docs/solver-backends.md); ``"auto"`` torch on CUDA where a GPU
     is present, else numba. ``compile``: run the torch step through
     ``torch.compile`` (``None``: on CUDA only,
-    :func:`simgen.solver.torch_kernel.compiles_on`). The integrator is
-    ``config.integrator``; :attr:`stages` counts the operator products per
-    time step (1 for Euler).
+    :func:`simgen.solver.torch_kernel.compiles_on`). :attr:`integrator` is
+    the one that runs (``config.integrator`` with ``"auto"`` resolved on this
+    mesh); :attr:`stages` counts the operator products per time step (1 for
+    Euler; for IMEX the solves, 2 while the stimulus holds).
     """
 
     def __init__(
@@ -204,8 +243,10 @@ class Simulator:
         self.backend, self.device = resolve_backend(backend or self.config.backend or "numba", device)
         self._torch = None  # the TorchKernel, built on the first torch run
         self.tissue = tissue if tissue is not None else healthy_fields(mesh.n_nodes)
-        A, self.lambda_max, self.dt, self.steps_per_frame, self.stages = assemble(mesh, self.tissue, self.config)
-        self._rkc = coefficients(self.stages).astype(np.float32) if self.config.integrator == "rkc" else None
+        A, self.lambda_max, self.integrator, self.dt, self.steps_per_frame, self.stages, self.factor = assemble(
+            mesh, self.tissue, self.config
+        )
+        self._rkc = coefficients(self.stages).astype(np.float32) if self.integrator == "rkc" else None
         pattern = (abs(A) + abs(A).T).tocsr()
         self.perm = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
         self.inverse_perm = np.argsort(self.perm)
@@ -259,7 +300,9 @@ class Simulator:
             self.steps_per_frame,  # out_every
             *map(f32, (self.dt, m.k, eps0, mu1, m.mu2, cfg.activation_threshold)),
         )
-        if self.backend == "torch":
+        if self.integrator == "imex" and self.backend != "torch":
+            u, act = self._run_imex(mask, constants, threads)
+        elif self.backend == "torch":
             u, act = self._run_torch(mask, constants, threads)
         else:
             u, act = self._run_numba(mask, constants, threads, block_size)
@@ -294,6 +337,24 @@ class Simulator:
             run_blocks_rkc(*args, *constants, self.perm, frames, act, self._rkc)
         u = frames.reshape(n_blocks * width, self.config.frames, n)[:s]  # a view: no copy of the largest array
         return u, act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s]
+
+    def _run_imex(
+        self, mask: NDArray[np.bool_], constants: tuple, threads: int
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Frames (S, F, N) and activation (S, N, kernel row order) from :func:`run_imex` on ``threads`` threads."""
+        n, s = mask.shape
+        to_factor = self.inverse_perm[self.factor.perm]  # kernel row of each factor row
+        stim = np.ascontiguousarray(mask[to_factor])
+        frames = page_aligned_empty((s, self.config.frames, n), np.float32)
+        act = np.where(stim, np.float32(0.0), np.float32(-1.0))
+        threads = max(1, min(int(threads), s))
+        per_thread = -(-s // threads)
+        width = -(-min(per_thread, IMEX_BLOCK) // LANES) * LANES  # whole vectors
+        a = np.asarray(self.tissue.a, np.float32)[self.factor.perm]
+        run_imex(self.factor, a, stim, constants[:3], constants[3:], frames, act, width, threads)
+        kernel_act = np.empty((s, n), np.float32)
+        kernel_act[:, to_factor] = act.T
+        return frames, kernel_act
 
     def _run_torch(
         self, mask: NDArray[np.bool_], constants: tuple, threads: int

@@ -5,7 +5,10 @@ largest magnitude of the linearised operator stays below 2. The diffusion
 part contributes ``lambda_max(M^{-1} K)``; the cubic reaction adds at most
 ``k`` (its slope on [0, 1] is bounded by ``k (1 - a) < k``). The RKC2
 integrator (:mod:`simgen.solver.rkc_kernel`) runs at the accuracy step with as
-many stages as that stiffness needs.
+many stages as that stiffness needs. The IMEX integrator
+(:mod:`simgen.solver.imex_kernel`) has no stability limit from diffusion: its
+step :data:`DT_IMEX` is set by accuracy alone, and :func:`cheaper_integrator`
+says which of it and forward Euler costs less on a mesh.
 """
 
 from __future__ import annotations
@@ -17,12 +20,27 @@ import scipy.sparse.linalg as spla
 from shared.errors import TimeStepError
 from simgen.solver.rkc_kernel import stability_bound
 
-__all__ = ["largest_eigenvalue", "stability_limit", "choose_time_step", "rkc_stages", "choose_rkc_step"]
+__all__ = [
+    "largest_eigenvalue",
+    "stability_limit",
+    "choose_time_step",
+    "rkc_stages",
+    "choose_rkc_step",
+    "choose_imex_step",
+    "cheaper_integrator",
+]
 
 #: Largest time step used for accuracy of the reaction (time units).
 DT_ACCURACY = 0.05
 #: Fraction of the stability limit used by the automatic time step.
 SAFETY = 0.8
+#: The IMEX (SBDF2) step (time units): activation times within 2% of the activation range of a converged
+#: forward-Euler reference on the meshes of tests/simgen/solver/test_imex.py (docs/solver-backends.md).
+DT_IMEX = 0.05
+#: Work per node and column of one step beside the sparse products, in multiply-adds of a stored matrix
+#: entry: forward Euler's reaction, and SBDF2's two rates, history and right-hand side (bench/real_hearts.py).
+EULER_NODE_COST = 8.0
+IMEX_NODE_COST = 14.0
 
 
 def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
@@ -85,6 +103,29 @@ def choose_rkc_step(lam_max: float, k: float, dt: float | None, output_interval:
         raise TimeStepError(f"time step dt={dt} must be finite and > 0")
     dt, steps = _fit(DT_ACCURACY if dt is None else dt, output_interval)
     return dt, steps, rkc_stages(dt, lam_max, k)
+
+
+def choose_imex_step(dt: float | None, output_interval: float) -> tuple[float, int]:
+    """The IMEX step (``dt``, ``None``: :data:`DT_IMEX`) fitted to whole steps per output interval, and their number.
+
+    Any ``dt > 0`` is stable; its accuracy is the caller's choice.
+    """
+    if dt is not None and (not np.isfinite(dt) or dt <= 0):
+        raise TimeStepError(f"time step dt={dt} must be finite and > 0")
+    return _fit(DT_IMEX if dt is None else dt, output_interval)
+
+
+def cheaper_integrator(euler_steps: int, euler_nnz: int, imex_steps: int, factor_nnz: int, nodes: int) -> str:
+    """``"euler"`` or ``"imex"``: the smaller estimated work for the same simulated time.
+
+    Euler costs ``euler_steps`` products with the operator (``euler_nnz``
+    entries, diagonal included) plus its reaction; IMEX ``imex_steps`` solves
+    with the factor (``factor_nnz`` entries) plus its explicit terms, per node
+    :data:`EULER_NODE_COST` and :data:`IMEX_NODE_COST` entries' worth.
+    """
+    euler = euler_steps * (euler_nnz + EULER_NODE_COST * nodes)
+    imex = imex_steps * (factor_nnz + IMEX_NODE_COST * nodes)
+    return "imex" if imex < euler else "euler"
 
 
 def _fit(target: float, output_interval: float) -> tuple[float, int]:

@@ -166,10 +166,12 @@ def test_unstable_user_time_step_is_refused_with_the_limit(lv):
     sim = Simulator(lv)
     limit = stability_limit(sim.lambda_max, 8.0)
     with pytest.raises(TimeStepError, match=f"{limit:.4g}"):
-        Simulator(lv, config=dataclasses.replace(SHORT, dt=1.01 * limit))
+        Simulator(lv, config=dataclasses.replace(SHORT, dt=1.01 * limit, integrator="euler"))
     ok = Simulator(lv, config=dataclasses.replace(SHORT, dt=0.95 * limit)).run(np.array([5]))
     assert np.isfinite(ok.u).all() and ok.u.max() <= 1.0 + 1e-5
     assert sim.dt < limit
+    auto = Simulator(lv, config=dataclasses.replace(SHORT, dt=1.5 * limit))  # the default takes it with IMEX
+    assert auto.integrator == "imex" and limit < auto.dt <= 1.5 * limit
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,373 @@
+"""Implicit-explicit (IMEX) integrator: SBDF2, the diffusion implicit and the reaction explicit.
+
+The second-order semi-implicit backward differentiation formula (SBDF2;
+Ascher, Ruuth & Wetton 1995, "Implicit-explicit methods for time-dependent
+partial differential equations", SIAM J. Numer. Anal. 32: 797-823) advances
+``M du/dt = -K u + M f(u, v)``, ``dv/dt = g(u, v)`` (lumped mass ``M``,
+stiffness ``K``, Aliev-Panfilov rates ``f``, ``g``) by::
+
+    (3/2 M + dt K) u_{n+1} = M (2 u_n - u_{n-1} / 2 + dt (2 f_n - f_{n-1})),
+    v_{n+1} = (4 v_n - v_{n-1} + 2 dt (2 g_n - g_{n-1})) / 3,
+
+with ``f_n = f(u_n, v_n)``; the first step takes ``u_{-1} = u_0`` (a
+backward-Euler step of length ``2 dt / 3``). BDF2 damps every diffusion mode,
+so no element, however thin, limits ``dt``: the step is chosen for the accuracy
+of the reaction (:data:`simgen.solver.timestep.DT_IMEX`).
+
+``B = 3/2 M + dt K`` is symmetric positive definite and the same at every
+step: :func:`factorise` factors it once per subject (SuperLU with a minimum
+degree ordering on ``B + B^T`` and no pivoting, so ``B = P^T L U P`` with
+``U = D L^T``), and each step solves every site of the batch as one column of
+the right-hand side, float32, with one fused multiply-add per factor entry in
+a fixed order: a column's result does not depend on the other columns, the
+block width or the threads.
+
+The stimulus holds ``u = 1`` on each site's patch for ``stim_steps`` steps as
+a Dirichlet condition of the implicit solve (not as a reset after it, which
+would leak an error of order ``dt`` into the wave's launch): with the patch
+``C`` of a column, the capacitance matrix ``G = (B^{-1})_{CC}``, computed once
+per run, gives the multipliers ``lambda = G^{-1} (1 - u_C)`` and a second
+solve adds ``B^{-1} E_C lambda`` (:class:`Patches`).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numba import njit
+from numpy.typing import NDArray
+
+from shared.errors import InputError
+from simgen.solver.rkc_kernel import fma
+from simgen.solver.simd import LANES, vfma, vload, vsplat, vstore
+
+__all__ = ["Factor", "Factors", "factorise", "Patches", "patches", "run_imex"]
+
+_STRICT = dict(error_model="numpy", boundscheck=False)  # IEEE operations as written: the same on every path
+
+
+@dataclass(frozen=True)
+class Factor:
+    """One matrix ``B`` (factor order) factored as ``L U``: float32 CSR triangles and SuperLU's float64 factor.
+
+    ``lower``: strict lower triangle of ``L`` (unit diagonal), ``upper``: strict
+    upper triangle of ``U``, each ``(indptr, indices, data)``;
+    ``inverse_diagonal``: ``1 / diag(U)``; ``lu`` solves with ``B`` in float64
+    (for :func:`patches`).
+    """
+
+    lower: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]
+    upper: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]
+    inverse_diagonal: NDArray[np.float32]
+    lu: spla.SuperLU
+
+    @property
+    def triangles(self) -> tuple:
+        """The kernel's operands: the two triangles' arrays and the inverse diagonal."""
+        return (*self.lower, *self.upper, self.inverse_diagonal)
+
+    @property
+    def nnz(self) -> int:
+        """Stored entries, diagonal included: the multiply-adds of one solve per column."""
+        return len(self.lower[2]) + len(self.upper[2]) + len(self.inverse_diagonal)
+
+
+@dataclass(frozen=True)
+class Factors:
+    """The two implicit matrices of SBDF2 with step ``dt``, in one fill-reducing node order.
+
+    ``perm[i]``: the mesh node of factor row ``i``; ``mass``: the lumped mass in
+    that order (float32); ``step``: ``3/2 M + dt K``; ``start``: ``M + dt K``
+    (the first step, backward Euler).
+    """
+
+    perm: NDArray[np.int64]
+    mass: NDArray[np.float32]
+    step: Factor
+    start: Factor
+
+    @property
+    def nnz(self) -> int:
+        """Entries of the factor every step but the first solves with."""
+        return self.step.nnz
+
+
+def factorise(stiffness: sp.spmatrix, mass: NDArray[np.float64], dt: float) -> Factors:
+    """:class:`Factors` of ``K`` (stiffness matrix) and ``mass`` (lumped) for SBDF2 steps of ``dt``.
+
+    The order is SuperLU's minimum degree ordering of the pattern of ``K``.
+    """
+    mass = np.asarray(mass, float)
+    K = sp.csc_matrix(stiffness)
+    probe = spla.splu(
+        (sp.diags(mass) + dt * K).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )  # fmt: skip
+    perm = np.argsort(probe.perm_c).astype(np.int64)  # factor row -> mesh node
+    K = K[perm][:, perm]
+    m = mass[perm]
+    return Factors(perm, m.astype(np.float32), _factor(sp.diags(1.5 * m) + dt * K), _factor(sp.diags(m) + dt * K))
+
+
+def _factor(B: sp.spmatrix) -> Factor:
+    """:class:`Factor` of the symmetric positive definite ``B`` in its own node order."""
+    lu = spla.splu(B.tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    if not (np.array_equal(lu.perm_r, np.arange(B.shape[0])) and np.array_equal(lu.perm_c, lu.perm_r)):
+        raise InputError("the implicit diffusion matrix needed pivoting: is the stiffness matrix symmetric?")
+    U = lu.U.tocsr()
+    diag = U.diagonal()
+    if np.any(diag <= 0):  # pragma: no cover - B is positive definite
+        raise InputError("the implicit diffusion matrix is not positive definite")
+    lower, upper = sp.tril(lu.L.tocsr(), k=-1, format="csr"), sp.triu(U, k=1, format="csr")
+    return Factor(_csr32(lower), _csr32(upper), (1.0 / diag).astype(np.float32), lu)
+
+
+def _csr32(A: sp.csr_matrix) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]:
+    A.sort_indices()
+    return A.indptr.astype(np.int64), A.indices.astype(np.int64), A.data.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Patches:
+    """Each column's stimulated rows (factor order) and the inverse of its capacitance matrix.
+
+    Column ``c`` holds rows ``rows[offsets[c]:offsets[c + 1]]`` and the
+    row-major inverse ``(B^{-1})_{CC}^{-1}`` in ``inverse[squares[c]:squares[c + 1]]``.
+    """
+
+    offsets: NDArray[np.int64]
+    rows: NDArray[np.int64]
+    squares: NDArray[np.int64]
+    inverse: NDArray[np.float32]
+
+    @property
+    def tables(self) -> tuple:
+        """The kernel's operands."""
+        return self.offsets, self.rows, self.squares, self.inverse
+
+
+def patches(factor: Factor, stim: NDArray[np.bool_]) -> Patches:
+    """:class:`Patches` of the (N, S) stimulus mask ``stim`` (factor order) for ``factor``'s matrix."""
+    n, s = stim.shape
+    rows, inverse = [], []
+    for c in range(s):
+        rows_c = np.flatnonzero(stim[:, c])
+        unit = np.zeros((n, len(rows_c)))
+        unit[rows_c, np.arange(len(rows_c))] = 1.0
+        G = factor.lu.solve(unit)[rows_c]
+        rows.append(rows_c)
+        inverse.append(np.linalg.inv(0.5 * (G + G.T)).ravel() if len(rows_c) else np.zeros(0))
+    sizes = np.array([len(r) for r in rows], np.int64)
+    return Patches(
+        np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+        np.concatenate(rows).astype(np.int64),
+        np.concatenate([[0], np.cumsum(sizes**2)]).astype(np.int64),
+        np.concatenate(inverse).astype(np.float32),
+    )
+
+
+@njit(inline="always", **_STRICT)
+def _rates(u, v, a, k, eps0, mu1, mu2):  # pragma: no cover - compiled
+    """Aliev-Panfilov reaction rates ``(f, g)`` of :func:`simgen.solver.kernels._reaction` without diffusion."""
+    one = np.float32(1.0)
+    f = k * u * (one - u) * (u - a) - u * v
+    eps = eps0 + mu1 * v / (u + mu2)
+    return f, eps * (-v - k * u * (u - a - one))
+
+
+@njit(inline="always", **_STRICT)
+def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, first, dt, k, eps0, mu1, mu2):  # pragma: no cover - compiled
+    """The explicit half of a step: ``rhs`` of the solve, ``v`` advanced; ``up, vp, fp, gp`` become step n's.
+
+    The ``first`` step is IMEX Euler (``rhs = M (u + dt f)``, ``v += dt g``), the others SBDF2.
+    """
+    n, s = u.shape
+    two, three, half = np.float32(2.0), np.float32(3.0), np.float32(0.5)
+    for i in range(n):
+        for c in range(s):
+            ui, vi = u[i, c], v[i, c]
+            f, g = _rates(ui, vi, a[i], k, eps0, mu1, mu2)
+            if first:
+                rhs[i, c] = mass[i] * (ui + dt * f)
+                v[i, c] = vi + dt * g
+            else:
+                rhs[i, c] = mass[i] * (two * ui - half * up[i, c] + dt * (two * f - fp[i, c]))
+                v[i, c] = (np.float32(4.0) * vi - vp[i, c] + two * dt * (two * g - gp[i, c])) / three
+            up[i, c], vp[i, c], fp[i, c], gp[i, c] = ui, vi, f, g
+
+
+@njit(inline="always", **_STRICT)
+def _substitute(ptr, idx, values, x, i, s):  # pragma: no cover - compiled
+    """``x[i] - sum_p values[p] x[idx[p]]`` over row ``i`` of a triangle, written to ``x[i]``, LANES columns at a time.
+
+    Four partial sums (entries ``p`` taken in turn) keep four multiply-adds in
+    flight; every column adds in the same order, whatever ``s`` (a multiple of LANES).
+    """
+    start, end = ptr[i], ptr[i + 1]
+    zero = vsplat(np.float32(0.0))
+    for c in range(0, s, LANES):
+        a0, a1, a2, a3 = vload(x, i * s + c), zero, zero, zero
+        p = start
+        while p + 4 <= end:
+            a0 = vfma(vsplat(-values[p]), vload(x, idx[p] * s + c), a0)
+            a1 = vfma(vsplat(-values[p + 1]), vload(x, idx[p + 1] * s + c), a1)
+            a2 = vfma(vsplat(-values[p + 2]), vload(x, idx[p + 2] * s + c), a2)
+            a3 = vfma(vsplat(-values[p + 3]), vload(x, idx[p + 3] * s + c), a3)
+            p += 4
+        if p < end:
+            a0 = vfma(vsplat(-values[p]), vload(x, idx[p] * s + c), a0)
+        if p + 1 < end:
+            a1 = vfma(vsplat(-values[p + 1]), vload(x, idx[p + 1] * s + c), a1)
+        if p + 2 < end:
+            a2 = vfma(vsplat(-values[p + 2]), vload(x, idx[p + 2] * s + c), a2)
+        vstore(x, i * s + c, (a0 + a1) + (a2 + a3))
+
+
+@njit(inline="always", **_STRICT)
+def _solve(triangles, x):  # pragma: no cover - compiled
+    """``x <- U^{-1} L^{-1} x`` in place (``x`` C-contiguous, its width a multiple of LANES).
+
+    ``triangles``: :attr:`Factor.triangles`.
+    """
+    lower_ptr, lower_idx, lower, upper_ptr, upper_idx, upper, inverse_diagonal = triangles
+    n, s = x.shape
+    for i in range(n):
+        _substitute(lower_ptr, lower_idx, lower, x, i, s)
+    for i in range(n - 1, -1, -1):
+        _substitute(upper_ptr, upper_idx, upper, x, i, s)
+        d = inverse_diagonal[i]
+        for c in range(s):
+            x[i, c] *= d
+
+
+@njit(inline="always", **_STRICT)
+def _multipliers(x, col0, offsets, rows, squares, inverse, z):  # pragma: no cover - compiled
+    """``z``: zero but for each column's multipliers ``G^{-1} (1 - x_C)`` on its patch rows ``C``.
+
+    Column ``c`` of ``x`` is column ``col0 + c`` of the run (its patch in ``offsets``, ``rows``, ...).
+    """
+    z[:] = np.float32(0.0)
+    one = np.float32(1.0)
+    for c in range(x.shape[1]):
+        o, q = offsets[col0 + c], squares[col0 + c]
+        m = offsets[col0 + c + 1] - o
+        for r in range(m):
+            acc = np.float32(0.0)
+            for t in range(m):
+                acc = fma(inverse[q + r * m + t], one - x[rows[o + t], c], acc)
+            z[rows[o + r], c] = acc
+
+
+@njit(inline="always", **_STRICT)
+def _hold(x, z, col0, offsets, rows):  # pragma: no cover - compiled
+    """``x += z`` (the Dirichlet correction), then the patch rows exactly 1."""
+    n, s = x.shape
+    for i in range(n):
+        for c in range(s):
+            x[i, c] += z[i, c]
+    for c in range(s):
+        for t in range(offsets[col0 + c], offsets[col0 + c + 1]):
+            x[rows[t], c] = np.float32(1.0)
+
+
+@njit(inline="always", **_STRICT)
+def _record(u_old, u_new, act, t0, dt, thr):  # pragma: no cover - compiled
+    """First threshold crossings in this step: time interpolated linearly between the two states."""
+    n, s = u_old.shape
+    for i in range(n):
+        for c in range(s):
+            ui, un = u_old[i, c], u_new[i, c]
+            if ui < thr <= un and act[i, c] < np.float32(0.0):
+                act[i, c] = t0 + dt * (thr - ui) / (un - ui)
+
+
+@njit(nogil=True, cache=True, **_STRICT)
+def _run_block(operands, mass, a, u0, col0, counts, params, perm, frames, act):  # pragma: no cover - compiled
+    """Every step of one block of columns, ``col0`` its first column in the run (see :func:`run_imex`).
+
+    ``operands = (step triangles, step patch tables, start triangles, start patch tables)``.
+    """
+    step_triangles, step_held, start_triangles, start_held = operands
+    stim_steps, n_steps, out_every = counts
+    dt, k, eps0, mu1, mu2, thr = params
+    n, s = u0.shape
+    u = u0.copy()
+    rhs, v, up, vp = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
+    fp, gp, z = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
+    frame = 0
+    for step in range(n_steps):
+        triangles, held = (start_triangles, start_held) if step == 0 else (step_triangles, step_held)
+        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, step == 0, dt, k, eps0, mu1, mu2)
+        _solve(triangles, rhs)
+        if step < stim_steps:
+            offsets, rows, squares, inverse = held
+            _multipliers(rhs, col0, offsets, rows, squares, inverse, z)
+            _solve(triangles, z)
+            _hold(rhs, z, col0, offsets, rows)
+        _record(u, rhs, act, np.float32(step) * dt, dt, thr)
+        u, rhs = rhs, u
+        if (step + 1) % out_every == 0:
+            for i in range(n):
+                j = perm[i]
+                for c in range(min(s, frames.shape[0] - col0)):  # padding columns are not output
+                    frames[col0 + c, frame, j] = u[i, c]
+            frame += 1
+
+
+def run_imex(
+    factors: Factors,
+    a: NDArray[np.float32],
+    stim: NDArray[np.bool_],
+    counts: tuple[int, int, int],
+    params: tuple[np.float32, ...],
+    frames: NDArray[np.float32],
+    act: NDArray[np.float32],
+    width: int,
+    threads: int = 1,
+    initial: NDArray[np.float32] | None = None,
+) -> None:
+    """Integrate an IMEX-Euler step, then SBDF2 steps, of every column of the (N, S) stimulus mask ``stim``.
+
+    Arrays are in factor order (``factors.perm``). ``counts = (stim_steps,
+    n_steps, out_every)``: steps the stimulus holds, steps in all, steps per
+    output frame; ``params = (dt, k, eps0, mu1, mu2, thr)`` float32 (the
+    constant-eps variant passes ``eps0 = eps, mu1 = 0``). ``a`` is the
+    excitability; ``frames`` (S, F, N) receives ``u`` in mesh order every
+    ``out_every`` steps; ``act`` (N, S; -1 = never, 0 on the patches) the
+    first crossings of ``thr``. ``width``: columns integrated together, a
+    multiple of :data:`~simgen.solver.simd.LANES`, in blocks spread over
+    ``threads`` threads (the result depends on neither). ``initial``: ``u`` at ``t = 0`` (N, S) instead of
+    1 on the patches and 0 elsewhere (``v`` starts at 0).
+    """
+    n, s = stim.shape
+    padded = np.zeros((n, -(-s // width) * width), bool)  # whole blocks; the padding columns stay at rest
+    padded[:, :s] = stim
+    operands = tuple(
+        part for factor in (factors.step, factors.start) for part in (factor.triangles, patches(factor, padded).tables)
+    )
+    block_act = np.full(padded.shape, -1.0, np.float32)
+    block_act[:, :s] = act
+    u0 = padded.astype(np.float32)
+    if initial is not None:
+        u0[:, :s] = initial
+    counts = tuple(int(c) for c in counts)
+
+    def run_block(start: int) -> None:
+        columns = slice(start, start + width)
+        block = np.ascontiguousarray(block_act[:, columns])
+        u_block = np.ascontiguousarray(u0[:, columns])
+        _run_block(operands, factors.mass, a, u_block, start, counts, params, factors.perm, frames, block)
+        block_act[:, columns] = block
+
+    starts = range(0, padded.shape[1], width)
+    if threads > 1 and len(starts) > 1:
+        with ThreadPoolExecutor(min(threads, len(starts)), thread_name_prefix="simgen-imex") as pool:
+            list(pool.map(run_block, starts))  # the kernel releases the GIL
+    else:
+        for start in starts:
+            run_block(start)
+    act[:] = block_act[:, :s]

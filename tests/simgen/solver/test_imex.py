@@ -1,0 +1,158 @@
+"""The IMEX (SBDF2) integrator: its order, front speed, agreement with forward Euler on real and procedural
+meshes, independence of threads and batch, the stimulus as a Dirichlet condition, and what ``auto`` picks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from shared.errors import TimeStepError
+from shared.mesh import Mesh
+from shared.tissue import TissueFields
+from simgen.meshes.catalog import get_mesh
+from simgen.meshes.slab import slab, strip
+from simgen.solver.aliev_panfilov import APParams
+from simgen.solver.fem import element_gradients, lumped_mass, stiffness_matrix
+from simgen.solver.imex_kernel import factorise, run_imex
+from simgen.solver.simulate import Simulator, SolverConfig
+from simgen.solver.timestep import DT_IMEX
+from simgen.solver.verification import planar_run, speed_error
+
+#: Frames of the comparisons with Euler: 15 time units, past the last activation on 1,000-node hearts.
+FRAMES = 25
+
+
+@pytest.fixture(scope="module")
+def lv():
+    return get_mesh("lv", 1000, kind="tetra")
+
+
+def test_factors_reproduce_the_implicit_matrices(lv):
+    """``L U`` (float32 triangles) equals ``3/2 M + dt K`` (steps) and ``M + dt K`` (first step) in factor order."""
+    sim = Simulator(lv, config=SolverConfig(integrator="imex"))
+    f, n = sim.factor, lv.n_nodes
+    geometry = element_gradients(lv.points, lv.cells)
+    K = stiffness_matrix(lv, np.full(n, SolverConfig().diffusivity), geometry).tocsr()[f.perm][:, f.perm]
+    mass = lumped_mass(lv, geometry)[f.perm]
+    assert np.allclose(f.mass, mass, rtol=1e-6)
+    for factor, scale in ((f.step, 1.5), (f.start, 1.0)):
+        L = sp.csr_matrix(factor.lower[::-1], shape=(n, n)) + sp.eye(n)
+        U = sp.csr_matrix(factor.upper[::-1], shape=(n, n)) + sp.diags(1.0 / factor.inverse_diagonal.astype(float))
+        B = sp.diags(scale * mass) + sim.dt * K
+        assert abs(L @ U - B).max() < 1e-5 * abs(B).max()
+
+
+def test_second_order_convergence_on_smooth_reaction_diffusion(smooth_problem):
+    """The smooth problem (conftest.py) at dt 0.05, 0.025, 0.0125 against float64 DOP853 at t = 1.2: SBDF2's
+    error falls towards 4x per halving (measured 3.46, 3.69; 11.2 and 3.1 from dt 0.2 and 0.1, where dt k is
+    not small)."""
+    mesh, A, mass, a, u0, end, exact = smooth_problem
+    p, f32 = APParams(), np.float32
+    K = -(sp.diags(mass) @ A).tocsr()
+
+    def error(dt: float) -> float:
+        factor = factorise(K, mass, dt)
+        steps = round(end / dt)
+        frames, act = np.empty((1, 1, mesh.n_nodes), f32), np.full((mesh.n_nodes, 1), -1, f32)
+        stim = np.zeros((mesh.n_nodes, 1), bool)
+        params = tuple(map(f32, (dt, p.k, p.eps0, p.mu1, p.mu2, 0.5)))
+        initial = u0[factor.perm].astype(f32)[:, None]
+        run_imex(factor, np.full(mesh.n_nodes, a, f32), stim, (0, steps, steps), params, frames, act, 8, 1, initial)
+        return float(np.abs(frames[0, 0] - exact).max())
+
+    errors = [error(dt) for dt in (0.05, 0.025, 0.0125)]
+    assert errors[-1] > 2e-5  # far above float32 rounding
+    ratios = [coarse / fine for coarse, fine in zip(errors, errors[1:])]
+    assert 3.2 < ratios[0] < ratios[1] < 4.5
+
+
+@pytest.mark.parametrize("a", [0.15, 0.3])
+def test_planar_front_speed_within_5_percent(a):
+    """Measured -1.0% (a = 0.15) and -3.5% (a = 0.3) on this strip, as forward Euler's -1.2% and -3.6%."""
+    assert abs(speed_error(strip(30.0, 1.0, 0.25), a, integrator="imex")) < 0.05
+
+
+def test_activation_converges_on_a_planar_front():
+    """Activation times against SBDF2 at dt/32 fall at least 2.5x per halving of dt (measured 3.2, 3.0, 2.7: the
+    stimulus switched off at t = 1 is not smooth in time)."""
+    mesh = strip(20.0, 1.0, 0.5)
+    ref = planar_run(mesh, 0.15, integrator="imex", dt=0.05 / 32, output_interval=0.5).activation
+    errors = [
+        np.nanmax(np.abs(planar_run(mesh, 0.15, integrator="imex", dt=dt, output_interval=0.5).activation - ref))
+        for dt in (0.1, 0.05, 0.025)
+    ]
+    for coarse, fine in zip(errors, errors[1:]):
+        assert coarse / fine > 2.5
+
+
+def activation_agreement(reference: np.ndarray, other: np.ndarray) -> tuple[float, float]:
+    """Largest activation-time difference as a share of each site's activation range, and the smallest
+    correlation of the two activation maps over the sites."""
+    span = np.nanmax(reference, axis=1) - np.nanmin(reference, axis=1)
+    share = float(np.max(np.nanmax(np.abs(other - reference), axis=1) / span))
+    cc = min(np.corrcoef(r[np.isfinite(r)], o[np.isfinite(r)])[0, 1] for r, o in zip(reference, other))
+    return share, float(cc)
+
+
+@pytest.mark.parametrize("source", ["lv", "real:rodero01-lv", "real:tof-biv", "real:cobiveco-mean-biv"])
+def test_imex_at_its_step_matches_euler_at_its_stable_one(source):
+    """Activation times within 2% of the activation range of forward Euler at the mesh's stable step (at most
+    0.005 time units), activation maps correlated >= 0.99, the same nodes never activated."""
+    mesh = get_mesh(source, 1000, kind="tetra")
+    sites = np.random.default_rng(0).choice(mesh.n_nodes, 4, replace=False)
+    euler_step = Simulator(mesh, config=SolverConfig(integrator="euler")).dt
+    euler = Simulator(mesh, config=SolverConfig(integrator="euler", frames=FRAMES, dt=min(euler_step, 0.005)))
+    imex = Simulator(mesh, config=SolverConfig(integrator="imex", frames=FRAMES))
+    assert imex.dt == pytest.approx(DT_IMEX)
+    reference, result = euler.run(sites).activation, imex.run(sites).activation
+    assert np.array_equal(np.isnan(reference), np.isnan(result))
+    share, cc = activation_agreement(reference, result)
+    assert share < 0.02 and cc >= 0.99
+
+
+def test_scar_with_zero_diffusivity_matches_euler(lv):
+    """A scar core with D = 0 and a = 0.5 (never activates) leaves B positive definite; IMEX agrees with Euler."""
+    core = np.linalg.norm(lv.points - lv.points[300], axis=1) < 15.0
+    fields = TissueFields(np.where(core, 0.5, 0.15), np.where(core, 0.0, 1.0), core.astype(np.int8) * 2)
+    sites = np.array([5, 400, 800])
+    euler = Simulator(lv, fields, SolverConfig(integrator="euler", frames=FRAMES, dt=0.005)).run(sites)
+    imex = Simulator(lv, fields, SolverConfig(integrator="imex", frames=FRAMES)).run(sites)
+    assert np.array_equal(np.isnan(euler.activation), np.isnan(imex.activation))
+    assert np.isnan(imex.activation).any()
+    share, cc = activation_agreement(euler.activation, imex.activation)
+    assert share < 0.02 and cc >= 0.99
+
+
+def test_results_do_not_depend_on_threads_or_the_other_sites(lv):
+    sim = Simulator(lv, config=SolverConfig(integrator="imex", frames=6))
+    sites = np.arange(0, 1000, 50)
+    one, two = sim.run(sites, threads=1), sim.run(sites, threads=2)
+    assert np.array_equal(one.u, two.u) and np.array_equal(one.activation, two.activation, equal_nan=True)
+    alone = sim.run(sites[[7]])
+    assert np.array_equal(alone.u[0], one.u[7])
+
+
+def test_stimulated_patch_is_held_at_one_while_the_stimulus_lasts(lv):
+    """The stimulus is a Dirichlet condition of the implicit solve: its nodes read exactly 1 at t = 0.6."""
+    sim = Simulator(lv, config=SolverConfig(integrator="imex", frames=3))
+    result = sim.run(np.array([10, 600]))
+    for column, site in enumerate((10, 600)):
+        patch = result.activation[column] == 0
+        assert patch[site] and patch.sum() > 1
+        assert np.all(result.u[column, 0, patch] == 1.0)
+        assert np.all(result.u[column, 0, ~patch] < 1.0)
+
+
+def test_auto_takes_euler_on_a_procedural_mesh_and_imex_on_flat_tetrahedra(lv):
+    """The 12 x 1 x 0.02 slab of flat tetrahedra: Euler's step would be 3e-5 (test_rkc.py)."""
+    assert Simulator(lv).integrator == "euler"
+    assert Simulator(lv, config=SolverConfig(integrator="auto")).integrator == "euler"
+    base = slab(12.0, 1.0, 1.0, 0.5)
+    flat = Simulator(Mesh(base.points * np.array([1.0, 1.0, 0.02]), base.cells, name="flat-slab"))
+    assert flat.integrator == "imex" and flat.dt == pytest.approx(DT_IMEX)
+
+
+def test_imex_refuses_a_step_that_is_not_positive(lv):
+    with pytest.raises(TimeStepError, match="must be finite and > 0"):
+        Simulator(lv, config=SolverConfig(integrator="imex", dt=-0.1))
