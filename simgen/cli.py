@@ -16,6 +16,7 @@ from shared.config import load_toml
 from shared.errors import InputError
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.io import save_mesh
+from simgen.meshes.quality import mesh_quality
 from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
@@ -71,6 +72,7 @@ def mesh(
         ("nodes", m.n_nodes),
         ("cells", f"{m.n_cells} {m.cell_type}"),
         ("mean edge (mm)", f"{m.mean_edge_length():.2f}"),
+        *mesh_quality(m).rows(),
         *[(f"node set {k}", len(v)) for k, v in m.node_sets.items()],
     ]:
         table.add_row(key, str(value))

@@ -17,12 +17,14 @@ from pathlib import Path
 import numpy as np
 import zarr
 
+from shared.mesh import Mesh
 from shared.reader import check_store
 from shared.schema import METADATA_VERSION, subject_path
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
 from simgen.build import location
 from simgen.build.metadata import simulation_attrs
 from simgen.build.spec import spec_from_mapping
+from simgen.meshes.quality import mesh_quality
 
 __all__ = ["StoreFacts", "store_facts", "short_card", "dataset_card", "CITATIONS"]
 
@@ -202,7 +204,10 @@ def _sizes(store: str, facts: StoreFacts) -> list[str]:
     per_subject = [(facts.meshes[s["mesh_id"]], s) for s in facts.subjects.values()]
     values = sum(m.sites * m.nodes * (frames + 1) for m, _ in per_subject)
     steps = [m.sites * m.nodes * frames * s["solver"]["steps_per_frame"] for m, s in per_subject if "solver" in s]
-    mesh_rows = [(mesh_id, m.nodes, m.cells, m.cell_type, m.sites) for mesh_id, m in facts.meshes.items()]
+    mesh_rows = [
+        (mesh_id, m.nodes, m.cells, m.cell_type, m.sites, *_quality_cells(store, mesh_id))
+        for mesh_id, m in facts.meshes.items()
+    ]
     return [
         "## Sizes",
         "",
@@ -210,7 +215,10 @@ def _sizes(store: str, facts: StoreFacts) -> list[str]:
         f"{values:,} values of u and activation ({_size(4 * values)} as float32), "
         f"{_size(location.size(store))} on disk.",
         "",
-        *_table(("mesh", "nodes", "cells", "cell type", "sites"), mesh_rows),
+        *_table(("mesh", "nodes", "cells", "cell type", "sites", *QUALITY_COLUMNS), mesh_rows),
+        "",
+        "Smallest angle: dihedral (tetrahedra) or interior (triangles); radius ratio d r / R (1 for a regular "
+        "cell), smallest over the cells / 1st percentile / mean (`simgen.meshes.quality`).",
         "",
         "## Cost",
         "",
@@ -219,6 +227,17 @@ def _sizes(store: str, facts: StoreFacts) -> list[str]:
         "spec differ.",
         "",
     ]
+
+
+#: Quality columns of the card's mesh table.
+QUALITY_COLUMNS = ("smallest angle (deg)", "radius ratio min / 1st pct / mean", "smallest altitude / mean edge")
+
+
+def _quality_cells(store: str, mesh_id: str) -> tuple[str, str, str]:
+    """The :data:`QUALITY_COLUMNS` of a stored mesh, from its points and cells."""
+    group = zarr.open_group(store, path=f"meshes/{mesh_id}", mode="r")
+    quality = mesh_quality(Mesh(group["points"][...], group["cells"][...], name=mesh_id))
+    return f"{quality.min_angle:.1f}", quality.radius_text(), f"{quality.min_altitude_ratio:.3f}"
 
 
 def _statistics(facts: StoreFacts) -> list[str]:

@@ -1,26 +1,36 @@
-"""Resampling a mesh to a target node count: surface decimation, tetrahedralisation, shape distance.
+"""Resampling a mesh to a target node count: isotropic surface remeshing, tetrahedralisation, shape distance.
 
-- Surfaces are decimated by quadric edge collapse (fast-simplification, MIT;
-  the vertices move to the quadric optimum, so the shape is kept closely).
-- Volumes are made from the decimated boundary surface by TetGen (the
-  ``tetgen`` wheel; TetGen itself is AGPL-3.0) with a radius-edge ratio of at
-  most 1.5 and tetrahedra no larger than a regular one of the surface's mean
-  edge. The surface node count is adjusted over a few runs until the whole
-  mesh has the target count within :data:`NODE_TOLERANCE`; a decimated
-  surface that intersects itself (thin walls at very few nodes) is retried
-  with 30 % more surface nodes.
+- Surfaces are remeshed isotropically (:mod:`simgen.meshes.remesh`): every
+  edge close to a length ``L``, the nodes on the original surface, no needle
+  or cap triangle. ``L`` starts from the surface area (an equilateral
+  triangulation with the target node count) and is corrected from the node
+  count over up to :data:`_TRIES` remeshings, until the count is within
+  ``NODE_TOLERANCE / 2`` of the target (the closest try is kept). Dense
+  surfaces are first decimated to twice the target by quadric edge
+  collapse (fast-simplification, MIT), which keeps the shape closely.
+- Volumes are TetGen tetrahedralisations (the ``tetgen`` wheel; TetGen itself
+  is AGPL-3.0) of the surface remeshed at ``L``, kept as it is (no nodes
+  inserted on it), with tetrahedra no larger than a regular one of edge
+  ``L`` and radius-edge ratio at most 1.5, then optimised by flips and
+  smoothing towards dihedral angles between 15 and 160 degrees (a bound
+  TetGen tries to meet, not a guarantee); ``L`` is corrected from the total
+  node count in the same way. Slivers lying flat against the surface (two
+  faces on it, a dihedral angle below :data:`PEEL_ANGLE`) are removed,
+  which flips the surface diagonal under them.
 - :func:`hausdorff_distance` measures how far the shape moved.
 
-Meshes with no more than ``(1 + NODE_TOLERANCE)`` times the target are not
-decimated (refining adds no information). Node sets move with the surface:
-each new surface node takes the sets of the nearest old surface node.
-Both libraries are deterministic: the same mesh and target give the same
-result, bit for bit.
+A mesh already of the asked cell type, within :data:`NODE_TOLERANCE` of the
+target and with no angle below :data:`KEEP_ANGLE` is kept as it is; any
+other is remeshed, coarser or finer. Node sets move with the surface: each
+new surface node takes the sets of the nearest old surface node. The
+remeshing and both libraries are deterministic: the same mesh and target
+give the same result, bit for bit.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,20 +42,47 @@ from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
 from shared.mesh import CellType, Mesh
-from simgen.meshes.topology import boundary_faces, extract_surface, signed_volumes
-from simgen.meshes.validate import validate_mesh
+from simgen.meshes.quality import cell_angles
+from simgen.meshes.remesh import closest_points, edge_length_for, remesh
+from simgen.meshes.topology import boundary_faces, extract_surface, group_rows, signed_volumes, tet_faces
+from simgen.meshes.validate import mesh_problems, validate_mesh
 
 if TYPE_CHECKING:
     import tetgen
 
-__all__ = ["NODE_TOLERANCE", "resample", "decimate_surface", "tetrahedralise", "hausdorff_distance"]
+__all__ = [
+    "NODE_TOLERANCE",
+    "KEEP_ANGLE",
+    "PEEL_ANGLE",
+    "resample",
+    "remesh_surface",
+    "decimate_surface",
+    "tetrahedralise",
+    "hausdorff_distance",
+]
 
 log = logging.getLogger("simgen.meshes")
 
 #: Accepted relative difference between a resampled mesh's node count and the target.
 NODE_TOLERANCE = 0.1
-_TETGEN = {"minratio": 1.5, "mindihedral": 10.0, "quiet": True}
-_TRIES = 6
+#: Smallest angle (degrees) of a mesh kept without remeshing: triangle angle, tetrahedron dihedral angle.
+KEEP_ANGLE = {"triangle": 20.0, "tetra": 10.0}
+_TETGEN = {
+    "minratio": 1.5,
+    "mindihedral": 15.0,
+    "nobisect": True,
+    "fixedvolume": True,
+    "opt_iterations": 10,
+    "optmaxdihedral": 160.0,
+    "quiet": True,
+}
+_TRIES = 4
+#: Remeshed surfaces have slightly longer edges than ``L`` on average: ``L`` starts this much shorter.
+_LENGTH_FACTOR = 0.96
+#: Interior volume per node (in units of ``L^3``) of a TetGen fill, for the first guess of ``L``.
+_VOLUME_PER_NODE = 0.2
+#: Tetrahedra with two faces on the surface and a dihedral angle below this (degrees) are removed.
+PEEL_ANGLE = 10.0
 #: Files TetGen writes into the working directory when the surface intersects itself.
 _TETGEN_DEBRIS = ("_skipped.face", "_skipped.node")
 
@@ -57,13 +94,13 @@ def resample(mesh: Mesh, nodes: int, kind: CellType) -> Mesh:
     triangle surface asked for as tetrahedra must be closed. Node sets other
     than ``surface`` are transferred; the axis is kept.
     """
-    if mesh.cell_type == kind and mesh.n_nodes <= nodes * (1 + NODE_TOLERANCE):
+    if mesh.cell_type == kind and _keep(mesh, nodes):
         return mesh
     surface = extract_surface(mesh)
     if kind == "triangle":
-        if surface.n_nodes <= nodes * (1 + NODE_TOLERANCE):
+        if _keep(surface, nodes):
             return surface
-        points, cells = decimate_surface(surface.points, surface.cells, nodes)
+        points, cells = remesh_surface(surface.points, surface.cells, nodes)
     else:
         if mesh.cell_type == "triangle" and not trimesh.Trimesh(mesh.points, mesh.cells, process=False).is_watertight:
             raise MeshError(
@@ -80,6 +117,13 @@ def resample(mesh: Mesh, nodes: int, kind: CellType) -> Mesh:
         raise MeshError(f"resampling to {nodes} nodes failed: {exc}; try another node count") from None
 
 
+def _keep(mesh: Mesh, nodes: int) -> bool:
+    """Whether ``mesh`` is within the node tolerance of ``nodes`` and has no angle below :data:`KEEP_ANGLE`."""
+    if abs(mesh.n_nodes / nodes - 1) > NODE_TOLERANCE:
+        return False
+    return float(cell_angles(mesh.points, mesh.cells).min()) >= KEEP_ANGLE[mesh.cell_type]
+
+
 def decimate_surface(
     points: NDArray[np.float64], tris: NDArray[np.integer], nodes: int
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
@@ -93,11 +137,33 @@ def decimate_surface(
     return np.asarray(new_points, dtype=np.float64), np.asarray(new_tris, dtype=np.int64)
 
 
+def remesh_surface(
+    points: NDArray[np.float64], tris: NDArray[np.integer], nodes: int
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """A closed or open triangle surface remeshed isotropically to about ``nodes`` nodes.
+
+    Dense surfaces are first decimated to ``2 nodes``; the edge length is then
+    corrected from the node count over up to :data:`_TRIES` remeshings.
+    """
+    area = float(trimesh.Trimesh(points, tris, process=False).area)
+    length = _LENGTH_FACTOR * edge_length_for(area, nodes)
+
+    def make(length: float, surface: tuple) -> tuple:
+        remeshed = remesh(*surface, length, reference=(points, tris))
+        return remeshed, remeshed
+
+    return _fit_length(length, nodes, make, decimate_surface(points, tris, 2 * nodes))[1]
+
+
 def tetrahedralise(
     points: NDArray[np.float64], tris: NDArray[np.integer], nodes: int, name: str = "mesh"
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Tetrahedra filling a closed outward surface, about ``nodes`` nodes in all (TetGen).
 
+    The surface is remeshed with edges of length ``L`` and kept as it is
+    (TetGen's ``-Y``); TetGen adds interior nodes until no tetrahedron is
+    larger than a regular one of edge ``L`` and the quality bounds hold.
+    ``L`` is corrected from the node count over up to :data:`_TRIES` fills.
     TetGen comes with the optional ``tetra`` extra (its library is AGPL-3.0).
     """
     try:
@@ -107,30 +173,77 @@ def tetrahedralise(
             f"mesh {name!r}: filling a surface with tetrahedra needs the optional TetGen wrapper "
             "(pip install 'metapns[tetra]'; TetGen is AGPL-3.0), or use kind = 'triangle'"
         ) from None
-    surface_nodes = min(len(points), max(nodes // 2, 50))
-    best: tuple[float, NDArray[np.float64], NDArray[np.int64]] | None = None
-    for _ in range(_TRIES):
-        sp, st = decimate_surface(points, tris, surface_nodes)
-        edge = trimesh.Trimesh(sp, st, process=False).edges_unique_length.mean()
+    solid = trimesh.Trimesh(points, tris, process=False)
+    area, volume = float(solid.area), abs(float(solid.volume))
+    # nodes ~ surface nodes 2 A / (sqrt(3) L^2) + interior nodes V / (c L^3): solve for L by bisection
+    lo, hi = 1e-3 * np.cbrt(volume), 10 * np.cbrt(volume)
+    for _ in range(60):
+        length = np.sqrt(lo * hi)
+        estimate = 2 * area / (np.sqrt(3) * length**2) + volume / (_VOLUME_PER_NODE * length**3)
+        lo, hi = (length, hi) if estimate > nodes else (lo, length)
+    start = decimate_surface(points, tris, 2 * nodes)
+
+    def fill(length: float, surface: tuple) -> tuple:
+        sp, st = remesh(*surface, length, reference=(points, tris))
         try:
-            tet_points, tets, *_ = _tetrahedralize(tetgen.TetGen(sp, st.astype(np.int32)), edge**3 / (6 * np.sqrt(2)))
-        except RuntimeError as exc:  # a coarse decimation can intersect itself: keep more surface nodes
-            if surface_nodes == len(points):
-                raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None
-            surface_nodes = min(len(points), int(surface_nodes * 1.3))
-            continue
-        miss = abs(len(tet_points) / nodes - 1)
-        if best is None or miss < best[0]:
-            best = (miss, np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
-        if miss <= NODE_TOLERANCE / 2 or (surface_nodes == len(points) and len(tet_points) < nodes):
-            break
-        surface_nodes = int(min(len(points), max(50, surface_nodes * (nodes / len(tet_points)) ** (2 / 3))))
-    if best is None:
-        raise MeshError(f"mesh {name!r}: TetGen could not fill the surface decimated to {surface_nodes} nodes")
-    _, tet_points, tets = best
+            tet_points, tets, *_ = _tetrahedralize(tetgen.TetGen(sp, st.astype(np.int32)), length**3 / (6 * np.sqrt(2)))
+        except RuntimeError as exc:
+            raise MeshError(f"mesh {name!r}: TetGen could not fill the remeshed surface ({exc})") from None
+        return (sp, st), (np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
+
+    tet_points, tets = _fit_length(length, nodes, fill, start)[1]
     negative = signed_volumes(tet_points, tets) < 0
     tets[negative] = tets[negative][:, [1, 0, 2, 3]]
+    for _ in range(3):  # peeling one can lay the next flat on the surface
+        tets = _peel(tet_points, tets)
     return tet_points, tets
+
+
+def _peel(points: NDArray[np.float64], tets: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``tets`` without the slivers that lie flat against the surface (two boundary faces, a dihedral
+    angle below :data:`PEEL_ANGLE`): removing one flips the surface diagonal under it.
+
+    Kept as they are when the peeled mesh would not be valid (a surface edge
+    already there, a node left out).
+    """
+    faces = np.sort(tet_faces(tets), axis=1)
+    inverse, counts = group_rows(faces)
+    outer = (counts[inverse] == 1).reshape(-1, 4).sum(axis=1)
+    flat = (outer == 2) & (cell_angles(points, tets).min(axis=1) < PEEL_ANGLE)
+    if not flat.any():
+        return tets
+    peeled = tets[~flat]
+    if len(np.unique(peeled)) < len(points) or mesh_problems(Mesh(points, peeled)):
+        return tets
+    log.info("removed %d flat tetrahedra lying on the surface", int(flat.sum()))
+    return peeled
+
+
+def _fit_length(length: float, nodes: int, make: Callable, start: tuple) -> tuple:
+    """``make(length, start)`` over up to :data:`_TRIES` lengths until its mesh has ``nodes`` nodes.
+
+    ``make`` returns ``(next start, (points, cells))``; each try starts from
+    the previous one's surface. The length follows a secant on
+    ``log nodes`` against ``log length`` (slope -2 to begin with); the mesh
+    closest to the target is returned.
+    """
+    tried: list[tuple[float, int]] = []
+    best: tuple[float, tuple] | None = None
+    for _ in range(_TRIES):
+        start, mesh = make(length, start)
+        count = len(mesh[0])
+        miss = abs(count / nodes - 1)
+        if best is None or miss < best[0]:
+            best = (miss, mesh)
+        if miss <= NODE_TOLERANCE / 2:
+            break
+        tried.append((np.log(length), np.log(count)))
+        slope = -2.0
+        if len(tried) >= 2 and tried[-1][0] != tried[-2][0]:
+            slope = float(np.clip((tried[-1][1] - tried[-2][1]) / (tried[-1][0] - tried[-2][0]), -4.0, -1.0))
+        length = float(np.exp(tried[-1][0] + (np.log(nodes) - tried[-1][1]) / slope))
+    assert best is not None
+    return best
 
 
 def _tetrahedralize(tet: tetgen.TetGen, maxvolume: float) -> tuple:
@@ -157,25 +270,7 @@ def hausdorff_distance(a: Mesh, b: Mesh, neighbours: int = 8) -> float:
 
 def _surface_distance(query: NDArray[np.float64], surface: Mesh, neighbours: int = 8) -> float:
     """Largest distance from ``query`` points to ``surface`` (an upper bound, see :func:`hausdorff_distance`)."""
-    tris = surface.cells.astype(np.int64)
-    k = min(neighbours, surface.n_nodes)
-    _, near = cKDTree(surface.points).query(query, k=k)
-    near = near.reshape(len(query), k)
-    order = np.argsort(tris.ravel(), kind="stable")
-    start = np.searchsorted(tris.ravel()[order], np.arange(surface.n_nodes + 1))
-    worst = 0.0
-    for chunk in np.array_split(np.arange(len(query)), max(1, len(query) // 4096)):
-        vertex = near[chunk].ravel()
-        count = start[vertex + 1] - start[vertex]
-        offset = np.repeat(start[vertex] - np.cumsum(count) + count, count) + np.arange(count.sum())
-        candidate = order[offset] // 3
-        owner = np.repeat(np.repeat(chunk, k), count)
-        closest = trimesh.triangles.closest_point(surface.points[tris[candidate]], query[owner])
-        dist = np.linalg.norm(closest - query[owner], axis=1)
-        best = np.full(len(query), np.inf)
-        np.minimum.at(best, owner, dist)
-        worst = max(worst, float(best[chunk].max()))
-    return worst
+    return float(closest_points(query, surface.points, surface.cells, neighbours)[1].max())
 
 
 def _transfer_sets(old: Mesh, points: NDArray[np.float64], cells: NDArray[np.int64]) -> dict[str, NDArray[np.int64]]:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from typer.testing import CliRunner
 
 from simgen.cli import app
 from simgen.meshes.io import load_mesh
+from simgen.meshes.quality import mesh_quality
 
 runner = CliRunner()
 
@@ -29,6 +32,12 @@ def test_mesh_command_writes_a_loadable_mesh(tmp_path):
     assert result.exit_code == 0, result.output
     mesh = load_mesh(out)
     assert 450 < mesh.n_nodes < 550 and mesh.cell_type == "tetra"
+    quality = mesh_quality(mesh)
+    for label, value in [
+        (r"smallest dihedral angle \(deg\)", f"{quality.min_angle:.1f}"),
+        ("smallest altitude / mean edge", f"{quality.min_altitude_ratio:.3f}"),
+    ]:
+        assert re.search(rf"{label}\s+\S\s+{value}", result.output), result.output
 
 
 def test_simulate_command_writes_outputs(tmp_path):

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import zarr
 
+from shared.mesh import Mesh
 from simgen.build.card import dataset_card, short_card, store_facts
+from simgen.meshes.quality import mesh_quality
 
 
 def test_card_describes_model_parameters_sizes_statistics_split_provenance(reference_store):
@@ -33,6 +35,16 @@ def test_card_describes_model_parameters_sizes_statistics_split_provenance(refer
     parts = [root[f"subjects/{s}"].attrs["split"] for s in ("lv-healthy", "lv-scar-apex")]
     assert f"Subjects: train {parts.count('train')}, validation {parts.count('validation')}" in card
     assert "| created | 2024-01-01T00:00:00+00:00 |" in card and "Aliev and A. V. Panfilov" in card
+
+
+def test_card_reports_the_quality_of_each_mesh(reference_store):
+    card = dataset_card(reference_store)
+    group = zarr.open_group(str(reference_store), mode="r")["meshes/lv"]
+    q = mesh_quality(Mesh(group["points"][...], group["cells"][...]))
+    assert "| smallest angle (deg) | radius ratio min / 1st pct / mean | smallest altitude / mean edge |" in card
+    row = next(line for line in card.splitlines() if line.startswith("| lv | 520 |"))
+    assert row.endswith(f"| {q.min_angle:.1f} | {q.radius_text()} | {q.min_altitude_ratio:.3f} |")
+    assert 0 < q.min_angle < 70.6 and 0 < q.min_altitude_ratio < 0.82
 
 
 def test_build_stores_the_short_card(reference_store):
