@@ -32,6 +32,7 @@ __all__ = [
     "read_statistics",
     "read_split",
     "read_solver_settings",
+    "read_integrator",
     "read_times",
     "subject_array",
     "read_rows",
@@ -148,6 +149,16 @@ def read_solver_settings(path: str | Path) -> dict:
     in mm...) is the subject attribute ``solver`` (:func:`subject_attrs`).
     """
     return dict(zarr.open_group(str(path), mode="r").attrs["spec"]["solver"])
+
+
+def read_integrator(path: str | Path, subject_id: str) -> str:
+    """The time integrator that ran on the subject: ``"euler"``, ``"rkc"`` or ``"imex"``.
+
+    Its ``solver.integrator`` attribute; stores written before that record ran
+    the spec's integrator, forward Euler where the spec left it unset.
+    """
+    recorded = (subject_attrs(path, subject_id).get("solver") or {}).get("integrator")
+    return recorded or read_solver_settings(path).get("integrator") or "euler"
 
 
 def read_times(path: str | Path, subject_id: str, unit: Literal["time", "ms"] = "time") -> NDArray[np.float64]:

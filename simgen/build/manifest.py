@@ -56,6 +56,7 @@ class SubjectSetup(NamedTuple):
     dt: float
     steps_per_frame: int
     stimulus_radius: float
+    integrator: str
 
 
 @dataclass(frozen=True)
@@ -216,5 +217,7 @@ def validate_plan(plan: Plan) -> dict[str, SubjectSetup]:
             assembly = assemble(mesh, fields, solver, geometry)
         except InputError as exc:
             raise type(exc)(f"subject {subject.id!r} (mesh {subject.mesh_id!r}): {exc}") from exc
-        setups[subject.id] = SubjectSetup(fields, assembly.dt, assembly.steps_per_frame, solver.radius_on(mesh))
+        setups[subject.id] = SubjectSetup(
+            fields, assembly.dt, assembly.steps_per_frame, solver.radius_on(mesh), assembly.integrator
+        )
     return setups

@@ -69,11 +69,20 @@ def _created() -> str:
     return when.isoformat(timespec="seconds")
 
 
+#: How the root attribute ``simulation.model`` names each integrator setting.
+INTEGRATOR_NAMES = {
+    "euler": "forward Euler",
+    "rkc": "second-order Runge-Kutta-Chebyshev (RKC2)",
+    "imex": "implicit-explicit SBDF2 (implicit diffusion)",
+    "auto": "forward Euler or implicit-explicit SBDF2 per subject (subject attribute solver.integrator)",
+}
+
+
 def simulation_attrs(solver: SolverConfig) -> dict:
     """Root attribute ``simulation``: the model, its constants and the settings every subject shares."""
     return {
         "model": "Aliev-Panfilov (1996), monodomain, P1 finite elements, "
-        + ("second-order Runge-Kutta-Chebyshev (RKC2)" if solver.integrator == "rkc" else "forward Euler"),
+        + INTEGRATOR_NAMES.get(solver.integrator or "auto"),
         "equations": list(AP_EQUATIONS),
         "constants": dataclasses.asdict(solver.model),
         "diffusivity": solver.diffusivity,
@@ -93,8 +102,9 @@ def simulation_attrs(solver: SolverConfig) -> dict:
 
 
 def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
-    """Subject attribute ``solver``: the time step and stimulus the solver resolved on the subject's mesh."""
+    """Subject attribute ``solver``: integrator, time step and stimulus as the solver resolved them on its mesh."""
     return {
+        "integrator": setup.integrator,
         "dt": setup.dt,
         "steps_per_frame": setup.steps_per_frame,
         "stimulus_radius": setup.stimulus_radius,

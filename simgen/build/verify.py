@@ -17,13 +17,14 @@ so any difference means the stored chunk is not what the spec produces.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import zarr
 from numpy.typing import NDArray
 
+from shared.reader import read_integrator
 from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
 from simgen.build.fingerprint import chunk_fingerprint
 from simgen.build.location import store_location
@@ -186,7 +187,8 @@ def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: Solve
     for ref in refs:
         if ref.subject_id not in sims:
             mesh_id = root[subject_path(ref.subject_id)].attrs["mesh_id"]
-            sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, ref.subject_id), solver, backend="numba")
+            recorded = replace(solver, integrator=read_integrator(store, ref.subject_id))
+            sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, ref.subject_id), recorded, backend="numba")
             sims = {ref.subject_id: (sim, read_sites(store, mesh_id))}  # keep one subject's operator
         sim, sites = sims[ref.subject_id]
         result = sim.run(sites[ref.start : ref.stop], threads=1)

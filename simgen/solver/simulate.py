@@ -199,7 +199,7 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
         return Assembly(A, lambda_max, "rkc", *choose_rkc_step(lambda_max, k, dt, interval))
     if integrator == "euler" or (integrator == "auto" and dt is not None and dt < stability_limit(lambda_max, k)):
         return Assembly(A, lambda_max, "euler", *choose_time_step(lambda_max, k, dt, interval), 1)
-    imex_dt, imex_steps = choose_imex_step(dt, interval)
+    imex_dt, imex_steps = choose_imex_step(dt, k, interval)
     if integrator == "auto" and dt is None:
         euler_dt, euler_steps = choose_time_step(lambda_max, k, None, interval)
         if euler_steps <= imex_steps:  # as few steps, each cheaper
@@ -300,8 +300,8 @@ class Simulator:
             self.steps_per_frame,  # out_every
             *map(f32, (self.dt, m.k, eps0, mu1, m.mu2, cfg.activation_threshold)),
         )
-        if self.integrator == "imex" and self.backend != "torch":
-            u, act = self._run_imex(mask, constants, threads)
+        if self.integrator == "imex":
+            u, act = (self._run_torch_imex if self.backend == "torch" else self._run_imex)(mask, constants, threads)
         elif self.backend == "torch":
             u, act = self._run_torch(mask, constants, threads)
         else:
@@ -356,16 +356,35 @@ class Simulator:
         kernel_act[:, to_factor] = act.T
         return frames, kernel_act
 
-    def _run_torch(
-        self, mask: NDArray[np.bool_], constants: tuple, threads: int
-    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """Frames (S, F, N) and activation (S, N, kernel row order) from the torch kernel, built on first use."""
+    def _torch_kernel(self):
+        """The :class:`~simgen.solver.torch_kernel.TorchKernel` of this subject, built on first use."""
         if self._torch is None:
             from simgen.solver.torch_kernel import TorchKernel  # torch is imported on this path only
 
             self._torch = TorchKernel(
                 self._indptr, self._indices, self._data, self._diag, self._a, self.perm, self.device, self.compile
             )
+        return self._torch
+
+    def _run_torch_imex(
+        self, mask: NDArray[np.bool_], constants: tuple, threads: int
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Frames (S, F, N) and activation (S, N, kernel row order) from IMEX steps in torch (CG solves)."""
+        from simgen.solver.torch_imex import run_imex_torch
+
+        n, s = mask.shape
+        mass = np.empty(n, np.float32)
+        mass[self.inverse_perm[self.factor.perm]] = self.factor.mass  # kernel order
+        frames = page_aligned_empty((s, self.config.frames, n), np.float32)
+        act = np.where(mask, np.float32(0.0), np.float32(-1.0))
+        run_imex_torch(self._torch_kernel(), mass, mask, constants[:3], constants[3:], frames, act, threads)
+        return frames, act.T
+
+    def _run_torch(
+        self, mask: NDArray[np.bool_], constants: tuple, threads: int
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Frames (S, F, N) and activation (S, N, kernel row order) from the torch kernel, built on first use."""
+        self._torch_kernel()
         n, s = mask.shape
         frames = page_aligned_empty((s, self.config.frames, n), np.float32)
         act = np.where(mask, np.float32(0.0), np.float32(-1.0))

@@ -26,6 +26,7 @@ __all__ = [
     "choose_time_step",
     "rkc_stages",
     "choose_rkc_step",
+    "reaction_limit",
     "choose_imex_step",
     "cheaper_integrator",
 ]
@@ -105,13 +106,26 @@ def choose_rkc_step(lam_max: float, k: float, dt: float | None, output_interval:
     return dt, steps, rkc_stages(dt, lam_max, k)
 
 
-def choose_imex_step(dt: float | None, output_interval: float) -> tuple[float, int]:
+def reaction_limit(k: float) -> float:
+    """Largest stable IMEX step for the explicit reaction: SBDF2's explicit part is stable on ``y' = -r y``
+    for ``dt r < 2/3``, and the reaction's rates are at most ``k`` in magnitude."""
+    return 2.0 / (3.0 * k)
+
+
+def choose_imex_step(dt: float | None, k: float, output_interval: float) -> tuple[float, int]:
     """The IMEX step (``dt``, ``None``: :data:`DT_IMEX`) fitted to whole steps per output interval, and their number.
 
-    Any ``dt > 0`` is stable; its accuracy is the caller's choice.
+    No diffusion limit applies; a ``dt`` at or above :func:`reaction_limit`
+    raises :class:`TimeStepError` quoting it.
     """
     if dt is not None and (not np.isfinite(dt) or dt <= 0):
         raise TimeStepError(f"time step dt={dt} must be finite and > 0")
+    limit = reaction_limit(k)
+    if dt is not None and dt >= limit:
+        raise TimeStepError(
+            f"time step dt={dt:g} is unstable for the reaction, which the IMEX integrator takes explicitly: "
+            f"use dt < {limit:.4g} (2 / (3 k), k {k:g}) or leave it automatic"
+        )
     return _fit(DT_IMEX if dt is None else dt, output_interval)
 
 

@@ -214,7 +214,8 @@ def test_unknown_integrator_is_refused_naming_the_allowed_ones():
 
 
 def test_store_metadata_names_the_integrator():
-    assert simulation_attrs(SolverConfig())["model"].endswith("forward Euler")
+    assert simulation_attrs(SolverConfig(integrator="euler"))["model"].endswith("forward Euler")
+    assert "per subject (subject attribute solver.integrator)" in simulation_attrs(SolverConfig())["model"]
     assert simulation_attrs(RKC)["model"].endswith("Runge-Kutta-Chebyshev (RKC2)")
 
 
