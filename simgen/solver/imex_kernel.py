@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from shared.errors import InputError
 from simgen.solver.rkc_kernel import fma
-from simgen.solver.simd import LANES, vfma, vload, vsplat, vstore
+from simgen.solver.simd import LANES, vany, vfma, vload, vsplat, vstore
 
 __all__ = ["Factor", "Factors", "factorise", "Patches", "patches", "run_imex"]
 
@@ -171,33 +171,33 @@ def patches(factor: Factor, stim: NDArray[np.bool_]) -> Patches:
 
 
 @njit(inline="always", **_STRICT)
-def _rates(u, v, a, k, eps0, mu1, mu2):  # pragma: no cover - compiled
-    """Aliev-Panfilov reaction rates ``(f, g)`` of :func:`simgen.solver.kernels._reaction` without diffusion."""
-    one = np.float32(1.0)
-    f = k * u * (one - u) * (u - a) - u * v
-    eps = eps0 + mu1 * v / (u + mu2)
-    return f, eps * (-v - k * u * (u - a - one))
-
-
-@njit(inline="always", **_STRICT)
 def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, first, dt, k, eps0, mu1, mu2):  # pragma: no cover - compiled
     """The explicit half of a step: ``rhs`` of the solve, ``v`` advanced; ``up, vp, fp, gp`` become step n's.
 
-    The ``first`` step is IMEX Euler (``rhs = M (u + dt f)``, ``v += dt g``), the others SBDF2.
+    The ``first`` step is IMEX Euler (``rhs = M (u + dt f)``, ``v += dt g``),
+    the others SBDF2; the rates are :func:`simgen.solver.kernels._reaction`'s
+    terms. LANES columns at a time (the width is a multiple of LANES).
     """
     n, s = u.shape
-    two, three, half = np.float32(2.0), np.float32(3.0), np.float32(0.5)
+    one, two, half = vsplat(np.float32(1.0)), vsplat(np.float32(2.0)), vsplat(np.float32(0.5))
+    three, four = vsplat(np.float32(3.0)), vsplat(np.float32(4.0))
+    vdt, vk, veps0, vmu1, vmu2 = vsplat(dt), vsplat(k), vsplat(eps0), vsplat(mu1), vsplat(mu2)
     for i in range(n):
-        for c in range(s):
-            ui, vi = u[i, c], v[i, c]
-            f, g = _rates(ui, vi, a[i], k, eps0, mu1, mu2)
+        ai, mi = vsplat(a[i]), vsplat(mass[i])
+        for o in range(i * s, i * s + s, LANES):
+            ui, vi = vload(u, o), vload(v, o)
+            f = vk * ui * (one - ui) * (ui - ai) - ui * vi
+            g = (veps0 + vmu1 * vi / (ui + vmu2)) * (-vi - vk * ui * (ui - ai - one))
             if first:
-                rhs[i, c] = mass[i] * (ui + dt * f)
-                v[i, c] = vi + dt * g
+                vstore(rhs, o, mi * (ui + vdt * f))
+                vstore(v, o, vi + vdt * g)
             else:
-                rhs[i, c] = mass[i] * (two * ui - half * up[i, c] + dt * (two * f - fp[i, c]))
-                v[i, c] = (np.float32(4.0) * vi - vp[i, c] + two * dt * (two * g - gp[i, c])) / three
-            up[i, c], vp[i, c], fp[i, c], gp[i, c] = ui, vi, f, g
+                vstore(rhs, o, mi * (two * ui - half * vload(up, o) + vdt * (two * f - vload(fp, o))))
+                vstore(v, o, (four * vi - vload(vp, o) + two * vdt * (two * g - vload(gp, o))) / three)
+            vstore(up, o, ui)
+            vstore(vp, o, vi)
+            vstore(fp, o, f)
+            vstore(gp, o, g)
 
 
 @njit(inline="always", **_STRICT)
@@ -276,13 +276,20 @@ def _hold(x, z, col0, offsets, rows):  # pragma: no cover - compiled
 
 @njit(inline="always", **_STRICT)
 def _record(u_old, u_new, act, t0, dt, thr):  # pragma: no cover - compiled
-    """First threshold crossings in this step: time interpolated linearly between the two states."""
+    """First threshold crossings in this step: time interpolated linearly between the two states.
+
+    Lanes are checked a vector at a time; the rare vectors with a crossing are recorded one column at a time.
+    """
     n, s = u_old.shape
+    vthr = vsplat(thr)
     for i in range(n):
-        for c in range(s):
-            ui, un = u_old[i, c], u_new[i, c]
-            if ui < thr <= un and act[i, c] < np.float32(0.0):
-                act[i, c] = t0 + dt * (thr - ui) / (un - ui)
+        for c0 in range(0, s, LANES):
+            o = i * s + c0
+            if vany((vload(u_old, o) < vthr) & (vload(u_new, o) >= vthr)):
+                for c in range(c0, c0 + LANES):
+                    ui, un = u_old[i, c], u_new[i, c]
+                    if ui < thr <= un and act[i, c] < np.float32(0.0):
+                        act[i, c] = t0 + dt * (thr - ui) / (un - ui)
 
 
 @njit(nogil=True, cache=True, **_STRICT)

@@ -262,6 +262,14 @@ class Simulator:
         self.stimulus_radius = self.config.radius_on(mesh)
         self._edge_graph = edge_graph(mesh)  # for the stimulus patches of every run
 
+    @property
+    def entries_per_step(self) -> int:
+        """Stored matrix entries one time step multiplies per site: the operator's times the stages (Euler,
+        RKC2), or the factor's (IMEX, one solve; two while the stimulus holds)."""
+        if self.integrator == "imex":
+            return self.factor.nnz
+        return (len(self._data) + len(self._diag)) * self.stages
+
     def run(self, sites: NDArray[np.integer], threads: int = 1, block_size: int = BLOCK_SIZE) -> SimulationResult:
         """Simulate every site in ``sites`` (node ids) in one batch on ``threads`` threads.
 

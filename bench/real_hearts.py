@@ -1,0 +1,178 @@
+"""Benchmark: what a real heart costs to simulate next to a procedural one, with each time integrator.
+
+For the shipped real meshes (``real:NAME``) at ``--real-nodes`` and the
+procedural LV and BiV at ``--nodes`` (default 1k, 5k, 20k; 2k LV too), each
+integrator (forward Euler at its stable step, IMEX SBDF2 at its accuracy step,
+and ``auto``, the default, which runs one of the two) simulates ``--sites``
+sites x 55 frames on one thread. Per mesh and integrator the table gives dt,
+steps, the work of one step (Euler: operator entries per node; IMEX: factor
+entries per node, solved once per step), setup and wall time, and the error
+against the Euler run of the same mesh (largest activation-time difference as
+a share of the activation range, and the smallest correlation of the
+activation maps over the sites). Then the issue's goals, measured in this run:
+
+* each real heart's default-integrator wall time over the procedural LV's of
+  about the same node count (``--real-nodes``);
+* the exponent ``p`` of wall ~ nodes^p of the default integrator on the
+  procedural LV and BiV from the smallest to the largest ``--nodes``;
+* the default integrator's wall time over Euler's on the 2k procedural LV.
+
+Run::
+
+    .venv/bin/python bench/real_hearts.py --out report/bench            # ~10 min on 2 cores
+    .venv/bin/python bench/real_hearts.py --nodes 1000 2000 --quick     # real meshes and small LVs only
+
+``--out DIR`` writes real_hearts.md (the tables) and real_hearts.json (raw numbers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from shared.mesh import Mesh
+from simgen.meshes import get_mesh
+from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX
+from simgen.solver.simulate import Simulator, SolverConfig
+
+INTEGRATORS = ("euler", "imex", "auto")
+
+
+def agreement(reference: np.ndarray, other: np.ndarray) -> tuple[float, float]:
+    """Largest activation-time difference over the activation range (per site, worst site) and the smallest
+    correlation of activation maps; NaN (never activated) nodes are left out of both."""
+    span = np.nanmax(reference, axis=1) - np.nanmin(reference, axis=1)
+    share = float(np.nanmax(np.nanmax(np.abs(other - reference), axis=1) / span))
+    ok = np.isfinite(reference) & np.isfinite(other)
+    cc = min(float(np.corrcoef(r[k], o[k])[0, 1]) for r, o, k in zip(reference, other, ok))
+    return share, cc
+
+
+def bench(mesh: Mesh, label: str, sites: np.ndarray, integrator: str, repeat: int) -> tuple[dict, np.ndarray]:
+    """One mesh with one integrator: the row of the table and the activation times."""
+    t0 = time.perf_counter()
+    sim = Simulator(mesh, config=SolverConfig(integrator=integrator))
+    setup = time.perf_counter() - t0
+    sim.run(sites[:1])  # compile, and any first-call cost
+    walls = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = sim.run(sites, threads=1)
+        walls.append(time.perf_counter() - t0)
+    row = {
+        "mesh": label,
+        "nodes": mesh.n_nodes,
+        "integrator": integrator,
+        "runs": sim.integrator,
+        "dt": sim.dt,
+        "steps": sim.steps_per_frame * sim.config.frames,
+        "entries_per_node": sim.entries_per_step / mesh.n_nodes,
+        "setup_s": setup,
+        "wall_s": min(walls),
+    }
+    return row, result.activation
+
+
+def meshes(args: argparse.Namespace) -> list[tuple[str, str, Mesh]]:
+    """``(kind, label, mesh)``: kind ``"real"`` or the procedural family."""
+    out = []
+    for name in REAL_MESHES:
+        source = f"{REAL_PREFIX}{name}"
+        out.append(("real", source, get_mesh(source, args.real_nodes, kind="tetra")))
+    for family in ("lv", "biv"):
+        for n in sorted(set(args.nodes) | ({2000} if family == "lv" else set())):
+            out.append((family, f"{family} {n}", get_mesh(family, n, kind="tetra")))
+    return out
+
+
+def goals(rows: list[dict], args: argparse.Namespace) -> list[str]:
+    """The three measured goals as Markdown lines."""
+    auto = {r["mesh"]: r for r in rows if r["integrator"] == "auto"}
+    euler = {r["mesh"]: r for r in rows if r["integrator"] == "euler"}
+    lv = [r for r in auto.values() if r["mesh"].startswith("lv ")]
+    lines = []
+    for r in (r for r in auto.values() if r["mesh"].startswith(REAL_PREFIX)):
+        ref = min(lv, key=lambda x: abs(np.log(x["nodes"] / r["nodes"])))
+        lines.append(
+            f"- {r['mesh']} ({r['nodes']} nodes, {r['runs']}): {r['wall_s'] / ref['wall_s']:.2f}x the wall time of "
+            f"the procedural {ref['mesh']} ({ref['nodes']} nodes, {ref['runs']}); goal <= 2x"
+        )
+    for family in ("lv", "biv"):
+        sized = sorted((r for r in auto.values() if r["mesh"].startswith(family + " ")), key=lambda r: r["nodes"])
+        sized = [r for r in sized if r["mesh"] != "lv 2000" or len(args.nodes) == 1]
+        if len(sized) >= 2:
+            a, b = sized[0], sized[-1]
+            p = np.log(b["wall_s"] / a["wall_s"]) / np.log(b["nodes"] / a["nodes"])
+            e = np.log(euler[b["mesh"]]["wall_s"] / euler[a["mesh"]]["wall_s"]) / np.log(b["nodes"] / a["nodes"])
+            lines.append(
+                f"- {family}: default-integrator wall time ~ nodes^{p:.2f} from {a['nodes']} to {b['nodes']} nodes "
+                f"(forward Euler alone: nodes^{e:.2f})"
+            )
+    if "lv 2000" in auto:
+        ratio = auto["lv 2000"]["wall_s"] / euler["lv 2000"]["wall_s"]
+        lines.append(f"- lv 2000: default ({auto['lv 2000']['runs']}) / Euler wall time {ratio:.2f}; goal <= 1.10")
+    return lines
+
+
+def markdown(rows: list[dict]) -> str:
+    head = (
+        "| mesh | nodes | integrator (runs) | dt | steps | entries/node per step | setup (s) | wall (s) "
+        "| max |dt_act| / range vs Euler | min CC vs Euler |\n|---|---:|---|---:|---:|---:|---:|---:|---:|---:|\n"
+    )
+    body = "".join(
+        f"| {r['mesh']} | {r['nodes']} | {r['integrator']} ({r['runs']}) | {r['dt']:.3g} | {r['steps']} "
+        f"| {r['entries_per_node']:.1f} | {r['setup_s']:.2f} | {r['wall_s']:.2f} "
+        f"| {r.get('share', float('nan')):.4f} | {r.get('cc', float('nan')):.5f} |\n"
+        for r in rows
+    )
+    return head + body
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--nodes", type=int, nargs="+", default=[1000, 5000, 20000], help="procedural mesh sizes")
+    p.add_argument("--real-nodes", type=int, default=1000, help="node target of the real meshes (default 1000)")
+    p.add_argument("--sites", type=int, default=8, help="stimulation sites per run (default 8)")
+    p.add_argument("--repeat", type=int, default=2, help="timed runs; best kept (default 2)")
+    p.add_argument("--quick", action="store_true", help="procedural meshes up to 2k nodes only")
+    p.add_argument("--out", type=Path, help="folder for real_hearts.md and real_hearts.json")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.nodes = [n for n in args.nodes if n <= 2000] or [1000]
+    load_before = os.getloadavg()[0]
+    start = time.perf_counter()
+    rows = []
+    for _, label, mesh in meshes(args):
+        sites = np.random.default_rng(0).choice(mesh.n_nodes, args.sites, replace=False)
+        reference = None
+        for integrator in INTEGRATORS:
+            row, activation = bench(mesh, label, sites, integrator, args.repeat)
+            if reference is None:
+                reference = activation
+            row["share"], row["cc"] = agreement(reference, activation)
+            rows.append(row)
+            print(markdown([row]).splitlines()[-1], flush=True)
+    total = time.perf_counter() - start
+    header = (
+        f"Real-heart bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__}, one thread, "
+        f"{args.sites} sites x 55 frames per run, best of {args.repeat}; total {total:.0f} s; "
+        f"1-min load average before the run {load_before:.1f}\n"
+    )
+    text = header + "\n" + markdown(rows) + "\n" + "\n".join(goals(rows, args)) + "\n"
+    print(text)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "real_hearts.md").write_text(text)
+        meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "total_s": total, "rows": rows}
+        (args.out / "real_hearts.json").write_text(json.dumps(meta, indent=2))
+
+
+if __name__ == "__main__":
+    main()
