@@ -87,6 +87,7 @@ def test_root_and_subject_attributes_record_model_solver_and_provenance(referenc
         g = root[f"subjects/{subject.id}"]
         sim = Simulator(read_mesh(reference_store, "lv"), read_tissue(reference_store, subject.id), plan.spec.solver)
         assert g.attrs["solver"] == {
+            "integrator": sim.integrator,
             "dt": sim.dt,
             "steps_per_frame": sim.steps_per_frame,
             "stimulus_radius": sim.stimulus_radius,

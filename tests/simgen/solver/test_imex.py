@@ -179,3 +179,47 @@ def test_torch_backend_runs_the_same_steps_within_the_backend_tolerance(lv):
     assert np.abs(torch_run.u - numba_run.u).max() < u_bound
     assert np.array_equal(np.isnan(torch_run.activation), never)
     assert np.abs(torch_run.activation - numba_run.activation)[~never].max() < steps_bound * numba_run.dt
+
+
+def test_store_records_the_integrator_that_ran_and_verify_recomputes_it_bitwise(tmp_path):
+    """A build records each subject's integrator (``auto`` resolved); ``simgen verify`` recomputes with it."""
+    from shared.reader import read_integrator
+    from simgen.build.card import dataset_card
+    from simgen.build.runner import build
+    from simgen.build.spec import spec_from_mapping
+    from simgen.build.verify import verify_store
+
+    def spec(solver: dict):
+        return spec_from_mapping(
+            {
+                "meshes": [{"id": "lv", "source": "lv", "nodes": 500}],
+                "tissue": ["healthy"],
+                "sites": {"count": 4},
+                "solver": {"frames": 4, **solver},
+                "output": {"chunk_sites": 2, "sock_electrodes": 0},
+            }
+        )
+
+    imex, auto = tmp_path / "imex.zarr", tmp_path / "auto.zarr"
+    build(spec({"integrator": "imex"}), imex, workers=1)
+    build(spec({}), auto, workers=1)
+    assert read_integrator(imex, "lv-healthy") == "imex" and read_integrator(auto, "lv-healthy") == "euler"
+    report = verify_store(imex, sample=10)
+    assert report.ok, report.problems
+    assert report.chunks_recomputed == 2
+    assert "| time integrator (subjects) | imex (1) |" in dataset_card(imex)
+
+
+def test_a_subject_without_the_record_ran_the_spec_integrator_or_euler(tmp_path):
+    """Stores written before the record existed: the spec's integrator, forward Euler where it was unset."""
+    import zarr
+
+    from shared.reader import read_integrator
+
+    root = zarr.open_group(tmp_path / "old.zarr", mode="w")
+    root.attrs["spec"] = {"solver": {"frames": 4}}
+    group = root.create_group("subjects/lv-healthy")
+    group.attrs["solver"] = {"dt": 0.02, "steps_per_frame": 30}
+    assert read_integrator(tmp_path / "old.zarr", "lv-healthy") == "euler"
+    root.attrs["spec"] = {"solver": {"frames": 4, "integrator": "rkc"}}
+    assert read_integrator(tmp_path / "old.zarr", "lv-healthy") == "rkc"
