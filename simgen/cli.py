@@ -104,6 +104,13 @@ def simulate(
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")] = "0",
     threads: ThreadsOpt = 2,
     dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
+    integrator: Annotated[
+        str,
+        typer.Option(
+            help="Time integrator: 'euler', 'rkc', 'imex' (implicit diffusion: no element limits the step) or "
+            "'auto' (the cheaper of euler and imex on this mesh)."
+        ),
+    ] = "auto",
     backend: Annotated[
         str, typer.Option(help="Solver: 'numba' (CPU), 'torch' (any torch device) or 'auto' (torch on a GPU if any).")
     ] = "numba",
@@ -118,7 +125,8 @@ def simulate(
         site_ids = np.array(parse_ids(sites, "--sites"))
         m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
         spec = _tissue_spec(tissue)
-        sim = Simulator(m, tissue_fields(m, spec), SolverConfig(dt=dt), backend=backend, device=device)
+        config = SolverConfig(dt=dt, integrator=integrator)  # type: ignore[arg-type]
+        sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
         result = sim.run(site_ids, threads=threads)
     except (InputError, ValueError) as exc:
         _fail(exc)
@@ -135,7 +143,7 @@ def simulate(
         _fail(exc, out)
     where = sim.backend if sim.device is None else f"{sim.backend} on {sim.device}"
     console.print(
-        f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), dt={sim.dt:.4g}, {where}, "
+        f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), {sim.integrator} dt={sim.dt:.4g}, {where}, "
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
 

@@ -89,6 +89,12 @@ def _span(values) -> str:
     return f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
 
 
+def _tally(words: list[str]) -> str:
+    """``"euler (3), imex (2)"``: each distinct word and how often it occurs, in first-seen order."""
+    counts = {w: words.count(w) for w in dict.fromkeys(words)}
+    return ", ".join(f"{w} ({n})" for w, n in counts.items()) or "-"
+
+
 def short_card(facts: StoreFacts) -> str:
     """Three lines: contents, model and units, provenance."""
     sim, prov = facts.simulation, facts.attrs.get("provenance") or {}
@@ -165,8 +171,10 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         return _span([s[key] for s in solvers]) if solvers else facts.missing()
 
     radius = sim["stimulus_radius"]
+    spec_integrator = facts.attrs["spec"]["solver"].get("integrator") or "euler"  # stores without the record
     rows = [
         ("diffusivity (mm2 per time unit)", f"{sim['diffusivity']:g}"),
+        ("time integrator (subjects)", _tally([s.get("integrator") or spec_integrator for s in solvers])),
         ("time step dt (time units, per subject)", resolved("dt")),
         ("solver steps per frame", resolved("steps_per_frame")),
         (
