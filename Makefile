@@ -29,6 +29,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/solver.py --out report/bench
 	$(BIN)/python bench/conduction.py --out report/bench
+	$(BIN)/python bench/real_hearts.py --out report/bench
 	$(BIN)/python bench/build.py --out report/bench
 	$(BIN)/python bench/store_read.py --out report/bench
 	$(BIN)/python bench/surrogate.py --out report/bench
