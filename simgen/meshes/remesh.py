@@ -4,13 +4,16 @@
 length ``L``, so that no triangle is a needle or a cap. Each iteration
 
 1. splits edges longer than ``4/3 L`` at their midpoint;
-2. collapses edges shorter than ``4/5 L`` into their midpoint (into the
-   boundary node when one end is on an open boundary), unless that creates
-   an edge longer than ``4/3 L``, folds a triangle or breaks the manifold;
+2. collapses edges shorter than ``4/5 L`` into one of their ends (a
+   boundary node, else the sharper end: the one farther from its
+   neighbours' centroid, so tips and creases stay), unless that creates an
+   edge longer than ``4/3 L``, folds a triangle or breaks the manifold;
 3. flips edges when that brings the valences of the four nodes around them
    closer to 6 (4 on a boundary) without making their triangles worse;
 4. moves each node tangentially towards the centroid of its neighbours and
-   projects it back onto the original surface.
+   projects it back onto the original surface; nodes near a crease of the
+   original (its normal turning by more than :data:`CREASE_ANGLE`) are put
+   onto the crease instead, so that sharp rims are not worn away.
 
 A final pass flips edges to the Delaunay condition, collapses the shortest
 edge of any triangle still below :data:`MIN_ANGLE` and smooths again. Each
@@ -31,11 +34,14 @@ import trimesh
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-__all__ = ["MIN_ANGLE", "remesh", "edge_length_for", "closest_points"]
+__all__ = ["MIN_ANGLE", "CREASE_ANGLE", "remesh", "edge_length_for", "closest_points", "crossing_edges"]
 
 #: Triangles with a smaller angle (degrees) get their shortest edge collapsed in the final pass.
 MIN_ANGLE = 25.0
 _PASSES = 12  # batches per split, collapse or flip step
+#: Edges of the original surface where its normal turns by more than this (degrees) are kept as creases.
+CREASE_ANGLE = 50.0
+_SNAP = 0.3  # nodes closer to a crease than this many edge lengths are put on it
 _COS_FOLD = 0.5  # a collapse or flip may turn a triangle's normal by at most 60 degrees
 
 
@@ -72,7 +78,7 @@ def remesh(
     ref_tris = np.asarray(ref_tris, dtype=np.int64)
     ref_edges = _edges(ref_tris, len(ref_points))
     ref_rim = ref_points[ref_edges.nodes[ref_edges.halves[:, 1] < 0]]  # (B, 2, 3) boundary segments
-    reference = (ref_points, ref_tris, ref_rim)
+    reference = (ref_points, ref_tris, ref_rim, _creases(ref_points, ref_tris, ref_edges), length)
     P, T = np.array(points, dtype=np.float64), np.array(tris, dtype=np.int64)
     for _ in range(iterations):
         P, T = _split(P, T, 4 / 3 * length)
@@ -129,6 +135,35 @@ def closest_points(
         first = best[np.unique(owner[best], return_index=True)[1]]
         closest[owner[first]], distance[owner[first]] = found[first], dist[first]
     return closest, distance
+
+
+def crossing_edges(points: NDArray[np.float64], tris: NDArray[np.integer]) -> int:
+    """How many (edge, triangle) pairs of a surface cross, the edge not touching the triangle (0: no
+    self-intersection, up to coplanar overlaps)."""
+    T = np.asarray(tris, dtype=np.int64)
+    edges = _edges(T, len(points)).nodes
+    a, b = points[edges[:, 0]], points[edges[:, 1]]
+    corner = points[T]
+    centre = corner.mean(axis=1)
+    reach = np.linalg.norm(corner - centre[:, None], axis=2).max(axis=1).max() + np.linalg.norm(b - a, axis=1).max() / 2
+    pairs = cKDTree((a + b) / 2).query_ball_tree(cKDTree(centre), reach)
+    edge = np.repeat(np.arange(len(edges)), [len(p) for p in pairs])
+    tri = np.fromiter((t for p in pairs for t in p), dtype=np.int64, count=len(edge))
+    apart = ~(T[tri][:, :, None] == edges[edge][:, None, :]).any(axis=(1, 2))
+    edge, tri = edge[apart], tri[apart]
+    # Moller-Trumbore: a + t (b - a) = p0 + u e1 + v e2 with 0 < t < 1, u, v > 0, u + v < 1
+    p0, e1, e2 = corner[tri, 0], corner[tri, 1] - corner[tri, 0], corner[tri, 2] - corner[tri, 0]
+    direction = b[edge] - a[edge]
+    h = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, h)
+    ok = np.abs(det) > 1e-12 * np.linalg.norm(e1, axis=1) ** 2 * np.linalg.norm(direction, axis=1)
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s_vec = a[edge] - p0
+    u = inv * np.einsum("ij,ij->i", s_vec, h)
+    q = np.cross(s_vec, e1)
+    v = inv * np.einsum("ij,ij->i", direction, q)
+    t = inv * np.einsum("ij,ij->i", e2, q)
+    return int((ok & (u > 0) & (v > 0) & (u + v < 1) & (t > 0) & (t < 1)).sum())
 
 
 def _edges(T: NDArray[np.int64], n: int) -> _Edges:
@@ -252,11 +287,10 @@ def _collapse(
         if len(idx) == 0:
             break
         keep, gone = a[idx].copy(), b[idx].copy()
-        swap = boundary_node[gone] & ~boundary_node[keep]
+        sharp = _sharpness(P, edges) + 2 * boundary_node  # boundary nodes first, then tips and creases
+        swap = sharp[gone] > sharp[keep]
         keep[swap], gone[swap] = gone[swap], keep[swap].copy()
-        target = (P[keep] + P[gone]) / 2
-        pin = boundary_node[keep] & ~boundary_node[gone]  # a boundary node stays on the boundary
-        target[pin] = P[keep[pin]]
+        target = P[keep]
         relax = needles is not None  # a needle may go at a sharp crease, turning its neighbours more
         ok = _collapse_ok(
             P, T, edges, idx, keep, gone, target, 2 * longest if relax else longest, 0.0 if relax else _COS_FOLD
@@ -277,6 +311,18 @@ def _collapse(
         T = remap[T]
         T = T[(T[:, 0] != T[:, 1]) & (T[:, 1] != T[:, 2]) & (T[:, 2] != T[:, 0])]
     return P, T
+
+
+def _sharpness(P: NDArray[np.float64], edges: _Edges) -> NDArray[np.float64]:
+    """Distance of each node from its neighbours' centroid over their mean distance (0 flat, ~1 a tip)."""
+    a, b = edges.nodes.T
+    n = len(P)
+    degree = np.maximum(np.bincount(np.r_[a, b], minlength=n), 1)[:, None]
+    centroid = np.zeros_like(P)
+    np.add.at(centroid, a, P[b])
+    np.add.at(centroid, b, P[a])
+    spread = np.bincount(np.r_[a, b], np.tile(np.linalg.norm(P[a] - P[b], axis=1), 2), minlength=n)
+    return np.linalg.norm(centroid / degree - P, axis=1) / np.maximum(spread / degree[:, 0], 1e-300)
 
 
 def _collapse_ok(
@@ -369,9 +415,12 @@ def _smooth(
     ref_points: NDArray[np.float64],
     ref_tris: NDArray[np.int64],
     ref_rim: NDArray[np.float64],
+    ref_creases: NDArray[np.float64],
+    length: float,
 ) -> NDArray[np.float64]:
     """Interior nodes moved tangentially to their neighbours' centroid, then onto the reference surface;
-    boundary nodes put back onto the reference boundary ``ref_rim`` (segments)."""
+    boundary nodes put back onto the reference boundary ``ref_rim`` and nodes within :data:`_SNAP` ``length``
+    of a crease (segments ``ref_creases``) onto the crease, unsmoothed."""
     n = len(P)
     edges = _edges(T, n)
     adjacency = _adjacency(edges, n).astype(np.float64)
@@ -387,13 +436,31 @@ def _smooth(
     move = centroid - P
     move -= np.einsum("ij,ij->i", move, normal)[:, None] * normal
     rim = _boundary_nodes(edges, n)
-    inner = used & ~rim
+    on_crease = np.zeros(n, dtype=bool)
+    if len(ref_creases):
+        foot = _closest_on_segments(P, ref_creases)
+        on_crease = used & ~rim & (np.linalg.norm(foot - P, axis=1) < _SNAP * length)
+        snapped = np.flatnonzero(on_crease)
+        close = cKDTree(foot[snapped]).query_pairs(_SNAP * length, output_type="ndarray")
+        on_crease[snapped[close[:, 1]]] = False  # two nodes onto one point of a crease: the second stays off
+    inner = used & ~rim & ~on_crease
     P = P.copy()
     P[inner] += move[inner]
     P[inner] = closest_points(P[inner], ref_points, ref_tris, normals=normal[inner])[0]
+    if on_crease.any():
+        P[on_crease] = foot[on_crease]
     if rim.any() and len(ref_rim):
         P[rim] = _closest_on_segments(P[rim], ref_rim)
     return P
+
+
+def _creases(points: NDArray[np.float64], tris: NDArray[np.int64], edges: _Edges) -> NDArray[np.float64]:
+    """(C, 2, 3) segments of the edges where the surface turns by more than :data:`CREASE_ANGLE`."""
+    inner = np.flatnonzero(edges.halves[:, 1] >= 0)
+    normal = _unit(_normals(points, tris))
+    first, second = normal[edges.halves[inner, 0] // 3], normal[edges.halves[inner, 1] // 3]
+    sharp = inner[np.einsum("ij,ij->i", first, second) < np.cos(np.radians(CREASE_ANGLE))]
+    return points[edges.nodes[sharp]]
 
 
 def _closest_on_segments(query: NDArray[np.float64], segments: NDArray[np.float64], near: int = 8) -> NDArray:

@@ -14,9 +14,11 @@
   ``L`` and radius-edge ratio at most 1.5, then optimised by flips and
   smoothing towards dihedral angles between 15 and 160 degrees (a bound
   TetGen tries to meet, not a guarantee); ``L`` is corrected from the total
-  node count in the same way. Slivers lying flat against the surface (two
-  faces on it, a dihedral angle below :data:`PEEL_ANGLE`) are removed,
-  which flips the surface diagonal under them.
+  node count in the same way (a remeshed surface that crosses itself, at
+  a thin wall, is remeshed 15 % finer before TetGen sees it). Slivers lying flat
+  against the surface (two faces on it, a dihedral angle below
+  :data:`PEEL_ANGLE`) are removed, which flips the surface diagonal under
+  them.
 - :func:`hausdorff_distance` measures how far the shape moved.
 
 A mesh already of the asked cell type, within :data:`NODE_TOLERANCE` of the
@@ -43,7 +45,7 @@ from scipy.spatial import cKDTree
 from shared.errors import MeshError
 from shared.mesh import CellType, Mesh
 from simgen.meshes.quality import cell_angles
-from simgen.meshes.remesh import closest_points, edge_length_for, remesh
+from simgen.meshes.remesh import closest_points, crossing_edges, edge_length_for, remesh
 from simgen.meshes.topology import boundary_faces, extract_surface, group_rows, signed_volumes, tet_faces
 from simgen.meshes.validate import mesh_problems, validate_mesh
 
@@ -77,8 +79,8 @@ _TETGEN = {
     "quiet": True,
 }
 _TRIES = 4
-#: Remeshed surfaces have slightly longer edges than ``L`` on average: ``L`` starts this much shorter.
-_LENGTH_FACTOR = 0.96
+#: Remeshed surfaces keep about 30 % more nodes than an equilateral one of edge ``L``: ``L`` starts longer.
+_LENGTH_FACTOR = 1.1
 #: Interior volume per node (in units of ``L^3``) of a TetGen fill, for the first guess of ``L``.
 _VOLUME_PER_NODE = 0.2
 #: Tetrahedra with two faces on the surface and a dihedral angle below this (degrees) are removed.
@@ -142,17 +144,19 @@ def remesh_surface(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """A closed or open triangle surface remeshed isotropically to about ``nodes`` nodes.
 
-    Dense surfaces are first decimated to ``2 nodes``; the edge length is then
-    corrected from the node count over up to :data:`_TRIES` remeshings.
+    Dense surfaces are first decimated to ``2 nodes``; each remeshing starts
+    from there, the edge length corrected from the node count over up to
+    :data:`_TRIES` remeshings.
     """
     area = float(trimesh.Trimesh(points, tris, process=False).area)
     length = _LENGTH_FACTOR * edge_length_for(area, nodes)
 
-    def make(length: float, surface: tuple) -> tuple:
-        remeshed = remesh(*surface, length, reference=(points, tris))
-        return remeshed, remeshed
+    start = decimate_surface(points, tris, 2 * nodes)
 
-    return _fit_length(length, nodes, make, decimate_surface(points, tris, 2 * nodes))[1]
+    def make(length: float) -> tuple:
+        return length, remesh(*start, length, reference=(points, tris))
+
+    return _fit_length(length, nodes, make)
 
 
 def tetrahedralise(
@@ -183,15 +187,20 @@ def tetrahedralise(
         lo, hi = (length, hi) if estimate > nodes else (lo, length)
     start = decimate_surface(points, tris, 2 * nodes)
 
-    def fill(length: float, surface: tuple) -> tuple:
-        sp, st = remesh(*surface, length, reference=(points, tris))
+    def fill(length: float) -> tuple:
+        sp, st = remesh(*start, length, reference=(points, tris))
+        for _ in range(_TRIES):  # a coarse surface can cross itself at a thin wall: remesh it finer
+            if not crossing_edges(sp, st):
+                break
+            length *= 0.85
+            sp, st = remesh(*start, length, reference=(points, tris))
         try:
             tet_points, tets, *_ = _tetrahedralize(tetgen.TetGen(sp, st.astype(np.int32)), length**3 / (6 * np.sqrt(2)))
-        except RuntimeError as exc:
-            raise MeshError(f"mesh {name!r}: TetGen could not fill the remeshed surface ({exc})") from None
-        return (sp, st), (np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
+        except RuntimeError as exc:  # no second try: TetGen can corrupt memory when it fails twice in a process
+            raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None
+        return length, (np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
 
-    tet_points, tets = _fit_length(length, nodes, fill, start)[1]
+    tet_points, tets = _fit_length(length, nodes, fill)
     negative = signed_volumes(tet_points, tets) < 0
     tets[negative] = tets[negative][:, [1, 0, 2, 3]]
     for _ in range(3):  # peeling one can lay the next flat on the surface
@@ -219,31 +228,30 @@ def _peel(points: NDArray[np.float64], tets: NDArray[np.int64]) -> NDArray[np.in
     return peeled
 
 
-def _fit_length(length: float, nodes: int, make: Callable, start: tuple) -> tuple:
-    """``make(length, start)`` over up to :data:`_TRIES` lengths until its mesh has ``nodes`` nodes.
+def _fit_length(length: float, nodes: int, make: Callable[[float], tuple]) -> tuple:
+    """The mesh of ``make(length)`` closest to ``nodes`` nodes over up to :data:`_TRIES` lengths.
 
-    ``make`` returns ``(next start, (points, cells))``; each try starts from
-    the previous one's surface. The length follows a secant on
-    ``log nodes`` against ``log length`` (slope -2 to begin with); the mesh
-    closest to the target is returned.
+    ``make`` returns ``(length it used, (points, cells))``. The length
+    follows a secant on ``log nodes`` against ``log length`` (slope -2 to
+    begin with) until the count is within ``NODE_TOLERANCE / 2``.
     """
-    tried: list[tuple[float, int]] = []
+    tried: list[tuple[float, float]] = []
     best: tuple[float, tuple] | None = None
     for _ in range(_TRIES):
-        start, mesh = make(length, start)
+        used, mesh = make(length)
         count = len(mesh[0])
         miss = abs(count / nodes - 1)
         if best is None or miss < best[0]:
             best = (miss, mesh)
         if miss <= NODE_TOLERANCE / 2:
             break
-        tried.append((np.log(length), np.log(count)))
+        tried.append((np.log(used), np.log(count)))
         slope = -2.0
         if len(tried) >= 2 and tried[-1][0] != tried[-2][0]:
             slope = float(np.clip((tried[-1][1] - tried[-2][1]) / (tried[-1][0] - tried[-2][0]), -4.0, -1.0))
         length = float(np.exp(tried[-1][0] + (np.log(nodes) - tried[-1][1]) / slope))
     assert best is not None
-    return best
+    return best[1]
 
 
 def _tetrahedralize(tet: tetgen.TetGen, maxvolume: float) -> tuple:

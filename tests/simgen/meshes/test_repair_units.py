@@ -120,7 +120,9 @@ def test_resampling_keeps_the_shape_and_fills_closed_surfaces():
     volume = resample(fine, 1500, "tetra")
     assert volume.cell_type == "tetra" and abs(volume.n_nodes / 1500 - 1) <= 0.1
     assert {"epicardium", "endocardium", "base"} <= set(volume.node_sets)
-    assert resample(coarse, 5000, "triangle") is coarse  # never refined
+    assert resample(coarse, 1050, "triangle") is coarse  # on target, no angle below 20 degrees: kept
+    finer = resample(coarse, 1600, "triangle")  # refined
+    assert abs(finer.n_nodes / 1600 - 1) <= 0.1 and hausdorff_distance(fine, finer) < 2.0
 
 
 def test_an_open_surface_is_not_filled():
