@@ -9,14 +9,16 @@ stiffness ``K``, Aliev-Panfilov rates ``f``, ``g``) by::
     (3/2 M + dt K) u_{n+1} = M (2 u_n - u_{n-1} / 2 + dt (2 f_n - f_{n-1})),
     v_{n+1} = (4 v_n - v_{n-1} + 2 dt (2 g_n - g_{n-1})) / 3,
 
-with ``f_n = f(u_n, v_n)``; the first step takes ``u_{-1} = u_0`` (a
-backward-Euler step of length ``2 dt / 3``). BDF2 damps every diffusion mode,
-so no element, however thin, limits ``dt``: the step is chosen for the accuracy
-of the reaction (:data:`simgen.solver.timestep.DT_IMEX`).
+with ``f_n = f(u_n, v_n)``. The method restarts with one IMEX-Euler step,
+``(M + dt K) u_{n+1} = M (u_n + dt f_n)``, ``v_{n+1} = v_n + dt g_n``, at
+``t = 0`` and where the stimulus switches off (the history does not reach
+across that jump). BDF2 damps every diffusion mode, so no element, however
+thin, limits ``dt``: the step is chosen for the accuracy of the reaction
+(:data:`simgen.solver.timestep.DT_IMEX`).
 
-``B = 3/2 M + dt K`` is symmetric positive definite and the same at every
-step: :func:`factorise` factors it once per subject (SuperLU with a minimum
-degree ordering on ``B + B^T`` and no pivoting, so ``B = P^T L U P`` with
+Both matrices are symmetric positive definite and the same at every step:
+:func:`factorise` factors them once per subject (one minimum degree ordering
+of the mesh graph, SuperLU without pivoting, so ``B = P^T L U P`` with
 ``U = D L^T``), and each step solves every site of the batch as one column of
 the right-hand side, float32, with one fused multiply-add per factor entry in
 a fixed order: a column's result does not depend on the other columns, the
@@ -52,18 +54,16 @@ _STRICT = dict(error_model="numpy", boundscheck=False)  # IEEE operations as wri
 
 @dataclass(frozen=True)
 class Factor:
-    """One matrix ``B`` (factor order) factored as ``L U``: float32 CSR triangles and SuperLU's float64 factor.
+    """One matrix ``B`` (factor order) factored as ``L U``, as float32 CSR triangles.
 
     ``lower``: strict lower triangle of ``L`` (unit diagonal), ``upper``: strict
     upper triangle of ``U``, each ``(indptr, indices, data)``;
-    ``inverse_diagonal``: ``1 / diag(U)``; ``lu`` solves with ``B`` in float64
-    (for :func:`patches`).
+    ``inverse_diagonal``: ``1 / diag(U)``.
     """
 
     lower: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]
     upper: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]
     inverse_diagonal: NDArray[np.float32]
-    lu: spla.SuperLU
 
     @property
     def triangles(self) -> tuple:
@@ -82,7 +82,7 @@ class Factors:
 
     ``perm[i]``: the mesh node of factor row ``i``; ``mass``: the lumped mass in
     that order (float32); ``step``: ``3/2 M + dt K``; ``start``: ``M + dt K``
-    (the first step, backward Euler).
+    (the restarting IMEX-Euler steps).
     """
 
     perm: NDArray[np.int64]
@@ -92,7 +92,7 @@ class Factors:
 
     @property
     def nnz(self) -> int:
-        """Entries of the factor every step but the first solves with."""
+        """Entries of the factor that steps but the restarting ones solve with."""
         return self.step.nnz
 
 
@@ -123,7 +123,7 @@ def _factor(B: sp.spmatrix) -> Factor:
     if np.any(diag <= 0):  # pragma: no cover - B is positive definite
         raise InputError("the implicit diffusion matrix is not positive definite")
     lower, upper = sp.tril(lu.L.tocsr(), k=-1, format="csr"), sp.triu(U, k=1, format="csr")
-    return Factor(_csr32(lower), _csr32(upper), (1.0 / diag).astype(np.float32), lu)
+    return Factor(_csr32(lower), _csr32(upper), (1.0 / diag).astype(np.float32))
 
 
 def _csr32(A: sp.csr_matrix) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32]]:
@@ -151,30 +151,37 @@ class Patches:
 
 
 def patches(factor: Factor, stim: NDArray[np.bool_]) -> Patches:
-    """:class:`Patches` of the (N, S) stimulus mask ``stim`` (factor order) for ``factor``'s matrix."""
+    """:class:`Patches` of the (N, S) stimulus mask ``stim`` (factor order) for ``factor``'s matrix.
+
+    The columns of ``B^{-1}`` at every patch node come from one batched solve
+    with the kernel's float32 triangles; each ``G`` is symmetrised and
+    inverted in float64.
+    """
     n, s = stim.shape
-    rows, inverse = [], []
-    for c in range(s):
-        rows_c = np.flatnonzero(stim[:, c])
-        unit = np.zeros((n, len(rows_c)))
-        unit[rows_c, np.arange(len(rows_c))] = 1.0
-        G = factor.lu.solve(unit)[rows_c]
-        rows.append(rows_c)
-        inverse.append(np.linalg.inv(0.5 * (G + G.T)).ravel() if len(rows_c) else np.zeros(0))
+    rows = [np.flatnonzero(stim[:, c]) for c in range(s)]
     sizes = np.array([len(r) for r in rows], np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    flat = np.concatenate(rows).astype(np.int64)
+    unit = np.zeros((n, -(-len(flat) // LANES) * LANES), np.float32)
+    unit[flat, np.arange(len(flat))] = 1.0
+    _solve_columns(factor.triangles, unit)
+    inverse = []
+    for c in range(s):
+        G = unit[rows[c]][:, offsets[c] : offsets[c + 1]].astype(float)
+        inverse.append(np.linalg.inv(0.5 * (G + G.T)).ravel() if sizes[c] else np.zeros(0))
     return Patches(
-        np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-        np.concatenate(rows).astype(np.int64),
+        offsets,
+        flat,
         np.concatenate([[0], np.cumsum(sizes**2)]).astype(np.int64),
         np.concatenate(inverse).astype(np.float32),
     )
 
 
 @njit(inline="always", **_STRICT)
-def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, first, dt, k, eps0, mu1, mu2):  # pragma: no cover - compiled
+def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, k, eps0, mu1, mu2):  # pragma: no cover - compiled
     """The explicit half of a step: ``rhs`` of the solve, ``v`` advanced; ``up, vp, fp, gp`` become step n's.
 
-    The ``first`` step is IMEX Euler (``rhs = M (u + dt f)``, ``v += dt g``),
+    A ``restart`` step is IMEX Euler (``rhs = M (u + dt f)``, ``v += dt g``),
     the others SBDF2; the rates are :func:`simgen.solver.kernels._reaction`'s
     terms. LANES columns at a time (the width is a multiple of LANES).
     """
@@ -188,7 +195,7 @@ def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, first, dt, k, eps0, mu1, mu2):
             ui, vi = vload(u, o), vload(v, o)
             f = vk * ui * (one - ui) * (ui - ai) - ui * vi
             g = (veps0 + vmu1 * vi / (ui + vmu2)) * (-vi - vk * ui * (ui - ai - one))
-            if first:
+            if restart:
                 vstore(rhs, o, mi * (ui + vdt * f))
                 vstore(v, o, vi + vdt * g)
             else:
@@ -242,6 +249,12 @@ def _solve(triangles, x):  # pragma: no cover - compiled
         d = inverse_diagonal[i]
         for c in range(s):
             x[i, c] *= d
+
+
+@njit(nogil=True, cache=True, **_STRICT)
+def _solve_columns(triangles, x):  # pragma: no cover - compiled
+    """:func:`_solve` as a kernel of its own."""
+    _solve(triangles, x)
 
 
 @njit(inline="always", **_STRICT)
@@ -307,8 +320,9 @@ def _run_block(operands, mass, a, u0, col0, counts, params, perm, frames, act): 
     fp, gp, z = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
     frame = 0
     for step in range(n_steps):
-        triangles, held = (start_triangles, start_held) if step == 0 else (step_triangles, step_held)
-        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, step == 0, dt, k, eps0, mu1, mu2)
+        restart = step == 0 or step == stim_steps  # a one-step start wherever the stimulus switches
+        triangles, held = (start_triangles, start_held) if restart else (step_triangles, step_held)
+        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, k, eps0, mu1, mu2)
         _solve(triangles, rhs)
         if step < stim_steps:
             offsets, rows, squares, inverse = held

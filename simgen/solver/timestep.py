@@ -38,10 +38,14 @@ SAFETY = 0.8
 #: The IMEX (SBDF2) step (time units): activation times within 2% of the activation range of a converged
 #: forward-Euler reference on the meshes of tests/simgen/solver/test_imex.py (docs/solver-backends.md).
 DT_IMEX = 0.05
-#: Work per node and column of one step beside the sparse products, in multiply-adds of a stored matrix
-#: entry: forward Euler's reaction, and SBDF2's two rates, history and right-hand side (bench/real_hearts.py).
+#: The cost model of ``auto`` in units of one multiply-add with an operator entry in the Euler kernel: the
+#: work per node of the reaction (Euler) and of the explicit terms (IMEX), and the cost of one factor entry
+#: in an IMEX solve (two triangular sweeps, a factor that leaves the cache on large meshes). Fitted to
+#: bench/real_hearts.py (8 sites, one thread): Euler 3.3-4.3 ns per node, site and step at 11-13 entries
+#: per node, IMEX 0.3-0.7 ns per factor entry and site.
 EULER_NODE_COST = 8.0
 IMEX_NODE_COST = 14.0
+IMEX_ENTRY_COST = 3.0
 
 
 def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
@@ -134,11 +138,12 @@ def cheaper_integrator(euler_steps: int, euler_nnz: int, imex_steps: int, factor
 
     Euler costs ``euler_steps`` products with the operator (``euler_nnz``
     entries, diagonal included) plus its reaction; IMEX ``imex_steps`` solves
-    with the factor (``factor_nnz`` entries) plus its explicit terms, per node
-    :data:`EULER_NODE_COST` and :data:`IMEX_NODE_COST` entries' worth.
+    with the factor (``factor_nnz`` entries, each :data:`IMEX_ENTRY_COST`)
+    plus its explicit terms; per node :data:`EULER_NODE_COST` and
+    :data:`IMEX_NODE_COST`.
     """
     euler = euler_steps * (euler_nnz + EULER_NODE_COST * nodes)
-    imex = imex_steps * (factor_nnz + IMEX_NODE_COST * nodes)
+    imex = imex_steps * (IMEX_ENTRY_COST * factor_nnz + IMEX_NODE_COST * nodes)
     return "imex" if imex < euler else "euler"
 
 

@@ -65,7 +65,7 @@ def run_imex_torch(
         up = vp = fp = gp = None
         for i in range(n_steps):
             f, g = _rates(u, v, kernel.a, k, eps0, mu1, mu2)
-            if i == 0:
+            if i == 0 or i == stim_steps:  # a one-step start wherever the stimulus switches
                 c, rhs, vn, guess = 1.0, m * (u + dt * f), v + dt * g, u
             else:
                 c = 1.5
