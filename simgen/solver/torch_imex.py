@@ -19,7 +19,7 @@ import torch
 from numpy.typing import NDArray
 
 from shared.errors import InputError
-from simgen.solver.torch_kernel import TorchKernel, _FrameSink
+from simgen.solver.torch_kernel import TorchKernel, _FrameSink, cpu_threads, rates
 
 __all__ = ["RTOL", "MAX_ITERATIONS", "run_imex_torch"]
 
@@ -48,12 +48,10 @@ def run_imex_torch(
     runs ``threads`` threads meanwhile (its setting is restored afterwards).
     """
     stim_steps, n_steps, out_every = counts
-    saved = torch.get_num_threads()
-    if kernel.device.type == "cpu":
-        torch.set_num_threads(max(1, int(threads)))
-    try:
+    with cpu_threads(kernel.device, threads):
         dev = kernel.device
-        dt, k, eps0, mu1, mu2, thr = (float(p) for p in params)
+        dt, thr = float(params[0]), float(params[5])
+        constants = torch.tensor(params, dtype=torch.float32, device=dev).unbind()
         m = torch.from_numpy(np.asarray(mass, np.float32)).reshape(-1, 1).to(dev)
         hold = torch.from_numpy(stim).to(dev)
         free = (~hold).to(torch.float32)
@@ -64,18 +62,18 @@ def run_imex_torch(
         sink = _FrameSink(frames, dev)
         up = vp = fp = gp = None
         for i in range(n_steps):
-            f, g = _rates(u, v, kernel.a, k, eps0, mu1, mu2)
+            f, g = rates(u, v, 0.0, kernel.a, constants)  # the reaction alone
             if i == 0 or i == stim_steps:  # a one-step start wherever the stimulus switches
-                c, rhs, vn, guess = 1.0, m * (u + dt * f), v + dt * g, u
+                scale, rhs, vn, guess = 1.0, m * (u + dt * f), v + dt * g, u
             else:
-                c = 1.5
+                scale = 1.5
                 rhs = m * (2.0 * u - 0.5 * up + dt * (2.0 * f - fp))
                 vn = (4.0 * v - vp + 2.0 * dt * (2.0 * g - gp)) / 3.0
                 guess = 2.0 * u - up
             mask = free if i < stim_steps else None
             if mask is not None:
                 guess = torch.where(hold, 1.0, guess)
-            un = _cg(kernel, m, c, dt, m * (c - dt * diagonal), rhs, guess, mask)
+            un = _cg(kernel, m, scale, dt, m * (scale - dt * diagonal), rhs, guess, mask)
             crossed = (u < thr) & (un >= thr) & (act_t < 0.0)
             act_t = torch.where(crossed, i * dt + dt * (thr - u) / (un - u), act_t)
             up, vp, fp, gp = u, v, f, g
@@ -84,15 +82,6 @@ def run_imex_torch(
                 sink.put((i + 1) // out_every - 1, u.index_select(0, kernel.inverse_perm).T)
         sink.close()
         act[...] = act_t.cpu().numpy()
-    finally:
-        torch.set_num_threads(saved)
-
-
-def _rates(u, v, a, k, eps0, mu1, mu2) -> tuple[torch.Tensor, torch.Tensor]:
-    """The Aliev-Panfilov reaction rates ``(f, g)`` (:func:`simgen.solver.imex_kernel._rates`)."""
-    f = k * u * (1.0 - u) * (u - a) - u * v
-    eps = eps0 + mu1 * v / (u + mu2)
-    return f, eps * (-v - k * u * (u - a - 1.0))
 
 
 def _operator_diagonal(kernel: TorchKernel) -> torch.Tensor:

@@ -28,7 +28,8 @@ one sparse product and an elementwise update (:func:`rates`, eager) per stage.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,7 +38,7 @@ from numpy.typing import NDArray
 
 from shared.errors import InputError
 
-__all__ = ["TorchKernel", "step", "rates", "compiles_on", "torch_device"]
+__all__ = ["TorchKernel", "step", "rates", "compiles_on", "torch_device", "cpu_threads"]
 
 
 def torch_device(device: str | torch.device | None) -> torch.device:
@@ -61,6 +62,18 @@ def torch_device(device: str | torch.device | None) -> torch.device:
     elif dev.type != "cpu":
         raise InputError(f"device {str(dev)!r} is not supported by the torch solver: use 'cpu' or 'cuda[:N]'")
     return dev
+
+
+@contextmanager
+def cpu_threads(device: torch.device, threads: int) -> Iterator[None]:
+    """``threads`` torch threads for the block where ``device`` is the CPU; torch's setting is restored after."""
+    saved = torch.get_num_threads()
+    if device.type == "cpu":
+        torch.set_num_threads(max(1, int(threads)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(saved)
 
 
 def compiles_on(device: torch.device) -> bool:
@@ -225,10 +238,7 @@ class TorchKernel:
         meanwhile (its setting is restored afterwards). ``stages``: the (s, 5)
         RKC2 table; ``None`` is forward Euler.
         """
-        saved = torch.get_num_threads()
-        if self.device.type == "cpu":
-            torch.set_num_threads(max(1, int(threads)))
-        try:
+        with cpu_threads(self.device, threads):
             dev = self.device
             u = torch.from_numpy(u_init).to(dev)
             v = torch.zeros_like(u)
@@ -252,8 +262,6 @@ class TorchKernel:
                     sink.put((i + 1) // out_every - 1, u.index_select(0, self.inverse_perm).T)
             sink.close()
             act[...] = act_t.cpu().numpy()
-        finally:
-            torch.set_num_threads(saved)
 
     def _rkc_step(
         self,
