@@ -40,12 +40,12 @@ SAFETY = 0.8
 DT_IMEX = 0.05
 #: The cost model of ``auto`` in units of one multiply-add with an operator entry in the Euler kernel: the
 #: work per node of the reaction (Euler) and of the explicit terms (IMEX), and the cost of one factor entry
-#: in an IMEX solve (two triangular sweeps, a factor that leaves the cache on large meshes). Fitted to
-#: bench/real_hearts.py (8 sites, one thread): Euler 3.3-4.3 ns per node, site and step at 11-13 entries
-#: per node, IMEX 0.3-0.7 ns per factor entry and site.
+#: in an IMEX solve (two triangular sweeps; below 1 while the factor stays in cache, above on large meshes).
+#: Fitted to bench/real_hearts.py (8 sites, one thread): Euler 3.5-4.5 ns per node, site and step at 11-13
+#: entries per node; IMEX 0.6-1.2 Euler entries per factor entry, from 1k to 20k nodes.
 EULER_NODE_COST = 8.0
 IMEX_NODE_COST = 14.0
-IMEX_ENTRY_COST = 3.0
+IMEX_ENTRY_COST = 1.0
 
 
 def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
