@@ -80,9 +80,10 @@ class SolverConfig:
     mm (geodesic) of the site for ``stimulus_duration`` time units (12.9 ms),
     long enough to launch a wave from a small patch; the default radius is 1.5
     mean edge lengths (8 mm on the default mesh), which launches a wave from
-    every node of LVs of 500 to 5,000 nodes; at 20,000 nodes it is 3.7 mm and 3 of 8 random sites
-    launch none (bench/real_hearts.py sets 8 mm). 55 frames every 0.6 time units (7.7 ms) cover 33 time
-    units (426 ms): the whole activation and the start of repolarisation.
+    every node of LVs of 500 to 5,000 nodes; at 20,000 nodes it is 3.7 mm, and
+    3 of 8 random sites launch none (set ``stimulus_radius`` there, e.g. 8 mm).
+    55 frames every 0.6 time units (7.7 ms) cover 33 time units (426 ms): the
+    whole activation and the start of repolarisation.
 
     ``backend`` (:data:`~simgen.solver.backends.BACKENDS`, see
     :class:`Simulator`) chooses the code that integrates, not the model:
