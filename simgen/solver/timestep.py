@@ -28,6 +28,7 @@ __all__ = [
     "choose_rkc_step",
     "reaction_limit",
     "choose_imex_step",
+    "factor_entry_cost",
     "cheaper_integrator",
 ]
 
@@ -38,14 +39,13 @@ SAFETY = 0.8
 #: The IMEX (SBDF2) step (time units): activation times within 2% of the activation range of a converged
 #: forward-Euler reference on the meshes of tests/simgen/solver/test_imex.py (docs/solver-backends.md).
 DT_IMEX = 0.05
-#: The cost model of ``auto`` in units of one multiply-add with an operator entry in the Euler kernel: the
-#: work per node of the reaction (Euler) and of the explicit terms (IMEX), and the cost of one factor entry
-#: in an IMEX solve (two triangular sweeps; below 1 while the factor stays in cache, above on large meshes).
-#: Fitted to bench/real_hearts.py (8 sites, one thread): Euler 3.5-4.5 ns per node, site and step at 11-13
-#: entries per node; IMEX 0.6-1.2 Euler entries per factor entry, from 1k to 20k nodes.
+#: The cost model of ``auto``, in units of one multiply-add with an operator entry in the Euler kernel: the
+#: work per node of the reaction (Euler) and of the explicit terms (IMEX). Fitted to bench/real_hearts.py
+#: (8 sites, one thread, 2-core AMD EPYC VM): Euler 3.5-4.5 ns per node, site and step at 11-13 entries per
+#: node; an IMEX factor entry 0.6 Euler entries while the factor fits in about 1 MB, 1.2 at 10 MB, 1.7 at
+#: 80 MB (:func:`factor_entry_cost`).
 EULER_NODE_COST = 8.0
 IMEX_NODE_COST = 14.0
-IMEX_ENTRY_COST = 1.0
 
 
 def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
@@ -133,17 +133,24 @@ def choose_imex_step(dt: float | None, k: float, output_interval: float) -> tupl
     return _fit(DT_IMEX if dt is None else dt, output_interval)
 
 
+def factor_entry_cost(factor_nnz: int) -> float:
+    """What one factor entry of an IMEX solve costs in Euler operator entries: 0.6 for a factor of up to 1 MB
+    (12 bytes an entry), growing by 0.55 per tenfold size as the factor leaves the caches, at most 1.8."""
+    megabytes = 12.0 * factor_nnz / 1e6
+    return float(np.clip(0.6 + 0.55 * np.log10(max(megabytes, 1e-9)), 0.6, 1.8))
+
+
 def cheaper_integrator(euler_steps: int, euler_nnz: int, imex_steps: int, factor_nnz: int, nodes: int) -> str:
     """``"euler"`` or ``"imex"``: the smaller estimated work for the same simulated time.
 
     Euler costs ``euler_steps`` products with the operator (``euler_nnz``
     entries, diagonal included) plus its reaction; IMEX ``imex_steps`` solves
-    with the factor (``factor_nnz`` entries, each :data:`IMEX_ENTRY_COST`)
+    with the factor (``factor_nnz`` entries, each :func:`factor_entry_cost`)
     plus its explicit terms; per node :data:`EULER_NODE_COST` and
     :data:`IMEX_NODE_COST`.
     """
     euler = euler_steps * (euler_nnz + EULER_NODE_COST * nodes)
-    imex = imex_steps * (IMEX_ENTRY_COST * factor_nnz + IMEX_NODE_COST * nodes)
+    imex = imex_steps * (factor_entry_cost(factor_nnz) * factor_nnz + IMEX_NODE_COST * nodes)
     return "imex" if imex < euler else "euler"
 
 

@@ -223,3 +223,15 @@ def test_a_subject_without_the_record_ran_the_spec_integrator_or_euler(tmp_path)
     assert read_integrator(tmp_path / "old.zarr", "lv-healthy") == "euler"
     root.attrs["spec"] = {"solver": {"frames": 4, "integrator": "rkc"}}
     assert read_integrator(tmp_path / "old.zarr", "lv-healthy") == "rkc"
+
+
+def test_cost_model_weighs_factor_entries_by_the_factor_size():
+    from simgen.solver.timestep import cheaper_integrator, factor_entry_cost
+
+    mb = 1e6 / 12  # factor entries in a megabyte
+    assert factor_entry_cost(0.5 * mb) == 0.6 and factor_entry_cost(mb) == pytest.approx(0.6)
+    assert factor_entry_cost(10 * mb) == pytest.approx(1.15) and factor_entry_cost(1e6 * mb) == 1.8
+    # 1,000 nodes: 3,080 Euler steps of 11.6 entries/node against 660 IMEX steps of 73 (real:tof-biv) -> IMEX
+    assert cheaper_integrator(3080, 11_600, 660, 73_000, 1000) == "imex"
+    # 20,000 nodes: 11,715 Euler steps of 13.3 against 660 IMEX steps of 346 (procedural LV) -> Euler
+    assert cheaper_integrator(11_715, 266_000, 660, 6_920_000, 20_000) == "euler"
