@@ -53,6 +53,7 @@ __all__ = [
     "BenchmarkConfig",
     "load_benchmark_config",
     "BaselineMethod",
+    "baseline_methods",
     "run_benchmark",
 ]
 
@@ -140,6 +141,25 @@ class BaselineMethod(Method):
 
     def predict(self, sites: Tensor) -> np.ndarray:
         return self.baseline.predict(sites.numpy())
+
+
+def baseline_methods(
+    cfg: BenchmarkConfig, solver: dict, times: np.ndarray, names: tuple[str, ...] | None = None
+) -> list[BaselineMethod]:
+    """Fresh BO baselines ``names`` (default ``cfg.baselines.methods``) with the config's budget, regions and seed.
+
+    ``solver`` and ``times`` are those of the store they will be fitted on.
+    """
+    b = cfg.baselines
+    make = {
+        "fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),
+        "vae-bo": lambda: VAEBO(budget=b.budget, seed=cfg.seed),
+    }
+    names = b.methods if names is None else names
+    unknown = sorted(set(names) - set(make))
+    if unknown:
+        raise ConfigError(f"unknown baseline(s) {unknown}; choose from {sorted(make)}")
+    return [BaselineMethod(make[name](), solver, times) for name in names]
 
 
 def _stats(report: EvalReport) -> dict:
@@ -376,16 +396,8 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> 
     reports = evaluate_methods(neural, view, test, spec, observe, noise, levels, coarsest, step("Table 1"))
     results["table1_all_test"] = {name: _stats(r) for name, r in reports.items()}
 
-    solver = read_solver_settings(view.store)
     b = cfg.baselines
-    make = {
-        "fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),
-        "vae-bo": lambda: VAEBO(budget=b.budget, seed=cfg.seed),
-    }
-    unknown = sorted(set(b.methods) - set(make))
-    if unknown:
-        raise ConfigError(f"unknown baseline(s) {unknown}; choose from {sorted(make)}")
-    base_methods = [BaselineMethod(make[name](), solver, view.times) for name in b.methods]
+    base_methods = baseline_methods(cfg, read_solver_settings(view.store), view.times)
     subset = test[: b.subjects]
     bspec = replace(spec, subjects=tuple(subset), context_sets=b.context_sets, max_targets=b.max_targets)
     examples: dict[str, dict] = {}
@@ -416,7 +428,7 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> 
         results["real_data"] = real_data(neural, levels, coarsest, cfg)
         real_view = StoreView(cfg.real_data.store)
         real_solver = read_solver_settings(real_view.store)
-        real_base = [BaselineMethod(make[name](), real_solver, real_view.times) for name in b.methods]
+        real_base = baseline_methods(cfg, real_solver, real_view.times)
         if real_base and cfg.real_data.baseline_folds:
             progress("real data: baselines")
             results["real_data_baseline_subset"] = real_data(

@@ -1,0 +1,151 @@
+"""Benchmark: the BO baselines (FS-BO, VAE-BO) on every fold of the real heart, and what one fit costs.
+
+Runs the baselines of ``--config``'s ``[baselines]`` (``specs/benchmark-default.toml``: budget 100
+simulator calls per fit, FS-BO on 7 regions, seed 0) on the real-heart store of ``--store``
+(``specs/realdata.toml``: the shipped MRI biventricle ``real:tof-biv``, 3 tissue settings) with the
+config's real-data observation model (the 247-electrode epicardial sock, noise 0.02, leaving one of
+8 pacing sites out in turn), through ``learner.benchmark.real_data``: the same folds, noise draws
+and metrics as ``learner benchmark``, here on every fold (``--folds 0``) instead of the first
+``baseline_folds``. Prints the target MSE, spatial and temporal CC (mean ± std over the folds) per
+method beside the noise-free truth scored the same way (the ceiling), and the wall time of each fit:
+the first (for VAE-BO it includes building the scar library and training the VAE, once per mesh),
+the mean per fold, and the share spent inside the simulator.
+
+Run (one thread for the simulator and for the GP)::
+
+    OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python bench/real_baselines.py \\
+        --store data/realdata.zarr --out report/bench            # every fold, both methods
+    .venv/bin/python bench/real_baselines.py --folds 1 --methods fs-bo   # first fold of each subject
+
+``--out DIR`` writes real_baselines.md (the tables) and real_baselines.json (every fold and fit).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from torch import Tensor
+
+from learner.benchmark import BaselineMethod, baseline_methods, load_benchmark_config, real_data, real_data_table
+from learner.config import ModelConfig
+from learner.data.episodes import Episode
+from learner.evaluate import Method
+from learner.graph.hierarchy import MeshHierarchy
+from learner.store_view import StoreView
+from shared.mesh import Mesh
+from shared.reader import read_solver_settings
+
+
+def cpu_model() -> str:
+    """The CPU's model name from /proc/cpuinfo (Linux), else the platform's processor string."""
+    info = Path("/proc/cpuinfo")
+    lines = info.read_text().splitlines() if info.exists() else []
+    names = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
+    return names[0] if names else platform.processor() or platform.machine()
+
+
+class TimedFit(Method):
+    """A BO baseline that records the wall time and cost of each of its fits."""
+
+    def __init__(self, inner: BaselineMethod) -> None:
+        self.inner, self.name, self.fits = inner, inner.name, []
+
+    def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
+        t0 = time.perf_counter()
+        cost = self.inner.fit(episode, mesh, hierarchy)
+        result = self.inner.baseline.result
+        self.fits.append(
+            {
+                "subject": episode.subject_id,
+                "wall_s": time.perf_counter() - t0,
+                "setup_s": result.setup_seconds,
+                "simulate_s": result.simulate_seconds,
+                "calls": cost["calls"],
+                "objective": result.objective,
+            }
+        )
+        print(f"{self.name} {episode.subject_id} fit {len(self.fits)}: {self.fits[-1]['wall_s']:.1f} s", flush=True)
+        return cost
+
+    def predict(self, sites: Tensor) -> np.ndarray:
+        return self.inner.predict(sites)
+
+
+def timing_table(methods: list[TimedFit]) -> str:
+    """Markdown: per method, the folds, the first fit, the mean fit and its setup and simulator shares."""
+    lines = [
+        "| method | folds | first fit (s) | mean fit (s) | mean setup (s) | in the simulator | calls per fit |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for m in methods:
+        wall = np.array([f["wall_s"] for f in m.fits])
+        setup = np.mean([f["setup_s"] for f in m.fits])
+        sim = sum(f["simulate_s"] for f in m.fits) / wall.sum()
+        lines.append(
+            f"| {m.name} | {len(wall)} | {wall[0]:.1f} | {wall.mean():.1f} ± {wall.std():.1f} | {setup:.1f} "
+            f"| {100 * sim:.0f} % | {m.fits[0]['calls']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--store", default="data/realdata.zarr", help="real-heart store (specs/realdata.toml)")
+    p.add_argument("--config", default="specs/benchmark-default.toml", help="benchmark config: [baselines], seed")
+    p.add_argument("--methods", nargs="+", default=["fs-bo", "vae-bo"], help="baselines to run")
+    p.add_argument("--folds", type=int, default=0, help="left-out sites per subject (0: all)")
+    p.add_argument("--out", type=Path, help="folder for real_baselines.md and real_baselines.json")
+    args = p.parse_args(argv)
+
+    cfg = load_benchmark_config(args.config)
+    cfg = replace(cfg, real_data=replace(cfg.real_data, store=args.store))
+    view = StoreView(args.store)
+    baselines = baseline_methods(cfg, read_solver_settings(view.store), view.times, tuple(args.methods))
+    methods = [TimedFit(m) for m in baselines]
+    load_before = os.getloadavg()[0]
+    start = time.perf_counter()
+    model = ModelConfig()  # the hierarchy real_data builds; the baselines do not use it
+    result = real_data(methods, model.levels, model.coarsest, cfg, args.folds)
+    total = time.perf_counter() - start
+    load_after = os.getloadavg()[0]
+
+    mesh = view.mesh(view.mesh_of[view.subjects[0]])
+    folds = len(result["folds"]["ceiling"])
+    rd, b = cfg.real_data, cfg.baselines
+    header = (
+        f"Real-heart baselines: {platform.system()} {platform.machine()}, {cpu_model()}, {os.cpu_count()} CPUs, "
+        f"one thread; total {total:.0f} s; 1-min load average {load_before:.1f} before, {load_after:.1f} after.\n\n"
+        f"{', '.join(result['subjects'])} ({mesh.n_nodes} nodes), {result['electrodes']} sock electrodes, "
+        f"noise {rd.noise_std}, leave one of {rd.sites} sites out: {folds} folds "
+        f"({'all' if args.folds <= 0 else f'the first {args.folds}'} of each subject); budget {b.budget} "
+        f"simulator calls per fit, FS-BO on {b.regions} regions, seed {cfg.seed}.\n"
+    )
+    text = header + "\n" + real_data_table(result) + "\n" + timing_table(methods)
+    print(text)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "real_baselines.md").write_text(text)
+        meta = {
+            "machine": platform.machine(),
+            "processor": cpu_model(),
+            "cpus": os.cpu_count(),
+            "load_before": load_before,
+            "load_after": load_after,
+            "total_s": total,
+            "nodes": mesh.n_nodes,
+            "folds_per_subject": args.folds,
+            "fits": {m.name: m.fits for m in methods},
+            **result,
+        }
+        (args.out / "real_baselines.json").write_text(json.dumps(meta, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
