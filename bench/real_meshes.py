@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from simgen.meshes import get_mesh
+from simgen.meshes.io import load_mesh
 from simgen.meshes.resample import hausdorff_distance
-from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX
+from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX, unpacked
 from simgen.plot import plot_mesh_overview
 from simgen.solver import MS_PER_TIME_UNIT, Simulator
 from simgen.solver.simulate import healthy_fields
@@ -51,7 +52,8 @@ def main() -> None:
         start = time.perf_counter()
         mesh = get_mesh(source, args.nodes, args.kind)
         seconds = time.perf_counter() - start
-        original = get_mesh(source, 10**7, "tetra" if name == "rodero01-lv" else "triangle")  # the file as it is
+        with unpacked(source) as path:
+            original = load_mesh(path, units="mm")  # the file as it is
         distance = hausdorff_distance(original, mesh)
         epicardium = mesh.nodes("epicardium")
         site = int(epicardium[np.argmin(np.linalg.norm(mesh.points[epicardium] - mesh.axis.apex, axis=1))])
