@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from shared.errors import MeshError
 from shared.mesh import Mesh
 
-__all__ = ["Geometry", "element_gradients", "stiffness_matrix", "lumped_mass", "diffusion_operator"]
+__all__ = ["Geometry", "element_gradients", "stiffness_matrix", "lumped_mass", "diffusion_operator", "operator_from"]
 
 #: ``element_gradients``' result; pass it on to assemble several matrices of one mesh from one pass over its cells.
 Geometry = tuple[NDArray[np.float64], NDArray[np.float64]]
@@ -75,9 +75,12 @@ def diffusion_operator(
 ) -> sp.csr_matrix:
     """``A = -M^{-1} K`` so that the diffusion step reads ``du/dt = A u``."""
     geometry = geometry or element_gradients(mesh.points, mesh.cells)
-    K = stiffness_matrix(mesh, node_diffusivity, geometry)
-    m = lumped_mass(mesh, geometry)
-    A = -(sp.diags(1.0 / m) @ K).tocsr()
+    return operator_from(stiffness_matrix(mesh, node_diffusivity, geometry), lumped_mass(mesh, geometry))
+
+
+def operator_from(stiffness: sp.spmatrix, mass: NDArray[np.float64]) -> sp.csr_matrix:
+    """``A = -M^{-1} K`` from the stiffness matrix and the lumped mass (canonical CSR)."""
+    A = -(sp.diags(1.0 / mass) @ stiffness).tocsr()
     A.sum_duplicates()
     A.sort_indices()
     return A

@@ -30,7 +30,7 @@ from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
 from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import check_backend, resolve_backend
-from simgen.solver.fem import Geometry, element_gradients, lumped_mass, stiffness_matrix
+from simgen.solver.fem import Geometry, element_gradients, lumped_mass, operator_from, stiffness_matrix
 from simgen.solver.imex_kernel import Factor, factorise, run_imex
 from simgen.solver.kernels import run_blocks
 from simgen.solver.rkc_kernel import coefficients, run_blocks_rkc
@@ -193,7 +193,7 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
         geometry = element_gradients(mesh.points, mesh.cells)
     K = stiffness_matrix(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
     mass = lumped_mass(mesh, geometry)
-    A = -(sp.diags(1.0 / mass) @ K).tocsr()
+    A = operator_from(K, mass)
     lambda_max = largest_eigenvalue(A, mass)
     k, dt, interval = config.model.k, config.dt, config.output_interval
     integrator = config.integrator or "auto"
