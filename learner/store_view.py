@@ -12,6 +12,7 @@ from shared.errors import InputError, SchemaError
 from shared.mesh import Mesh
 from shared.reader import (
     check_store,
+    checked_subject_ids,
     read_mesh,
     read_sites,
     read_split,
@@ -19,7 +20,6 @@ from shared.reader import (
     read_u,
     subject_array,
     subject_attrs,
-    subject_ids,
 )
 
 __all__ = ["StoreView"]
@@ -46,8 +46,8 @@ class StoreView:
 
     @cached_property
     def subjects(self) -> list[str]:
-        """Every subject id, sorted."""
-        return subject_ids(self.store)
+        """Every subject id, sorted; a subject the store's spec implies but the store lacks is an error."""
+        return checked_subject_ids(self.store, self.attrs)
 
     @cached_property
     def mesh_of(self) -> dict[str, str]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import (
     ConfigError,
+    DamagedData,
     InputError,
     MeshError,
     SchemaError,
@@ -17,6 +18,7 @@ from shared.tissue import HEALTHY, Material, ScarSpec, TissueFields, TissueSpec
 
 __all__ = [
     "ConfigError",
+    "DamagedData",
     "InputError",
     "MeshError",
     "SchemaError",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import math
+import re
 from collections import Counter
 from pathlib import Path
 from typing import NoReturn
@@ -21,7 +22,7 @@ from rich.markup import escape
 
 from shared.errors import InputError
 
-__all__ = ["PATH_ERRNOS", "fail", "finite", "path_error", "parse_ids"]
+__all__ = ["PATH_ERRNOS", "fail", "finite", "one_line", "path_error", "parse_ids"]
 
 #: errno values of a file system refusing a path: bad input, not a bug.
 PATH_ERRNOS = frozenset(
@@ -59,8 +60,22 @@ def fail(console: Console, exc: Exception, path: str | Path | None = None) -> No
     error = path_error(exc, path) if isinstance(exc, OSError) else exc
     if error is None:
         raise exc
-    console.print(f"[red]error:[/red] {escape(str(error))}", soft_wrap=True)
+    console.print(f"[red]error:[/red] {escape(one_line(str(error)))}", soft_wrap=True)
     raise typer.Exit(code=2)
+
+
+def one_line(message: str) -> str:
+    """``message`` without the worker traceback a DataLoader adds to an error it re-raises.
+
+    PyTorch re-raises an exception of a loader worker with the message
+    ``Caught X in DataLoader worker process N. Original Traceback ...``, whose
+    last line is ``module.X: the original message``.
+    """
+    if "Original Traceback" not in message:
+        return message
+    last = message.rstrip().splitlines()[-1]
+    match = re.match(r"^[\w.]+: ", last)
+    return last[match.end() :] if match else last
 
 
 def finite(value: float | None) -> float | None:

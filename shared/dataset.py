@@ -25,10 +25,11 @@ from numpy.typing import NDArray
 from shared.errors import InputError, SchemaError
 from shared.mesh import Mesh
 from shared.reader import (
+    SubjectReader,
     check_store,
+    checked_subject_ids,
     done_flags,
     read_mesh,
-    read_rows,
     read_sites,
     read_split,
     read_statistics,
@@ -36,7 +37,6 @@ from shared.reader import (
     read_tissue,
     subject_array,
     subject_attrs,
-    subject_ids,
 )
 from shared.split import SPLIT_FRACTIONS
 
@@ -87,12 +87,17 @@ class SimulationDataset:
     - ``subject``, ``mesh`` (str): subject id and mesh (anatomy) id.
 
     Simulations in a chunk whose ``done`` flag is 0 (an unfinished build) are
-    left out. The mesh's cells and node sets: :meth:`mesh`.
+    left out. Each chunk an item reads is verified first
+    (:class:`shared.integrity.SubjectReader`: checksums, content fingerprint,
+    finite ``u``). The mesh's cells and node sets: :meth:`mesh`.
 
     Raises
     ------
     SchemaError
         Not a store of a readable version; ``normalize`` without statistics.
+    DamagedData
+        A subject the store's spec implies is missing; an item's chunk is
+        damaged or misplaced (named with its subject, array, site and file).
     InputError
         Unknown split or subjects, both ``split`` and ``subjects``, no simulation left.
     """
@@ -108,7 +113,7 @@ class SimulationDataset:
         transform: Callable[[Item], Item] | None = None,
     ) -> None:
         self.store = str(store)
-        check_store(self.store)
+        self.version = int(check_store(self.store)["schema_version"])
         self.subjects = _select_subjects(self.store, split, subjects)
         self.mesh_of = {sid: subject_attrs(self.store, sid)["mesh_id"] for sid in self.subjects}
         self.sites = {mesh_id: read_sites(self.store, mesh_id) for mesh_id in set(self.mesh_of.values())}
@@ -143,7 +148,8 @@ class SimulationDataset:
 
     def _read(self, name: str, subject_id: str, row: int) -> NDArray[np.float32]:
         """One site row of ``u`` or ``activation``, standardised with ``normalize``."""
-        x = read_rows(self._cached(name, subject_id, lambda: subject_array(self.store, subject_id, name)), [row])[0]
+        reader = self._cached("reader", subject_id, lambda: SubjectReader(self.store, subject_id, self.version))
+        x = reader.rows(name, [row])[0]  # checked: done, checksums, content fingerprint, finite u
         if self.statistics is None:
             return x
         stats = self.statistics[name]
@@ -169,7 +175,7 @@ class SimulationDataset:
 
 
 def _select_subjects(store: str, split: str | None, subjects: Sequence[str] | None) -> list[str]:
-    known = subject_ids(store)
+    known = checked_subject_ids(store)
     if split is not None and subjects is not None:
         raise InputError("give a split or subjects, not both")
     if split is not None:

@@ -14,6 +14,7 @@ __all__ = [
     "TimeStepError",
     "ConfigError",
     "SchemaError",
+    "DamagedData",
 ]
 
 
@@ -43,3 +44,8 @@ class ConfigError(InputError):
 
 class SchemaError(InputError):
     """A store does not match the expected schema."""
+
+
+class DamagedData(SchemaError):
+    """Stored data a reader refuses: a failed checksum or content fingerprint, a missing file or subject,
+    values never written; the message names the subject, array, site and file, and ``simgen repair``."""

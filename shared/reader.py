@@ -6,23 +6,28 @@ reader never holds more than one subject's arrays.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import zarr
 from numpy.typing import ArrayLike, NDArray
+from zarr.errors import ZarrUserWarning
 
-from shared.errors import InputError, SchemaError
+from shared.errors import DamagedData, InputError, SchemaError
+from shared.integrity import SubjectReader, repair_hint
 from shared.location import is_url
 from shared.mesh import LongAxis, Mesh
 from shared.schema import MESH_INDEX_SETS, check_schema_version, mesh_path, subject_path
-from shared.tissue import TissueFields
+from shared.tissue import DEFAULT_SETTING_NAMES, TissueFields
 from shared.units import MS_PER_TIME_UNIT
 
 __all__ = [
     "check_store",
     "subject_ids",
+    "implied_subject_ids",
+    "checked_subject_ids",
     "subject_attrs",
     "done_flags",
     "read_mesh",
@@ -38,6 +43,7 @@ __all__ = [
     "read_rows",
     "read_u",
     "read_activation",
+    "SubjectReader",
 ]
 
 
@@ -68,6 +74,51 @@ def subject_ids(path: str | Path) -> list[str]:
     """Ids of every subject in the store, sorted (from the live metadata, not the consolidated copy)."""
     root = zarr.open_group(str(path), mode="r", use_consolidated=False)
     return sorted(name for name, _ in root["subjects"].groups())
+
+
+def implied_subject_ids(attrs: dict) -> list[str] | None:
+    """The subject ids the root attributes ``spec`` and ``added`` imply (mesh x tissue setting), in that order.
+
+    ``None`` when the store records no spec. The ids simgen's structure check
+    (``simgen verify``) expects: the spec's meshes (random anatomies listed one
+    by one) times its settings (``"default"``: the 16 default ones, then the
+    custom ones), then each ``add-subject``'s subjects.
+    """
+    spec = attrs.get("spec")
+    if not isinstance(spec, dict):
+        return None
+    names: list[str] = []
+    for name in spec.get("tissue", []):
+        names += list(DEFAULT_SETTING_NAMES) if name == "default" else [name]
+    names += [table["name"] for table in spec.get("custom_tissue", [])]
+    ids = [f"{mesh['id']}-{name}" for mesh in spec.get("meshes", []) for name in dict.fromkeys(names)]
+    for entry in attrs.get("added", []):
+        ids += list(entry.get("subjects", []))
+    return ids
+
+
+def checked_subject_ids(path: str | Path, attrs: dict | None = None) -> list[str]:
+    """:func:`subject_ids`, refusing a store that lacks a subject its spec implies (:func:`implied_subject_ids`).
+
+    ``attrs``: the root attributes, if the caller has them. A reader would
+    otherwise leave the subject out silently: the error names it and the
+    repair command.
+    """
+    attrs = dict(zarr.open_group(str(path), mode="r").attrs) if attrs is None else attrs
+    try:
+        with warnings.catch_warnings():  # a subject folder without zarr.json: named below
+            warnings.simplefilter("ignore", ZarrUserWarning)
+            found = subject_ids(path)
+    except KeyError:  # no subjects group at all
+        found = []
+    missing = [sid for sid in implied_subject_ids(attrs) or [] if sid not in set(found)]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise DamagedData(
+            f"store {path}: subject(s) {shown} implied by its spec are missing (no {subject_path(missing[0])}/zarr.json"
+            f"{' ...' if len(missing) > 1 else ''}); {repair_hint(str(path))}"
+        )
+    return found
 
 
 def _subject_group(path: str | Path, subject_id: str) -> zarr.Group:
@@ -183,6 +234,9 @@ def subject_array(path: str | Path, subject_id: str, name: str) -> zarr.Array:
 def read_rows(array: zarr.Array, rows: ArrayLike) -> NDArray:
     """``array[rows]`` along the site axis, decoding only the chunks that hold ``rows``, one chunk at a time.
 
+    Unverified beyond the chunks' checksums: the readers of ``u`` and
+    ``activation`` go through :class:`~shared.integrity.SubjectReader`.
+
     In a sharded store (schema version 3) a chunk is one site's inner chunk, so
     each row decodes alone (4x faster than ``array.oindex[rows]``, measured);
     in an older store a chunk holds a build task's sites, and a chunk-aligned
@@ -201,16 +255,27 @@ def read_rows(array: zarr.Array, rows: ArrayLike) -> NDArray:
     return out
 
 
-def read_u(path: str | Path, subject_id: str, rows: ArrayLike | None = None) -> NDArray[np.float32]:
-    """Potential ``u`` ``(site, time, node)`` of the site rows ``rows`` (default: every site).
+def read_u(
+    path: str | Path, subject_id: str, rows: ArrayLike | None = None, allow_pending: bool = False
+) -> NDArray[np.float32]:
+    """Potential ``u`` ``(site, time, node)`` of the site rows ``rows`` (default: every site), verified.
 
-    Rows of a chunk whose ``done`` flag is 0 hold NaN (:func:`done_flags`).
+    Every chunk read is checked first (:class:`~shared.integrity.SubjectReader`:
+    done flag, checksums, content fingerprint, finite values); damaged or
+    misplaced data are a :class:`~shared.errors.DamagedData` naming the
+    subject, array, site and file. A row of a chunk whose ``done`` flag is 0
+    is refused too, unless ``allow_pending`` (then it holds NaN, :func:`done_flags`).
     """
-    u = subject_array(path, subject_id, "u")
-    return u[...] if rows is None else read_rows(u, rows)
+    reader = SubjectReader(path, subject_id, allow_pending=allow_pending)
+    return reader.all("u") if rows is None else reader.rows("u", rows)
 
 
-def read_activation(path: str | Path, subject_id: str, rows: ArrayLike | None = None) -> NDArray[np.float32]:
-    """Activation times ``(site, node)`` in model time units (NaN: never activated) of ``rows`` (default: all)."""
-    activation = subject_array(path, subject_id, "activation")
-    return activation[...] if rows is None else read_rows(activation, rows)
+def read_activation(
+    path: str | Path, subject_id: str, rows: ArrayLike | None = None, allow_pending: bool = False
+) -> NDArray[np.float32]:
+    """Activation times ``(site, node)`` in model time units (NaN: never activated) of ``rows`` (default: all).
+
+    Verified as :func:`read_u` verifies.
+    """
+    reader = SubjectReader(path, subject_id, allow_pending=allow_pending)
+    return reader.all("activation") if rows is None else reader.rows("activation", rows)

@@ -25,6 +25,8 @@ __all__ = [
     "LABEL_HEALTHY",
     "LABEL_BORDER",
     "LABEL_CORE",
+    "DEFAULT_SCARS",
+    "DEFAULT_SETTING_NAMES",
 ]
 
 #: Admissible excitability ``a`` (healthy 0.15; 0.5 and above does not propagate).
@@ -33,6 +35,27 @@ A_RANGE = (0.05, 0.5)
 D_RANGE = (0.0, 1.0)
 
 LABEL_HEALTHY, LABEL_BORDER, LABEL_CORE = 0, 1, 2
+
+#: Name -> AHA segments of the 15 default scars (simgen.tissue builds them; readers need their names).
+DEFAULT_SCARS: dict[str, tuple[int, ...]] = {
+    "scar-anterior-basal": (1,),
+    "scar-anterior-mid": (7,),
+    "scar-anterior-apical": (13,),
+    "scar-septal-basal": (2, 3),
+    "scar-septal-mid": (8, 9),
+    "scar-septal-apical": (14,),
+    "scar-inferior-basal": (4,),
+    "scar-inferior-mid": (10,),
+    "scar-inferior-apical": (15,),
+    "scar-lateral-basal": (5, 6),
+    "scar-lateral-mid": (11, 12),
+    "scar-lateral-apical": (16,),
+    "scar-anterior-basal-mid": (1, 7),
+    "scar-inferior-mid-apical": (10, 15),
+    "scar-apex": (17,),
+}
+#: The 16 settings a spec's ``tissue = ["default"]`` stands for, in order.
+DEFAULT_SETTING_NAMES = ("healthy", *DEFAULT_SCARS)
 
 
 @dataclass(frozen=True)

@@ -182,7 +182,7 @@ CASES: dict[str, dict[str, Case]] = {
         ),
         "export a corrupted chunk": Case(
             (*EXPORT, "{d}/vtk-corrupt"),
-            ("site 0: its data cannot be read", "simgen regenerate"),
+            ("subject lv-healthy, array u, site 0 (file subjects/lv-healthy/u/c/0/0/0)", "checksum", "simgen repair"),
             corrupt("subjects/lv-healthy/u/c/0/0/0"),
         ),
         "regenerate an unknown subject": Case(

@@ -8,7 +8,13 @@ replacement, so targets never include the context.
 I/O contract: the store is opened lazily (inside each DataLoader worker) and
 an episode reads only its ``K + M`` site rows of ``u``: in a sharded store
 (schema version 3) it decodes only those sites; an older store decodes whole
-build chunks, which ``chunks_per_episode`` bounds. Every random
+build chunks, which ``chunks_per_episode`` bounds. Every chunk an episode
+reads is verified first (:class:`shared.integrity.SubjectReader`: its done
+flag, checksums and content fingerprint, finite values), once per chunk and
+reading process; damaged or misplaced data stop with a
+:class:`~shared.errors.DamagedData` naming the subject, array, site, file and
+``simgen repair``, and so does a subject the store's spec implies but the
+store lacks. Every random
 choice of an episode comes from ``np.random.default_rng([seed, epoch,
 subject_index, k])``, so an episode is a pure function of those four numbers
 and training can resume exactly.
@@ -19,7 +25,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,20 +34,17 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 from shared.errors import InputError, SchemaError
 from shared.reader import (
+    SubjectReader,
     check_store,
+    checked_subject_ids,
     done_flags,
     read_index_set,
-    read_rows,
     read_sites,
     read_times,
     subject_array,
     subject_attrs,
-    subject_ids,
 )
 from shared.schema import MESH_INDEX_SETS
-
-if TYPE_CHECKING:
-    import zarr
 
 __all__ = ["OBSERVE_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode"]
 
@@ -289,7 +292,7 @@ def _as_rows(rows: ArrayLike, name: str, n_sites: int) -> NDArray[np.int64]:
 
 def _build_episode(
     meta: _SubjectMeta,
-    u: zarr.Array,
+    u: SubjectReader,
     times: NDArray[np.float64],
     context_rows: NDArray[np.int64],
     target_rows: NDArray[np.int64],
@@ -300,10 +303,7 @@ def _build_episode(
     if noise_std > 0 and rng is None:
         raise InputError("noise_std > 0 needs an rng (np.random.Generator) for reproducible noise")
     k = context_rows.size
-    data = read_rows(u, np.concatenate([context_rows, target_rows]))
-    if not np.isfinite(data).all():
-        bad = np.concatenate([context_rows, target_rows])[~np.isfinite(data).all(axis=(1, 2))]
-        raise SchemaError(f"subject {meta.subject_id!r}: u has non-finite values in site row(s) {bad.tolist()}")
+    data = u.rows("u", np.concatenate([context_rows, target_rows]))  # checked: done, checksums, fingerprint, finite
     context_u, target_u = data[:k], data[k:]
     obs = context_u.copy()
     if noise_std > 0:
@@ -371,7 +371,7 @@ def load_episode(
         raise InputError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
     # Only the chunks actually read must be finished: evaluation may run on a partial store.
     _refuse_missing(meta, meta.chunks_of(np.concatenate([context_rows, target_rows])))
-    u, times = subject_array(store, subject_id, "u"), read_times(store, subject_id)
+    u, times = SubjectReader(store, subject_id), read_times(store, subject_id)
     return _build_episode(meta, u, times, context_rows, target_rows, meta.observed[0], noise_std, rng)
 
 
@@ -432,8 +432,9 @@ class EpisodeDataset(IterableDataset):
         if len(set(self.subjects)) != len(self.subjects):
             raise InputError(f"duplicate subjects in {self.subjects}")
 
-        check_store(self.store)
-        known = set(subject_ids(self.store))
+        attrs = check_store(self.store)
+        self._version = int(attrs["schema_version"])
+        known = set(checked_subject_ids(self.store, attrs))
         unknown = [s for s in self.subjects if s not in known]
         if unknown:
             raise InputError(f"unknown subject(s) {', '.join(unknown)} in store {self.store}")
@@ -522,8 +523,8 @@ class EpisodeDataset(IterableDataset):
         order = self.order()
         padded = -(-len(order) // self.world_size) * self.world_size
         mine = [order[p % len(order)] for p in range(self.rank, padded, self.world_size)][worker::n_workers]
-        # Array handles (metadata only) opened in this process, never stored on self: self must pickle.
-        handles: dict[int, tuple[zarr.Array, NDArray[np.float64]]] = {}
+        # Verified readers (metadata only) opened in this process, never stored on self: self must pickle.
+        handles: dict[int, tuple[SubjectReader, NDArray[np.float64]]] = {}
         for k in range(self.episodes_per_subject):
             for i in mine:
                 yield self._episode(i, k, handles)
@@ -560,10 +561,11 @@ class EpisodeDataset(IterableDataset):
         rows = rng.choice(pool, size=n_context + spec.targets, replace=False).astype(np.int64)
         return (rows[:n_context], rows[n_context:]), rng
 
-    def _episode(self, i: int, k: int, handles: dict[int, tuple[zarr.Array, NDArray[np.float64]]]) -> Episode:
+    def _episode(self, i: int, k: int, handles: dict[int, tuple[SubjectReader, NDArray[np.float64]]]) -> Episode:
         (context_rows, target_rows), rng = self._draw(i, k)
         if i not in handles:
-            handles[i] = (subject_array(self.store, self.subjects[i], "u"), read_times(self.store, self.subjects[i]))
+            reader = SubjectReader(self.store, self.subjects[i], self._version)
+            handles[i] = (reader, read_times(self.store, self.subjects[i]))
         u, times = handles[i]
         masks = self._meta[i].observed  # one set, or draw one (after the sites: one-set episodes stay as they were)
         observed = masks[0] if len(masks) == 1 else masks[int(rng.integers(len(masks)))]

@@ -17,35 +17,31 @@ import zarr
 from numpy.typing import NDArray
 
 from shared.errors import InputError
+from shared.integrity import SubjectReader
+from shared.reader import checked_subject_ids
 from shared.schema import subject_path
 from simgen.build.location import store_location
-from simgen.build.store import check_store, read_mesh, subject_ids
+from simgen.build.store import check_store, read_mesh
 from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 
 __all__ = ["export_vtk", "write_pvd"]
 
 
-def _subject_group(store: str, subject_id: str) -> zarr.Group:
-    """The subject's group; :class:`InputError` listing the known ids otherwise."""
-    known = subject_ids(store)
+def _subject_group(store: str, subject_id: str, attrs: dict) -> zarr.Group:
+    """The subject's group; :class:`InputError` listing the known ids otherwise (a missing implied one: damage)."""
+    known = checked_subject_ids(store, attrs)
     if subject_id not in known:
         raise InputError(f"unknown subject {subject_id!r} in {store}; subjects: {known}")
     return zarr.open_group(store, path=subject_path(subject_id), mode="r")
 
 
 def _check_site(g: zarr.Group, subject_id: str, site_index: int) -> None:
-    """:class:`InputError` unless ``site_index`` is a site of a done chunk."""
+    """:class:`InputError` unless ``site_index`` is a site of the subject (its chunk is checked as it is read)."""
     n_sites = g["u"].shape[0]
     if isinstance(site_index, bool) or not isinstance(site_index, (int, np.integer)):
         raise InputError(f"site index must be an integer, got {site_index!r}")
     if not 0 <= site_index < n_sites:
         raise InputError(f"site index {site_index} out of range for subject {subject_id!r}: use 0..{n_sites - 1}")
-    chunk = int(site_index) // int(g.attrs["chunk_sites"])
-    if not g["done"][chunk]:
-        raise InputError(
-            f"subject {subject_id!r} site {site_index}: chunk {chunk} is not done; "
-            "finish the build (or regenerate that chunk) before exporting it"
-        )
 
 
 def write_pvd(path: Path, files: list[str], times_ms: NDArray) -> None:
@@ -79,22 +75,23 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
         Unknown subject, site index out of range, the site's chunk not done or damaged.
     """
     store = store_location(store)
-    check_store(store)
-    g = _subject_group(store, subject_id)
+    attrs = check_store(store)
+    g = _subject_group(store, subject_id, attrs)
     _check_site(g, subject_id, site_index)
     site = int(site_index)
     mesh = read_mesh(store, g.attrs["mesh_id"])
+    reader = SubjectReader(store, subject_id, int(attrs["schema_version"]))  # checksums, fingerprint, finite u
+    u = np.asarray(reader.rows("u", [site])[0], np.float32)  # (time, node)
     try:
-        u = np.asarray(g["u"][site], np.float32)  # (time, node)
         static = {
-            "activation_ms": (g["activation"][site] * MS_PER_TIME_UNIT).astype(np.float32),
+            "activation_ms": (reader.rows("activation", [site])[0] * MS_PER_TIME_UNIT).astype(np.float32),
             "a": np.asarray(g["a"][...], np.float32),
             "label": np.asarray(g["label"][...], np.int8),
         }
-    except ValueError as exc:  # a checksum mismatch or undecodable bytes: damaged chunk files
+    except ValueError as exc:  # a checksum mismatch or undecodable bytes of a tissue field
         raise InputError(
-            f"subject {subject_id!r} site {site}: its data cannot be read ({exc}); `simgen verify {store}` "
-            f"names the damage and `simgen regenerate {store} --subjects {subject_id} --sites {site}` rewrites it"
+            f"subject {subject_id!r}: its tissue fields cannot be read ({exc}); `simgen verify {store}` "
+            f"names the damage and `simgen repair {store}` restores it"
         ) from None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from shared.config import from_mapping
-from shared.tissue import Material, ScarSpec, TissueSpec
+from shared.tissue import DEFAULT_SCARS, Material, ScarSpec, TissueSpec
 
 __all__ = [
     "SCAR_CORE",
@@ -29,25 +29,6 @@ SCAR_CORE = Material(a=0.5, D=0.1)
 BORDER_ZONE = Material(a=0.3, D=0.5)
 #: Border zone width (mm, geodesic).
 BORDER_WIDTH = 5.0
-
-#: Name -> AHA segments of the 15 default scars.
-DEFAULT_SCARS: dict[str, tuple[int, ...]] = {
-    "scar-anterior-basal": (1,),
-    "scar-anterior-mid": (7,),
-    "scar-anterior-apical": (13,),
-    "scar-septal-basal": (2, 3),
-    "scar-septal-mid": (8, 9),
-    "scar-septal-apical": (14,),
-    "scar-inferior-basal": (4,),
-    "scar-inferior-mid": (10,),
-    "scar-inferior-apical": (15,),
-    "scar-lateral-basal": (5, 6),
-    "scar-lateral-mid": (11, 12),
-    "scar-lateral-apical": (16,),
-    "scar-anterior-basal-mid": (1, 7),
-    "scar-inferior-mid-apical": (10, 15),
-    "scar-apex": (17,),
-}
 
 
 def default_settings() -> list[TissueSpec]:
