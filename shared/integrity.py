@@ -185,10 +185,16 @@ class SubjectReader:
     subject_id : the subject; an unknown one is an :class:`~shared.errors.InputError`.
     version : the store's schema version (default: read from the root attributes).
     allow_pending : rows of a chunk whose ``done`` flag is 0 read as NaN instead of being refused.
+    done : the done flags, if the caller has read them (``simgen status`` reads damaged ones flag by flag).
     """
 
     def __init__(
-        self, store: str | Path, subject_id: str, version: int | None = None, allow_pending: bool = False
+        self,
+        store: str | Path,
+        subject_id: str,
+        version: int | None = None,
+        allow_pending: bool = False,
+        done: NDArray | None = None,
     ) -> None:
         self.store, self.subject_id, self.allow_pending = str(store), subject_id, allow_pending
         try:
@@ -201,7 +207,7 @@ class SubjectReader:
         self.arrays = {name: self._member(name) for name in ("u", "activation")}
         self.n_sites = self.arrays["u"].shape[0]
         self.chunk_sites = int(self.group.attrs.get("chunk_sites") or self.arrays["u"].chunks[0])
-        self.done = self._small("done").astype(np.int64)
+        self.done = (self._small("done") if done is None else np.asarray(done)).astype(np.int64)
         self.fingerprints = self._small("fingerprint") if version >= SCHEMA_VERSION else None
         self._checked: set[int] = set()
         self._kept: dict[str, tuple[int, NDArray]] = {}

@@ -333,20 +333,35 @@ def repair(store: StoreArg, scheduler: SchedulerOpt = None, workers: WorkersOpt 
 
 @app.command()
 def status(store: StoreArg) -> None:
-    """Per-subject progress of a (possibly unfinished) build."""
-    from simgen.build.inspect import store_status
+    """Per-subject progress of a (possibly unfinished) build, and the damage a cheap check finds (exit 1 if any)."""
+    from simgen.build.inspect import store_health
 
     try:
-        rows = store_status(store)
+        health = store_health(store)
     except InputError as exc:
         _fail(exc)
-    table = Table("subject", "mesh", "chunks done", "sites", title=str(store))
+    rows = health.rows
+    table = Table("subject", "mesh", "chunks done", "sites", "damaged", title=str(store))
     for r in rows:
-        table.add_row(r.subject_id, r.mesh_id, f"{r.chunks_done}/{r.chunks}", str(r.sites))
+        if r.missing:
+            table.add_row(r.subject_id, r.mesh_id, f"0/{r.chunks}", str(r.sites), "group missing or damaged")
+        else:
+            damaged = f"{r.damaged} chunk(s)" if r.damaged else ""
+            table.add_row(r.subject_id, r.mesh_id, f"{r.chunks_done}/{r.chunks}", str(r.sites), damaged)
     console.print(table)
     done = sum(r.chunks_done for r in rows)
     total = sum(r.chunks for r in rows)
-    console.print(f"{done}/{total} chunks done ({100 * done / max(total, 1):.0f}%)")
+    console.print(f"{done}/{total} chunks done and sound ({100 * done / max(total, 1):.0f}%)")
+    if health.problems:
+        for problem in health.problems[:20]:
+            console.print(f"damaged: {escape(problem)}", soft_wrap=True)
+        more = f" ({len(health.problems) - 20} more not shown)" if len(health.problems) > 20 else ""
+        console.print(
+            f"{len(health.problems)} problem(s){more}: run `simgen repair {store}` "
+            f"(`simgen verify {store}` also decodes every chunk)",
+            soft_wrap=True,
+        )
+        raise typer.Exit(code=1)
 
 
 @app.command()
