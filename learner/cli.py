@@ -149,7 +149,9 @@ def _show_epoch(row: dict) -> None:
 
 @app.command()
 def evaluate(
-    checkpoint: Annotated[Path, typer.Argument(help="Model checkpoint (best.pt / last.pt).")],
+    checkpoint: Annotated[
+        Path, typer.Argument(help="Model checkpoint (best.pt / last.pt) or a shipped model's name (`learner models`).")
+    ],
     store: Annotated[Path, typer.Argument(help="Dataset store.")],
     out: Annotated[Path, typer.Option(help="Folder for evaluation.json / evaluation.md.")] = Path("report/eval"),
     subjects: Annotated[
@@ -168,7 +170,9 @@ def evaluate(
     refine_steps: RefineOpt = 0,
     ensemble: Annotated[
         list[Path] | None,
-        typer.Option(help="Another checkpoint to average with CHECKPOINT's predictions (repeat for more)."),
+        typer.Option(
+            help="Another checkpoint (or shipped model) to average with CHECKPOINT's predictions (repeat for more)."
+        ),
     ] = None,
     device: DeviceOpt = "auto",
 ) -> None:
@@ -242,26 +246,40 @@ def curves(
 
 @app.command()
 def personalize(
-    checkpoint: Annotated[Path, typer.Argument(help="metaPNS checkpoint.")],
+    checkpoint: Annotated[
+        Path, typer.Argument(help="metaPNS checkpoint or a shipped model's name (`learner models`), e.g. anatomies.")
+    ],
     out: Annotated[Path, typer.Option(help="Personalised surrogate file to write.")],
     store: Annotated[Path | None, typer.Option(help="Store holding the subject's simulations.")] = None,
     subject: Annotated[str | None, typer.Option(help="Subject id in --store.")] = None,
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the context set.")] = "",
     observe: Annotated[str, typer.Option(help="Observed node set (surface, epicardium, electrodes, ...).")] = "surface",
     observations: Annotated[
-        Path | None, typer.Option(help=".npz with points, cells, sites, obs, observed, times (instead of --store).")
-    ] = None,  # noqa: E501
+        Path | None,
+        typer.Option(
+            help=".npz (instead of --store): sites (K,) node ids, obs (K, T, N) potentials, observed (N,) 0/1, "
+            "times (T,) and the mesh's points (N, 3) mm and cells (docs/your-heart.md)."
+        ),
+    ] = None,
+    mesh: Annotated[
+        Path | None,
+        typer.Option(
+            help="Mesh file (any meshio format, read as it is) of --observations, which may then omit points and cells."
+        ),
+    ] = None,
     refine_steps: RefineOpt = 0,
     device: DeviceOpt = "auto",
 ) -> None:
     """Embed a subject's few observations into a saved personalised surrogate."""
-    from learner.personalize import observations_from_file, observations_from_store
+    from learner.personalize import mesh_from_file, observations_from_file, observations_from_store
     from learner.personalize import personalize as run
     from learner.refine import Refinement
 
     try:
+        if mesh is not None and observations is None:
+            raise InputError("--mesh is the mesh of --observations: give --observations FILE too")
         if observations is not None:
-            obs = observations_from_file(observations)
+            obs = observations_from_file(observations, mesh_from_file(mesh) if mesh is not None else None)
         elif store is not None and subject is not None:
             obs = observations_from_store(store, subject, parse_ids(sites, "--sites"), observe)
         else:
@@ -285,14 +303,15 @@ def predict(
         "prediction.npz"
     ),
     vtk: Annotated[Path | None, typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
+    png: Annotated[Path | None, typer.Option(help="PNG of the predicted activation maps, one row per site.")] = None,
     samples: Annotated[
         int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
     ] = 0,
     device: DeviceOpt = "auto",
 ) -> None:
     """Predict full-mesh sequences for new stimulation sites."""
+    from learner.personalize import plot_prediction, write_vtk
     from learner.personalize import predict as run
-    from learner.personalize import write_vtk
 
     try:
         pred = run(personalized, parse_ids(sites, "--sites"), samples=samples, device=device)
@@ -313,6 +332,48 @@ def predict(
         except OSError as exc:
             _fail(exc, vtk)
         console.print(f"wrote {len(paths)} .vtu file(s) to {vtk}")
+    if png is not None:
+        try:
+            png.parent.mkdir(parents=True, exist_ok=True)
+            console.print(f"wrote {plot_prediction(pred, png)}")
+        except (OSError, ValueError) as exc:
+            _fail(exc, png)
+
+
+@app.command()
+def models() -> None:
+    """List the shipped pretrained models: use a name wherever a command takes a checkpoint."""
+    from rich.table import Table
+
+    from learner import pretrained
+
+    table = Table("name", "kind", "parameters", "trained on")
+    for name in pretrained.names():
+        try:
+            shipped = pretrained.info(name)
+        except InputError as exc:
+            _fail(exc)
+        table.add_row(name, shipped.config["kind"], f"{shipped.parameters:,}", shipped.summary)
+    console.print(table)
+    console.print(f"model cards: {pretrained.SHIPPED_DIR}/<name>/README.md")
+
+
+@app.command()
+def export(
+    checkpoint: Annotated[Path, typer.Argument(help="Training checkpoint (best.pt / last.pt).")],
+    folder: Annotated[Path, typer.Argument(help="Folder to write; its name is the model's name.")],
+    summary: Annotated[str, typer.Option(help="One line: what the model was trained on.")],
+    spec: Annotated[str, typer.Option(help="The training spec it came from, as recorded in config.json.")] = "",
+    store_spec: Annotated[str, typer.Option(help="The build spec of its training store, as recorded.")] = "",
+) -> None:
+    """Write a checkpoint as a shipped-model folder: model.safetensors (weights only) and config.json."""
+    from learner.pretrained import export as run
+
+    try:
+        out = run(checkpoint, folder, summary, spec, store_spec)
+    except (InputError, OSError) as exc:
+        _fail(exc, folder)
+    console.print(f"wrote {out}/model.safetensors and {out}/config.json; write the model card {out}/README.md")
 
 
 @app.command()

@@ -364,7 +364,8 @@ def evaluate(
     """
     paths = [checkpoint] if isinstance(checkpoint, str | Path) else list(checkpoint)
     method, config, ckpts = load_method(paths, resolve_device(device), spec.batch, spec.refine)
-    view = StoreView(store, cache_dir=Path(paths[0]).parent / "hierarchies")
+    first = Path(paths[0])  # a shipped model's name is no file: its hierarchies are not cached
+    view = StoreView(store, cache_dir=first.parent / "hierarchies" if first.is_file() else None)
     if view.frames != ckpts[0]["frames"]:
         raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {ckpts[0]['frames']}")
     observe = spec.observe or config.data.episodes.primary_observe

@@ -35,9 +35,11 @@ __all__ = [
     "Prediction",
     "observations_from_store",
     "observations_from_file",
+    "mesh_from_file",
     "personalize",
     "predict",
     "write_vtk",
+    "plot_prediction",
 ]
 
 
@@ -99,8 +101,8 @@ _KINDS = {"f": "float", "i": "integer", "u": "integer", "b": "bool"}
 _UNREADABLE = (ValueError, EOFError, zipfile.BadZipFile, zlib.error)  # what np.load raises for bad bytes
 
 
-def _read_observation_arrays(path: Path) -> dict[str, np.ndarray]:
-    """The arrays of :data:`OBSERVATION_ARRAYS` from ``path``, each checked for dimensions and dtype."""
+def _read_observation_arrays(path: Path, optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The arrays of :data:`OBSERVATION_ARRAYS` from ``path`` (``optional`` ones may be absent), each checked."""
     try:
         data = np.load(path)
     except _UNREADABLE as exc:
@@ -109,10 +111,12 @@ def _read_observation_arrays(path: Path) -> dict[str, np.ndarray]:
         raise InputError(f"{path} holds a single array, not an .npz archive of {list(OBSERVATION_ARRAYS)}")
     arrays = {}
     with data:
-        missing = [name for name in OBSERVATION_ARRAYS if name not in data.files]
+        missing = [name for name in OBSERVATION_ARRAYS if name not in data.files and name not in optional]
         if missing:
             raise InputError(f"{path} lacks array(s) {missing}")
         for name, (ndim, kinds) in OBSERVATION_ARRAYS.items():
+            if name not in data.files:
+                continue
             try:
                 array = data[name]
             except _UNREADABLE as exc:
@@ -126,21 +130,58 @@ def _read_observation_arrays(path: Path) -> dict[str, np.ndarray]:
     return arrays
 
 
-def observations_from_file(path: str | Path) -> Observations:
-    """Observations from an ``.npz`` with the arrays of :data:`OBSERVATION_ARRAYS`, checked."""
+def mesh_from_file(path: str | Path) -> Mesh:
+    """A mesh file (any meshio format) as it is: its points and its tetrahedra (or, without any, its triangles).
+
+    Nothing is resampled or renumbered, so node ids are those of the file.
+    """
+    import meshio
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"mesh file not found: {path}")
+    try:
+        data = meshio.read(path)
+    except Exception as exc:  # meshio raises many types for unreadable or unknown files
+        first = str(exc).splitlines()[0] if str(exc) else repr(exc)
+        raise InputError(f"{path} is not a readable mesh file: {first}") from None
+    for cell_type in ("tetra", "triangle"):
+        blocks = [block.data for block in data.cells if block.type == cell_type]
+        if blocks:
+            return Mesh(points=np.asarray(data.points, np.float64)[:, :3], cells=np.concatenate(blocks), name=path.stem)
+    raise InputError(f"{path} has no tetrahedra and no triangles (cell types: {[b.type for b in data.cells]})")
+
+
+def observations_from_file(path: str | Path, mesh: Mesh | None = None) -> Observations:
+    """Observations from an ``.npz`` with the arrays of :data:`OBSERVATION_ARRAYS`, checked.
+
+    With ``mesh`` (:func:`mesh_from_file`), the file may leave out ``points``
+    and ``cells``; where it has them they must be the mesh's.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"observation file not found: {path}")
-    a = _read_observation_arrays(path)
+    a = _read_observation_arrays(path, optional=("points", "cells") if mesh is not None else ())
     for name in ("points", "times"):
-        if not np.isfinite(a[name]).all():
+        if name in a and not np.isfinite(a[name]).all():
             raise InputError(f"{path}: {name} contains NaN or inf")
     if not np.isin(a["observed"], (0, 1)).all():
         raise InputError(f"{path}: observed must hold 0/1 (or false/true) per node")
-    mesh = Mesh(points=a["points"], cells=a["cells"], name=path.stem)
+    if mesh is None:
+        mesh = Mesh(points=a["points"], cells=a["cells"], name=path.stem)
+    elif "points" in a and (a["points"].shape != mesh.points.shape or not np.allclose(a["points"], mesh.points)):
+        raise InputError(f"{path}: its points are not the nodes of mesh {mesh.name!r} ({len(mesh.points)} nodes)")
+    elif "cells" in a and not np.array_equal(a["cells"], mesh.cells):
+        raise InputError(f"{path}: its cells are not those of mesh {mesh.name!r}")
     return Observations(
         mesh, a["sites"], a["obs"].astype(np.float32), a["observed"].astype(bool), a["times"], path.stem
     )
+
+
+def _span(times) -> str:
+    """``first, second, ..., last`` of a time axis."""
+    t = [float(v) for v in times]
+    return ", ".join(f"{v:g}" for v in t) if len(t) <= 3 else f"{t[0]:g}, {t[1]:g}, ..., {t[-1]:g}"
 
 
 def personalize(
@@ -162,6 +203,13 @@ def personalize(
         raise InputError(f"{checkpoint} is a PNS model: it has no context embedding to personalise")
     if observations.obs.shape[1] != model.frames:
         raise InputError(f"observations have {observations.obs.shape[1]} frames, the model expects {model.frames}")
+    expected = ckpt.get("times")  # a shipped model records its frame times
+    if expected is not None and not np.allclose(observations.times, expected, rtol=1e-3, atol=1e-6):
+        step = expected[1] - expected[0] if len(expected) > 1 else expected[0]
+        raise InputError(
+            f"observations are at times {_span(observations.times)}; the model expects {len(expected)} frames "
+            f"at {_span(expected)} ({step:g} time units = {step * MS_PER_TIME_UNIT:.2f} ms apart, after the stimulus)"
+        )
     hier = hierarchy_for_mesh(observations.mesh, config.model.levels, config.model.coarsest, None).to(placed)
     obs = torch.as_tensor(observations.obs, dtype=torch.float32, device=placed)
     observed = torch.as_tensor(observations.observed, device=placed)
@@ -265,3 +313,18 @@ def write_vtk(prediction: Prediction, folder: str | Path, threshold: float = 0.5
         meshio.write(path, meshio.Mesh(prediction.mesh.points, [(cell_type, prediction.mesh.cells)], point_data=data))
         paths.append(path)
     return paths
+
+
+def plot_prediction(prediction: Prediction, path: str | Path, threshold: float = 0.5) -> Path:
+    """A PNG of the predicted activation-time maps (ms), one row per site, front and back views."""
+    from learner.metrics import activation_times
+    from learner.plot import plot_activation_panels
+
+    rows = [
+        (
+            f"site {int(site)}",
+            [("predicted activation", activation_times(u, prediction.times, threshold) * MS_PER_TIME_UNIT)],
+        )
+        for site, u in zip(prediction.sites, prediction.u)
+    ]
+    return plot_activation_panels(prediction.mesh.points, rows, path)

@@ -117,6 +117,17 @@ def simulate(
     device: Annotated[
         str | None, typer.Option(help="Torch device of the torch backend: cpu, cuda, cuda:N (default: cuda if any).")
     ] = None,
+    observe: Annotated[
+        str | None,
+        typer.Option(
+            help="Also write observations.npz, the recordings `learner personalize --observations` reads: u on this "
+            "node set (surface, epicardium, endocardium, electrodes: the 247-electrode sock, or all)."
+        ),
+    ] = None,
+    noise: Annotated[
+        float, typer.Option(min=0, callback=finite, help="Gaussian noise std added to the observed values.")
+    ] = 0.0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the observation noise.")] = 0,
 ) -> None:
     """Simulate stimulation SITES on one mesh + tissue and save u, activation times and a figure."""
     from simgen.plot import plot_activation_maps
@@ -124,6 +135,7 @@ def simulate(
     try:
         site_ids = np.array(parse_ids(sites, "--sites"))
         m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
+        observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
         config = SolverConfig(dt=dt, integrator=integrator)  # type: ignore[arg-type]
         sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
@@ -139,6 +151,20 @@ def simulate(
         plot_activation_maps(
             m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png", stim_nodes=site_ids
         )
+        if observed is not None:
+            obs = np.where(observed, result.u, np.float32(0))
+            obs[..., observed] += (
+                np.random.default_rng(seed).normal(0, noise, obs[..., observed].shape).astype(np.float32)
+            )
+            np.savez_compressed(
+                out / "observations.npz",
+                points=m.points,
+                cells=m.cells,
+                sites=result.sites,
+                obs=obs.astype(np.float32),
+                observed=observed,
+                times=result.times,
+            )
     except OSError as exc:
         _fail(exc, out)
     where = sim.backend if sim.device is None else f"{sim.backend} on {sim.device}"
@@ -146,6 +172,28 @@ def simulate(
         f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), {sim.integrator} dt={sim.dt:.4g}, {where}, "
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
+
+
+#: Node sets ``simulate --observe`` records on (besides ``all`` and the sock's ``electrodes``).
+OBSERVE_NODE_SETS = ("surface", "epicardium", "endocardium")
+
+
+def _observed_nodes(m, observe: str) -> np.ndarray:
+    """(N,) bool: the nodes of ``observe`` on mesh ``m``."""
+    from simgen.observe import Sock
+
+    mask = np.zeros(m.n_nodes, dtype=bool)
+    if observe == "all":
+        mask[:] = True
+    elif observe == "electrodes":
+        mask[Sock().indices(m)] = True
+    elif observe in OBSERVE_NODE_SETS:
+        mask[m.nodes(observe)] = True
+    else:
+        raise InputError(
+            f"--observe: unknown node set {observe!r}; use {', '.join(OBSERVE_NODE_SETS)}, electrodes or all"
+        )
+    return mask
 
 
 def _tissue_spec(tissue: str):

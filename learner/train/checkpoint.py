@@ -34,10 +34,23 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
 
 
 def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]:
-    """Read a checkpoint safely (``weights_only=True``); with ``kind``, check its kind and :data:`REQUIRED` entries."""
+    """Read a checkpoint safely (``weights_only=True``); with ``kind``, check its kind and :data:`REQUIRED` entries.
+
+    A ``path`` that names no file but a shipped model (:mod:`learner.pretrained`, e.g. ``"anatomies"``)
+    gives that model as a checkpoint of kind ``"model"``.
+    """
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"checkpoint not found: {path}")
+        from learner import pretrained
+
+        shipped = pretrained.names()
+        if str(path) in shipped:
+            if kind in (None, "model"):
+                return pretrained.checkpoint(str(path))
+            raise InputError(
+                f"{path} is a shipped model, not a {kind!r} file: `learner personalize {path} ...` makes one"
+            )
+        raise InputError(f"checkpoint not found: {path} (nor a shipped model: {', '.join(shipped) or 'none'})")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # unpickling errors have many types
