@@ -46,6 +46,27 @@ frames = 6
 chunk_sites = 2
 sock_electrodes = 20
 """
+#: A training config whose episodes fit the store of SPEC (4 sites), a small model, one epoch.
+TRAIN_SMALL = """out = "run-small"
+[data]
+store = "missing.zarr"
+workers = 0
+[data.split]
+validation = 0.0
+test = 0.0
+[data.episodes]
+context = [1, 1]
+targets = 2
+[model]
+channels = [4, 8]
+hidden = 16
+latent = 8
+levels = 3
+coarsest = 10
+coarse_blocks = 1
+[train]
+epochs = 1
+"""
 as_root = os.geteuid() == 0  # root writes into read-only folders
 
 
@@ -116,6 +137,32 @@ def corrupt(relative: str) -> Callable[[Path], None]:
     return damage
 
 
+def swap(a: str, b: str) -> Callable[[Path], None]:
+    """Damage: exchange the store files ``a`` and ``b`` (each intact, each in the other's place)."""
+
+    def damage(store: Path) -> None:
+        data_a, data_b = (store / a).read_bytes(), (store / b).read_bytes()
+        (store / a).write_bytes(data_b)
+        (store / b).write_bytes(data_a)
+
+    return damage
+
+
+def delete(relative: str) -> Callable[[Path], None]:
+    """Damage: delete the store file ``relative``."""
+    return lambda store: (store / relative).unlink()
+
+
+def truncate(relative: str) -> Callable[[Path], None]:
+    """Damage: cut the store file ``relative`` to half its length (a full disk, a killed copy)."""
+
+    def damage(store: Path) -> None:
+        data = (store / relative).read_bytes()
+        (store / relative).write_bytes(data[: len(data) // 2])
+
+    return damage
+
+
 def lock_folder(store: Path) -> None:
     """Damage: a folder where the store's lock file goes."""
     (store / ".lock").mkdir()
@@ -126,6 +173,11 @@ READ_ONLY = ("readonly/", "Permission denied")
 PREDICT = ("learner", "predict", "{d}/personalized.pt", "--sites", "1")
 PERSONALIZE = ("learner", "personalize", "{d}/model.pt", "--out", "{d}/p.pt", "--observations")
 EXPORT = ("simgen", "export-vtk", "{s}", "lv-healthy", "0", "--out")
+TRAIN = ("learner", "train", "{d}/train-small.toml", "--store", "{s}", "--out")
+U0, U1 = "subjects/lv-healthy/u/c/0/0/0", "subjects/lv-healthy/u/c/1/0/0"
+OTHER_U0 = "subjects/lv-scar-apex/u/c/0/0/0"
+REPAIR = "run `simgen repair {s}`"
+MOVED = "holds data written for another subject or other sites"
 CASES: dict[str, dict[str, Case]] = {
     "spec": {
         "unknown key": Case(build("unknown-key"), ("solver: unknown key(s) ['frame']",)),
@@ -194,6 +246,47 @@ CASES: dict[str, dict[str, Case]] = {
         ),
         "evaluate on a folder that is no store": Case(
             ("learner", "evaluate", "{d}/model.pt", "{d}/readonly"), ("readonly",)
+        ),
+    },
+    "damaged data read": {
+        "export a u shard of another subject": Case(
+            (*EXPORT, "{d}/vtk-swap"),
+            ("subject lv-healthy, array u, site 0 (file subjects/lv-healthy/u/c/0/0/0)", MOVED, REPAIR),
+            swap(U0, OTHER_U0),
+        ),
+        "export a deleted activation shard": Case(
+            (*EXPORT, "{d}/vtk-deleted"),
+            ("array activation, site 0 (file subjects/lv-healthy/activation/c/0/0): shard file missing", REPAIR),
+            delete("subjects/lv-healthy/activation/c/0/0"),
+        ),
+        "export a truncated shard": Case(
+            (*EXPORT, "{d}/vtk-truncated"),
+            ("array u, site 0 (file subjects/lv-healthy/u/c/0/0/0): shard index checksum mismatch", REPAIR),
+            truncate(U0),
+        ),
+        "export with a subject's metadata deleted": Case(
+            (*EXPORT, "{d}/vtk-no-subject"),
+            ("subject(s) lv-scar-apex implied by its spec are missing", REPAIR),
+            delete("subjects/lv-scar-apex/zarr.json"),
+        ),
+        "train on a u shard of another subject": Case(
+            (*TRAIN, "{d}/run-swap"), ("subject lv-", "array u", MOVED, REPAIR), swap(U0, OTHER_U0)
+        ),
+        "train on shards swapped between sites": Case(
+            (*TRAIN, "{d}/run-sites"), ("subject lv-healthy, array u", MOVED, REPAIR), swap(U0, U1)
+        ),
+        "train on a deleted u shard": Case(
+            (*TRAIN, "{d}/run-deleted"),
+            ("subject lv-healthy, array u", "(file subjects/lv-healthy/u/c/1/0/0): shard file missing", REPAIR),
+            delete(U1),
+        ),
+        "train on a truncated shard": Case(
+            (*TRAIN, "{d}/run-truncated"), ("(file subjects/lv-healthy/u/c/0/0/0)", "truncated", REPAIR), truncate(U0)
+        ),
+        "train without a subject's metadata": Case(
+            (*TRAIN, "{d}/run-no-subject"),
+            ("subject(s) lv-healthy implied by its spec are missing", REPAIR),
+            delete("subjects/lv-healthy/zarr.json"),
         ),
     },
     "lock": {
@@ -457,6 +550,7 @@ def d(tmp_path_factory) -> Iterator[Path]:
     for name, text in SPECS.items():
         (d / f"{name}.toml").write_text(text)
     (d / "train.toml").write_text('out = "run"\n[data]\nstore = "missing.zarr"\n')
+    (d / "train-small.toml").write_text(TRAIN_SMALL)
     (d / "afile").write_text("not a folder")
     (d / "folder.npz").mkdir()
     mesh = get_mesh("lv", 300)
