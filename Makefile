@@ -22,6 +22,13 @@ demo: $(STAMP)
 	$(BIN)/simgen status report/demo/demo.zarr
 	$(BIN)/learner train specs/train-demo.toml --fresh
 	$(BIN)/learner evaluate report/demo/train/best.pt report/demo/demo.zarr --out report/demo/eval
+	# a patient's path with the shipped model, no training (docs/your-heart.md)
+	$(BIN)/simgen simulate report/demo/your-heart/recordings --mesh real:tof-biv --nodes 1000 \
+		--tissue scar-septal-basal --sites 0,713,460,681 --observe electrodes --noise 0.02
+	$(BIN)/learner personalize anatomies --observations report/demo/your-heart/recordings/observations.npz \
+		--out report/demo/your-heart/heart.pt
+	$(BIN)/learner predict report/demo/your-heart/heart.pt --sites 818,631 --out report/demo/your-heart/prediction.npz \
+		--vtk report/demo/your-heart/vtk --png report/demo/your-heart/prediction.png
 
 test: $(STAMP)
 	$(BIN)/pytest -q

@@ -181,9 +181,6 @@ def export(
     folder.mkdir(parents=True, exist_ok=True)
     save_file(weights, str(folder / WEIGHTS), metadata={"format": "pt", "model": folder.name})
     (folder / WEIGHTS).chmod(0o644)
-    history = ckpt.get("history", [])
-    validated = [row for row in history if "val_target_mse" in row]
-    best = min(validated, key=lambda row: row["val_target_mse"]) if validated else {}
     attrs = view.attrs if view is not None else {}
     document = {
         "format": FORMAT,
@@ -207,10 +204,8 @@ def export(
             "store_spec_hash": attrs.get("spec_hash"),
             "store_provenance": attrs.get("provenance"),
             "seed": config["train"]["seed"],
-            "epochs_done": int(ckpt.get("epoch", 0)),
-            "best_epoch": best.get("epoch"),
-            "best_validation_target_mse": best.get("val_target_mse"),
-            "epoch_seconds": float(sum(row.get("seconds", 0.0) for row in history)),  # validation not included
+            "epoch": int(ckpt.get("epoch", 0)),  # the epoch after which the checkpoint was written
+            "validation_target_mse": ckpt.get("best_validation"),  # best so far (best.pt: this epoch's)
         },
         "weights": {
             "file": WEIGHTS,

@@ -1,0 +1,132 @@
+"""The shipped model's card metrics: unseen sampled hearts, the real heart through the sock, the mean predictor.
+
+Evaluates a shipped model (``--model``, a name of ``learner models`` or a checkpoint) on
+
+* (a) the test hearts of ``--store`` (``specs/anatomies.toml``): the model's own test split (whole sampled
+  anatomies held out of training, every tissue setting of each), one context set of 1-5 surface-observed
+  simulations (noise 0.02, as in training) and ``--targets`` targets per subject (``learner evaluate``);
+* (b) the real heart of ``--real`` (``specs/realdata.toml``: the shipped MRI biventricle ``real:tof-biv``,
+  3 tissue settings, 8 epicardial pacing sites) through the 247-electrode sock with noise 0.02, leaving one
+  site out in turn (``learner.benchmark.real_data``), beside the noise-free truth (the metric's ceiling);
+* (c) the mean predictor on (a)'s subjects: each frame's mean potential over every training simulation and
+  node (``StoreView.frame_means`` of the training split), the predictor that ignores all inputs.
+
+Writes ``pretrained.md`` and ``pretrained.json`` to ``--out``; the table is the model card's
+(``learner/pretrained/<name>/README.md``).
+
+Run::
+
+    simgen build specs/anatomies.toml --store data/anatomies.zarr --workers 2
+    simgen build specs/realdata.toml --store data/realdata.zarr
+    .venv/bin/python bench/pretrained.py --store data/anatomies.zarr --real data/realdata.zarr
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data
+from learner.evaluate import EvalSpec, evaluate, load_method
+from learner.metrics import mse
+from learner.store_view import StoreView
+from learner.train.checkpoint import load_checkpoint
+from shared.reader import read_u
+
+
+def mean_predictor(store: str, train: list[str], test: list[str]) -> float:
+    """Target MSE of the training frame means on every simulation of ``test``, averaged over subjects."""
+    view = StoreView(store)
+    means = view.frame_means([s for s in train if s in view.mesh_of])
+    errors = []
+    for subject in test:
+        u = read_u(store, subject)
+        errors.append(mse(np.broadcast_to(means[None, :, None], u.shape), u))
+    return float(np.mean(errors))
+
+
+def _cell(stats: dict) -> str:
+    return (
+        f"{stats['mean']:.4f} +- {stats['std']:.4f}"
+        if stats["mean"] < 0.1
+        else f"{stats['mean']:.3f} +- {stats['std']:.3f}"
+    )
+
+
+def markdown(result: dict) -> str:
+    """The card's table."""
+    a, b, c = result["unseen"]["target"], result["real"]["target"], result["real"]["ceiling"]
+    lines = [
+        "| test set | target MSE | target CC spatial | target CC temporal | target DC |",
+        "|---|---|---|---|---|",
+        f"| unseen sampled hearts ({result['unseen_meshes']} hearts, {len(result['test'])} subjects), surface "
+        f"| {_cell(a['mse'])} | {_cell(a['cc_spatial'])} | {_cell(a['cc_temporal'])} | {_cell(a['dc'])} |",
+        f"| mean predictor on the same subjects | {result['mean_predictor_mse']:.4f} | - | - | - |",
+        f"| real heart ({', '.join(result['real']['subjects'])}), {result['real']['electrodes']} electrodes, "
+        f"leave one of {result['real_sites']} sites out | {_cell(b['mse'])} | {_cell(b['cc_spatial'])} "
+        f"| {_cell(b['cc_temporal'])} | - |",
+        f"| real heart: noise-free truth (ceiling) | {_cell(c['mse'])} | {_cell(c['cc_spatial'])} "
+        f"| {_cell(c['cc_temporal'])} | - |",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", default="anatomies", help="shipped model name or checkpoint (default anatomies)")
+    parser.add_argument("--store", required=True, help="anatomy-diverse store (specs/anatomies.toml)")
+    parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
+    parser.add_argument("--targets", type=int, default=10, help="targets per context set on the unseen hearts")
+    parser.add_argument("--sites", type=int, default=8, help="pacing sites of the real heart (leave one out)")
+    parser.add_argument("--out", type=Path, default=Path("report/pretrained"))
+    args = parser.parse_args()
+
+    splits = load_checkpoint(args.model, kind="model")["splits"]
+    test = list(splits["test"])
+    start = time.perf_counter()
+    unseen = evaluate(args.model, args.store, EvalSpec(subjects=tuple(test), context_sets=1, max_targets=args.targets))
+    unseen_s = time.perf_counter() - start
+    method, config, _ = load_method(args.model)
+    start = time.perf_counter()
+    real = real_data(
+        [method],
+        config.model.levels,
+        config.model.coarsest,
+        BenchmarkConfig(real_data=RealDataSpec(store=args.real, sites=args.sites)),
+    )
+    real_s = time.perf_counter() - start
+    view = StoreView(args.store)
+    result = {
+        "model": args.model,
+        "test": test,
+        "unseen_meshes": len({view.mesh_of[s] for s in test}),
+        "unseen": unseen.overall,
+        "mean_predictor_mse": mean_predictor(args.store, list(splits["train"]), test),
+        "real": {
+            "subjects": real["subjects"],
+            "electrodes": real["electrodes"],
+            "noise_std": real["noise_std"],
+            **real["methods"][method.name],
+            "ceiling": real["ceiling"]["target"],
+            "folds": real["folds"],
+        },
+        "real_sites": args.sites,
+        "seconds": {"unseen": unseen_s, "real": real_s},
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+    }
+    table = markdown(result)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "pretrained.json").write_text(json.dumps(result, indent=1, default=float))
+    (args.out / "pretrained.md").write_text(table)
+    print(table)
+    print(f"unseen hearts {unseen_s:.0f} s, real heart {real_s:.0f} s on {result['machine']}")
+
+
+if __name__ == "__main__":
+    main()
