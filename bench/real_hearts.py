@@ -3,15 +3,17 @@
 For the shipped real meshes (``real:NAME``) at ``--real-nodes``, the
 shipped rodero01-lv volume as it is (5,440 nodes, not resampled), and the
 procedural LV and BiV at ``--nodes`` (default 1k, 5k, 20k; 2k LV too), each
-integrator (forward Euler at its stable step, IMEX SBDF2 at its accuracy step,
-and ``auto``, the default, which runs one of the two) simulates ``--sites``
+integrator (forward Euler at its stable step, IMEX SBDF2 at its accuracy step
+with each of its solves, a direct factor and conjugate gradients, and
+``auto``, the default, which runs Euler or IMEX with the cheaper solve) simulates ``--sites``
 sites x 55 frames on one thread, with a stimulus of ``--stimulus-radius`` mm
 on every mesh (the default, 1.5 mean edges, is under 4 mm at 20k nodes and
 launches no wave there); RKC2 runs too, at the accuracy step with the
 stages the mesh needs. Per mesh and integrator the table gives dt, steps,
 the work of one step (matrix entries per node: Euler the operator's, RKC2 the
-operator's times its stages, IMEX the factor's, solved once per step), setup
-and wall time, and the error
+operator's times its stages, IMEX the factor's, solved once per step, or the
+implicit matrix's times the CG products of a solve), CG iterations per solve,
+setup and wall time, and the error
 against the Euler run of the same mesh (largest activation-time difference as
 a share of the activation range, and the smallest correlation of the
 activation maps over the sites). Then the issue's goals, measured in this run:
@@ -48,7 +50,8 @@ from simgen.meshes.io import load_mesh
 from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX, unpacked
 from simgen.solver.simulate import Simulator, SolverConfig
 
-INTEGRATORS = ("euler", "rkc", "imex", "auto")
+#: (integrator, IMEX solve) of each row; the first is the reference.
+INTEGRATORS = (("euler", None), ("rkc", None), ("imex", "factor"), ("imex", "cg"), ("auto", None))
 
 
 def agreement(reference: np.ndarray, other: np.ndarray) -> tuple[float, float]:
@@ -62,11 +65,12 @@ def agreement(reference: np.ndarray, other: np.ndarray) -> tuple[float, float]:
 
 
 def bench(
-    mesh: Mesh, label: str, sites: np.ndarray, integrator: str, args: argparse.Namespace
+    mesh: Mesh, label: str, sites: np.ndarray, integrator: str, solve: str | None, args: argparse.Namespace
 ) -> tuple[dict, np.ndarray]:
-    """One mesh with one integrator: the row of the table and the activation times."""
+    """One mesh with one integrator (and IMEX ``solve``): the row of the table and the activation times."""
     t0 = time.perf_counter()
-    sim = Simulator(mesh, config=SolverConfig(integrator=integrator, stimulus_radius=args.stimulus_radius))
+    config = SolverConfig(integrator=integrator, stimulus_radius=args.stimulus_radius)
+    sim = Simulator(mesh, config=config, imex_solve=solve)
     setup = time.perf_counter() - t0
     sim.run(sites[:1])  # compile, and any first-call cost
     walls = []
@@ -77,8 +81,9 @@ def bench(
     row = {
         "mesh": label,
         "nodes": mesh.n_nodes,
-        "integrator": integrator,
-        "runs": sim.integrator,
+        "integrator": integrator if solve is None else f"{integrator} {solve}",
+        "runs": sim.integrator if sim.imex_solve is None else f"{sim.integrator} {sim.imex_solve}",
+        "cg_iterations": sim.cg_iterations,
         "dt": sim.dt,
         "steps": sim.steps_per_frame * sim.config.frames,
         "entries_per_node": sim.entries_per_step / mesh.n_nodes,
@@ -134,12 +139,13 @@ def goals(rows: list[dict], args: argparse.Namespace) -> list[str]:
 def markdown(rows: list[dict]) -> str:
     head = (
         "| mesh | nodes | integrator (runs) | dt | steps | entries/node per step | setup (s) | wall (s) "
-        "| max abs(activation difference) / range vs Euler | min CC vs Euler |\n"
-        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|\n"
+        "| CG iterations per solve | max abs(activation difference) / range vs Euler | min CC vs Euler |\n"
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
     )
     body = "".join(
         f"| {r['mesh']} | {r['nodes']} | {r['integrator']} ({r['runs']}) | {r['dt']:.3g} | {r['steps']} "
         f"| {r['entries_per_node']:.1f} | {r['setup_s']:.2f} | {r['wall_s']:.2f} "
+        f"| {'' if r['cg_iterations'] is None else format(r['cg_iterations'], '.1f')} "
         f"| {r.get('share', float('nan')):.4f} | {r.get('cc', float('nan')):.5f} |\n"
         for r in rows
     )
@@ -169,8 +175,8 @@ def main(argv: list[str] | None = None) -> None:
     for _, label, mesh in meshes(args):
         sites = np.random.default_rng(0).choice(mesh.n_nodes, args.sites, replace=False)
         reference = None
-        for integrator in INTEGRATORS:
-            row, activation = bench(mesh, label, sites, integrator, args)
+        for integrator, solve in INTEGRATORS:
+            row, activation = bench(mesh, label, sites, integrator, solve, args)
             if reference is None:
                 reference = activation
             row["share"], row["cc"] = agreement(reference, activation)

@@ -31,16 +31,20 @@ from simgen.meshes.topology import edge_graph
 from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import check_backend, resolve_backend
 from simgen.solver.fem import Geometry, element_gradients, lumped_mass, operator_from, stiffness_matrix
+from simgen.solver.imex_cg import MAX_ITERATIONS, implicit_matrices, run_imex_cg
 from simgen.solver.imex_kernel import Factor, factorise, run_imex
 from simgen.solver.kernels import run_blocks
 from simgen.solver.rkc_kernel import coefficients, run_blocks_rkc
 from simgen.solver.simd import LANES
 from simgen.solver.stimulus import patch_mask
 from simgen.solver.timestep import (
+    cg_iterations,
+    cg_solve_cost,
     cheaper_integrator,
     choose_imex_step,
     choose_rkc_step,
     choose_time_step,
+    factor_solve_cost,
     largest_eigenvalue,
     stability_limit,
 )
@@ -61,8 +65,16 @@ __all__ = [
 #: site, 4 of 56 0.84-0.95, 7 of 32 0.85-0.98. With 16 lanes (AVX-512) the 2 blocks are 112 columns wide.
 BLOCK_SIZE = 128
 
-#: Sites the IMEX kernel integrates together per block: its state (seven N x B float32 arrays) stays small.
+#: Sites the IMEX kernels integrate together per block: their state (7-11 N x B float32 arrays) stays small.
 IMEX_BLOCK = 32
+
+#: How IMEX may solve its implicit systems: a sparse direct factor (:mod:`simgen.solver.imex_kernel`) or
+#: Jacobi-preconditioned conjugate gradients (:mod:`simgen.solver.imex_cg`).
+IMEX_SOLVES = ("factor", "cg")
+
+#: Largest mesh whose IMEX solves may use a direct factor: above it the factor's fill makes CG cheaper
+#: (at 5,000 nodes CG already is on the procedural LV) and factoring alone takes seconds.
+DIRECT_SOLVE_NODES = 10_000
 
 #: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`),
 #: implicit-explicit SBDF2 (:mod:`simgen.solver.imex_kernel`), and the cheaper of Euler and IMEX per mesh.
@@ -168,7 +180,8 @@ def healthy_fields(n_nodes: int, a: float = 0.15) -> TissueFields:
 class Assembly(NamedTuple):
     """The diffusion operator ``A = -M^{-1} K`` of one mesh + tissue, its largest eigenvalue, the
     integrator that runs (never ``"auto"``), its time step, steps per frame, operator products or solves
-    per step (1 for Euler and IMEX), and for IMEX the factored implicit matrix."""
+    per step (1 for Euler and IMEX), the stiffness matrix ``K`` and lumped mass, and for IMEX the factored
+    implicit matrix where its solves cost less than CG's (else ``None``: CG)."""
 
     A: sp.csr_matrix
     lambda_max: float
@@ -176,17 +189,29 @@ class Assembly(NamedTuple):
     dt: float
     steps_per_frame: int
     stages: int
+    stiffness: sp.csr_matrix
+    mass: NDArray[np.float64]
     factor: Factor | None = None
 
 
-def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: Geometry | None = None) -> Assembly:
+def assemble(
+    mesh: Mesh,
+    tissue: TissueFields,
+    config: SolverConfig,
+    geometry: Geometry | None = None,
+    imex_solve: str | None = None,
+) -> Assembly:
     """What checking a subject needs before anything is simulated (a :class:`Simulator` does more).
 
     ``geometry``: :func:`~simgen.solver.fem.element_gradients` of the mesh, when
-    the caller assembles many tissues on one mesh. Raises
+    the caller assembles many tissues on one mesh. ``imex_solve``: ``"factor"``
+    or ``"cg"`` for IMEX's implicit solves (``None``: the cheaper on this
+    mesh, :data:`IMEX_SOLVES`). Raises
     :class:`~shared.errors.TissueError` if the fields do not match the mesh and
     :class:`~shared.errors.TimeStepError` for an unstable ``config.dt`` (Euler).
     """
+    if imex_solve not in (None, *IMEX_SOLVES):
+        raise ConfigError(f"imex_solve {imex_solve!r} is not one of {IMEX_SOLVES} (or None: the cheaper)")
     if len(tissue.a) != mesh.n_nodes:
         raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
     if geometry is None:
@@ -197,20 +222,38 @@ def assemble(mesh: Mesh, tissue: TissueFields, config: SolverConfig, geometry: G
     lambda_max = largest_eigenvalue(A, mass)
     k, dt, interval = config.model.k, config.dt, config.output_interval
     integrator = config.integrator or "auto"
+    matrices = (K, mass)
     if integrator == "rkc":
-        return Assembly(A, lambda_max, "rkc", *choose_rkc_step(lambda_max, k, dt, interval))
+        return Assembly(A, lambda_max, "rkc", *choose_rkc_step(lambda_max, k, dt, interval), *matrices)
     if integrator == "euler" or (integrator == "auto" and dt is not None and dt < stability_limit(lambda_max, k)):
-        return Assembly(A, lambda_max, "euler", *choose_time_step(lambda_max, k, dt, interval), 1)
+        return Assembly(A, lambda_max, "euler", *choose_time_step(lambda_max, k, dt, interval), 1, *matrices)
     imex_dt, imex_steps = choose_imex_step(dt, k, interval)
     if integrator == "auto" and dt is None:
         euler_dt, euler_steps = choose_time_step(lambda_max, k, None, interval)
         if euler_steps <= imex_steps:  # as few steps, each cheaper
-            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1)
-        factor = factorise(K, mass, imex_dt)
-        if cheaper_integrator(euler_steps, A.nnz, imex_steps, factor.nnz, mesh.n_nodes) == "euler":
-            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1)
-        return Assembly(A, lambda_max, "imex", imex_dt, imex_steps, 1, factor)
-    return Assembly(A, lambda_max, "imex", imex_dt, imex_steps, 1, factorise(K, mass, imex_dt))
+            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1, *matrices)
+    factor, solve_cost = _imex_solve(K, mass, imex_dt, imex_solve)
+    if integrator == "auto" and dt is None:
+        if cheaper_integrator(euler_steps, A.nnz, imex_steps, solve_cost, mesh.n_nodes) == "euler":
+            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1, *matrices)
+    return Assembly(A, lambda_max, "imex", imex_dt, imex_steps, 1, *matrices, factor)
+
+
+def _imex_solve(
+    K: sp.csr_matrix, mass: NDArray[np.float64], dt: float, imex_solve: str | None
+) -> tuple[Factor | None, float]:
+    """IMEX's implicit solves: a direct factor, or CG (``None``), and the estimated work of one solve.
+
+    ``imex_solve`` ``None`` takes the cheaper: the factor only up to
+    :data:`DIRECT_SOLVE_NODES` nodes, where its fill is small.
+    """
+    n = len(mass)
+    cg = cg_solve_cost(cg_iterations(dt, K.diagonal(), mass), K.nnz, n)
+    if imex_solve == "cg" or (imex_solve is None and n > DIRECT_SOLVE_NODES):
+        return None, cg
+    factor = factorise(K, mass, dt)
+    direct = factor_solve_cost(factor.nnz)
+    return (factor, direct) if direct <= cg or imex_solve == "factor" else (None, cg)
 
 
 class Simulator:
@@ -227,7 +270,9 @@ class Simulator:
     :func:`simgen.solver.torch_kernel.compiles_on`). :attr:`integrator` is
     the one that runs (``config.integrator`` with ``"auto"`` resolved on this
     mesh); :attr:`stages` counts the operator products per time step (1 for
-    Euler; for IMEX the solves, 2 while the stimulus holds).
+    Euler; for IMEX the solves, 2 while the stimulus holds). ``imex_solve``
+    (numba only): ``"factor"`` or ``"cg"`` (``None``: the cheaper on this mesh;
+    :attr:`imex_solve` says which runs).
     """
 
     def __init__(
@@ -238,6 +283,7 @@ class Simulator:
         backend: str | None = None,
         device: str | None = None,
         compile: bool | None = None,
+        imex_solve: str | None = None,
     ):
         self.mesh = mesh
         self.compile = compile
@@ -245,9 +291,8 @@ class Simulator:
         self.backend, self.device = resolve_backend(backend or self.config.backend or "numba", device)
         self._torch = None  # the TorchKernel, built on the first torch run
         self.tissue = tissue if tissue is not None else healthy_fields(mesh.n_nodes)
-        A, self.lambda_max, self.integrator, self.dt, self.steps_per_frame, self.stages, self.factor = assemble(
-            mesh, self.tissue, self.config
-        )
+        assembly = assemble(mesh, self.tissue, self.config, imex_solve=imex_solve)
+        A, self.lambda_max, self.integrator, self.dt, self.steps_per_frame, self.stages, K, mass, self.factor = assembly
         self._rkc = coefficients(self.stages).astype(np.float32) if self.integrator == "rkc" else None
         pattern = (abs(A) + abs(A).T).tocsr()
         self.perm = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
@@ -261,15 +306,35 @@ class Simulator:
         self._indices = Ap.indices.astype(np.int64)
         self._data = Ap.data.astype(np.float32)
         self._a = np.asarray(self.tissue.a, np.float32)[self.perm]
+        self._mass = np.asarray(mass, np.float32)[self.perm]
+        cg = self.integrator == "imex" and self.factor is None
+        self._implicit = implicit_matrices(K, mass, self.dt, self.perm) if cg else None
+        self._estimated_iterations = cg_iterations(self.dt, K.diagonal(), mass)
+        #: Mean CG iterations per implicit solve in the last IMEX run by CG (``None`` before one).
+        self.cg_iterations: float | None = None
         self.stimulus_radius = self.config.radius_on(mesh)
         self._edge_graph = edge_graph(mesh)  # for the stimulus patches of every run
 
     @property
-    def entries_per_step(self) -> int:
+    def imex_solve(self) -> str | None:
+        """How IMEX solves its implicit systems: ``"factor"``, ``"cg"``, or ``None`` for the other integrators."""
+        if self.integrator != "imex":
+            return None
+        return "factor" if self.factor is not None else "cg"
+
+    @property
+    def entries_per_step(self) -> float:
         """Stored matrix entries one time step multiplies per site: the operator's times the stages (Euler,
-        RKC2), or the factor's (IMEX, one solve; two while the stimulus holds)."""
-        if self.integrator == "imex":
+        RKC2), or for IMEX the factor's (one solve; two while the stimulus holds) or the implicit matrix's
+        times the products of a CG solve (its iterations, measured in the last run or else estimated by
+        :func:`~simgen.solver.timestep.cg_iterations`, plus one for the first guess's residual)."""
+        if self.imex_solve == "factor":
             return self.factor.nnz
+        if self.imex_solve == "cg":
+            iterations = self.cg_iterations
+            if iterations is None:
+                iterations = self._estimated_iterations
+            return self._implicit.nnz * (iterations + 1.0)
         return (len(self._data) + len(self._diag)) * self.stages
 
     def run(self, sites: NDArray[np.integer], threads: int = 1, block_size: int = BLOCK_SIZE) -> SimulationResult:
@@ -351,15 +416,27 @@ class Simulator:
     def _run_imex(
         self, mask: NDArray[np.bool_], constants: tuple, threads: int
     ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """Frames (S, F, N) and activation (S, N, kernel row order) from :func:`run_imex` on ``threads`` threads."""
+        """Frames (S, F, N) and activation (S, N, kernel row order) from :func:`run_imex` (factor) or
+        :func:`run_imex_cg` on ``threads`` threads."""
         n, s = mask.shape
-        to_factor = self.inverse_perm[self.factor.perm]  # kernel row of each factor row
-        stim = np.ascontiguousarray(mask[to_factor])
         frames = page_aligned_empty((s, self.config.frames, n), np.float32)
-        act = np.where(stim, np.float32(0.0), np.float32(-1.0))
         threads = max(1, min(int(threads), s))
         per_thread = -(-s // threads)
         width = -(-min(per_thread, IMEX_BLOCK) // LANES) * LANES  # whole vectors
+        if self.factor is None:
+            act = np.where(mask, np.float32(0.0), np.float32(-1.0))
+            args = (np.ascontiguousarray(mask), constants[:3], constants[3:], self.perm, frames, act, width, threads)
+            solves, iterations, stalled = run_imex_cg(self._implicit, self._a, *args)
+            if stalled:
+                raise InputError(
+                    f"{stalled} of {solves} implicit solves did not converge in {MAX_ITERATIONS} CG iterations: "
+                    "the tissue's diffusivity or the mesh's spacing needs a smaller dt, or the Euler integrator"
+                )
+            self.cg_iterations = iterations / solves
+            return frames, act.T
+        to_factor = self.inverse_perm[self.factor.perm]  # kernel row of each factor row
+        stim = np.ascontiguousarray(mask[to_factor])
+        act = np.where(stim, np.float32(0.0), np.float32(-1.0))
         a = np.asarray(self.tissue.a, np.float32)[self.factor.perm]
         run_imex(self.factor, a, stim, constants[:3], constants[3:], frames, act, width, threads)
         kernel_act = np.empty((s, n), np.float32)
@@ -383,11 +460,9 @@ class Simulator:
         from simgen.solver.torch_imex import run_imex_torch
 
         n, s = mask.shape
-        mass = np.empty(n, np.float32)
-        mass[self.inverse_perm[self.factor.perm]] = self.factor.mass  # kernel order
         frames = page_aligned_empty((s, self.config.frames, n), np.float32)
         act = np.where(mask, np.float32(0.0), np.float32(-1.0))
-        run_imex_torch(self._torch_kernel(), mass, mask, constants[:3], constants[3:], frames, act, threads)
+        run_imex_torch(self._torch_kernel(), self._mass, mask, constants[:3], constants[3:], frames, act, threads)
         return frames, act.T
 
     def _run_torch(

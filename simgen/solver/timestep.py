@@ -29,6 +29,9 @@ __all__ = [
     "reaction_limit",
     "choose_imex_step",
     "factor_entry_cost",
+    "cg_iterations",
+    "factor_solve_cost",
+    "cg_solve_cost",
     "cheaper_integrator",
 ]
 
@@ -40,12 +43,13 @@ SAFETY = 0.8
 #: forward-Euler reference on the meshes of tests/simgen/solver/test_imex.py (docs/solver-backends.md).
 DT_IMEX = 0.05
 #: The cost model of ``auto``, in units of one multiply-add with an operator entry in the Euler kernel: the
-#: work per node of the reaction (Euler) and of the explicit terms (IMEX). Fitted to bench/real_hearts.py
-#: (8 sites, one thread, 2-core AMD EPYC VM): Euler 3.5-4.5 ns per node, site and step at 11-13 entries per
-#: node; an IMEX factor entry 0.6 Euler entries while the factor fits in about 1 MB, 1.2 at 10 MB, 1.7 at
-#: 80 MB (:func:`factor_entry_cost`).
+#: work per node of the reaction (Euler), of the explicit terms (IMEX, once a step) and of the vector
+#: updates of one CG iteration. Fitted to bench/real_hearts.py (8 sites, one thread, 2-core AMD EPYC VM):
+#: Euler 3.5-4.5 ns per node, site and step at 11-13 entries per node; an IMEX factor entry 0.6 Euler
+#: entries while the factor fits in about 1 MB, 1.2 at 10 MB, 1.7 at 80 MB (:func:`factor_entry_cost`).
 EULER_NODE_COST = 8.0
 IMEX_NODE_COST = 14.0
+CG_NODE_COST = 4.0
 
 
 def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
@@ -133,6 +137,17 @@ def choose_imex_step(dt: float | None, k: float, output_interval: float) -> tupl
     return _fit(DT_IMEX if dt is None else dt, output_interval)
 
 
+def cg_iterations(dt: float, stiffness_diagonal: np.ndarray, mass: np.ndarray) -> float:
+    """Estimated Jacobi-CG iterations of one IMEX solve: ``4.2 sqrt(1 + q) - 1.6``, ``q`` the 90th
+    percentile over the nodes of ``dt K_ii / (3/2 M_i)``, how far diffusion outweighs the mass on the
+    diagonal of the implicit matrix (the condition number of the bulk of the mesh, where a few slivers
+    only add a few iterations). Fitted to the means measured by bench/real_hearts.py on the procedural
+    LV (4.0 at 1,000 nodes, 9.9 at 20,000); the resampled real BiV meshes take about one more, a
+    slivered CT volume about one less."""
+    ratio = dt * np.asarray(stiffness_diagonal, float) / (1.5 * np.asarray(mass, float))
+    return max(1.0, 4.2 * float(np.sqrt(1.0 + np.percentile(ratio, 90))) - 1.6)
+
+
 def factor_entry_cost(factor_nnz: int) -> float:
     """What one factor entry of an IMEX solve costs in Euler operator entries: 0.6 for a factor of up to 1 MB
     (12 bytes an entry), growing by 0.55 per tenfold size as the factor leaves the caches, at most 1.8."""
@@ -140,17 +155,28 @@ def factor_entry_cost(factor_nnz: int) -> float:
     return float(np.clip(0.6 + 0.55 * np.log10(max(megabytes, 1e-9)), 0.6, 1.8))
 
 
-def cheaper_integrator(euler_steps: int, euler_nnz: int, imex_steps: int, factor_nnz: int, nodes: int) -> str:
+def factor_solve_cost(factor_nnz: int) -> float:
+    """Work of one IMEX solve with a direct factor of ``factor_nnz`` entries, in Euler operator entries."""
+    return factor_entry_cost(factor_nnz) * factor_nnz
+
+
+def cg_solve_cost(iterations: float, implicit_nnz: int, nodes: int) -> float:
+    """Work of one IMEX solve by CG, in Euler operator entries: ``iterations`` (:func:`cg_iterations`) and
+    the first guess's residual, each a product with the implicit matrix (``implicit_nnz`` entries) and
+    :data:`CG_NODE_COST` per node of vector updates."""
+    return (iterations + 1.0) * (implicit_nnz + CG_NODE_COST * nodes)
+
+
+def cheaper_integrator(euler_steps: int, euler_nnz: int, imex_steps: int, solve_cost: float, nodes: int) -> str:
     """``"euler"`` or ``"imex"``: the smaller estimated work for the same simulated time.
 
     Euler costs ``euler_steps`` products with the operator (``euler_nnz``
     entries, diagonal included) plus its reaction; IMEX ``imex_steps`` solves
-    with the factor (``factor_nnz`` entries, each :func:`factor_entry_cost`)
-    plus its explicit terms; per node :data:`EULER_NODE_COST` and
-    :data:`IMEX_NODE_COST`.
+    of ``solve_cost`` each (:func:`factor_solve_cost` or :func:`cg_solve_cost`)
+    plus its explicit terms; per node :data:`EULER_NODE_COST` and :data:`IMEX_NODE_COST`.
     """
     euler = euler_steps * (euler_nnz + EULER_NODE_COST * nodes)
-    imex = imex_steps * (factor_entry_cost(factor_nnz) * factor_nnz + IMEX_NODE_COST * nodes)
+    imex = imex_steps * (solve_cost + IMEX_NODE_COST * nodes)
     return "imex" if imex < euler else "euler"
 
 

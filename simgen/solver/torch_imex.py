@@ -1,15 +1,16 @@
 """The IMEX (SBDF2) steps of :mod:`simgen.solver.imex_kernel` in torch, on any torch device.
 
-The numba kernel solves with a sparse factor; here each implicit solve is
-Jacobi-preconditioned conjugate gradients (CG) on ``B = c M + dt K`` (``c = 1``
-for the first, backward-Euler step, ``3/2`` after), all sites as columns of
-one right-hand side. ``B`` is applied as ``M (c x - dt A x)`` with the
-:class:`~simgen.solver.torch_kernel.TorchKernel`'s operator ``A = -M^{-1} K``
+Each implicit solve is Jacobi-preconditioned conjugate gradients (CG) on
+``B = c M + dt K`` (``c = 1`` for the first, backward-Euler step, ``3/2``
+after), all sites as columns of one right-hand side, as in the numba CG kernel
+(:mod:`simgen.solver.imex_cg`). ``B`` is applied as ``M (c x - dt A x)`` with
+the :class:`~simgen.solver.torch_kernel.TorchKernel`'s operator ``A = -M^{-1} K``
 (one sparse product per iteration), so nothing is factored and the memory is
 the operator's. The stimulus is the same Dirichlet condition: CG runs on the
 free nodes of each column with the patch held at ``u = 1``. Iterations stop
-when every column's residual is below :data:`RTOL` of its right-hand side;
-the result agrees with the factor solves to that tolerance, not bitwise.
+when every column's residual is below :data:`RTOL` of its right-hand side
+(checked every :data:`CHECK_EVERY` iterations, one wait for the device each);
+the result agrees with numba's to that tolerance, not bitwise.
 """
 
 from __future__ import annotations
