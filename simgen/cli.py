@@ -413,6 +413,25 @@ def status(store: StoreArg) -> None:
 
 
 @app.command()
+def sites(
+    store: StoreArg, subject: Annotated[str, typer.Argument(help="A subject id (`simgen status` lists them).")]
+) -> None:
+    """A subject's stimulation sites: site index (what `regenerate` and `export-vtk` take), node id (what
+    `simulate`, `learner personalize` and `learner predict` take) and position in mm."""
+    from shared.reader import read_mesh, read_sites, subject_attrs
+
+    try:
+        mesh_id = subject_attrs(store, subject)["mesh_id"]
+        nodes, mesh = read_sites(store, mesh_id), read_mesh(store, mesh_id)
+    except (InputError, KeyError) as exc:
+        _fail(InputError(f"cannot read the sites of subject {subject!r}: {exc}"))
+    table = Table("site index", "node id", "x (mm)", "y (mm)", "z (mm)", title=f"{subject} (mesh {mesh_id})")
+    for index, node in enumerate(nodes):
+        table.add_row(str(index), str(node), *(f"{c:.2f}" for c in mesh.points[node]))
+    console.print(table)
+
+
+@app.command()
 def unlock(
     store: StoreArg,
     force: Annotated[bool, typer.Option(help="Also remove a lock of another host (check its build is gone).")] = False,

@@ -103,6 +103,21 @@ def test_build_and_status_commands(tmp_path):
     assert bad.exit_code == 2 and "not a Zarr store" in text(bad)
 
 
+def test_sites_lists_site_indices_with_their_node_ids(tmp_path):
+    from shared.reader import read_sites
+
+    _, store, built = tiny_build(tmp_path)
+    assert built.exit_code == 0
+    listed = runner.invoke(app, ["sites", str(store), "lv-healthy"])
+    assert listed.exit_code == 0, listed.output
+    nodes = read_sites(store, "lv")
+    rows = [line.split("│") for line in listed.output.splitlines() if line.count("│") == 6]
+    assert [(int(r[1]), int(r[2])) for r in rows] == list(enumerate(nodes))
+    unknown = runner.invoke(app, ["sites", str(store), "nobody"])
+    assert unknown.exit_code == 2 and "unknown subject 'nobody'" in text(unknown)
+    assert "Traceback" not in unknown.output
+
+
 def test_verify_and_export_commands(tmp_path):
     _, store, built = tiny_build(tmp_path)
     assert built.exit_code == 0
