@@ -32,7 +32,9 @@ app = typer.Typer(
 console = Console()
 
 MeshOpt = Annotated[str, typer.Option("--mesh", help="'lv', 'biv' or a mesh file (any meshio format).")]
-NodesOpt = Annotated[int, typer.Option("--nodes", min=1, help="Target node count of a procedural mesh.")]
+NodesOpt = Annotated[
+    int, typer.Option("--nodes", min=1, help="Target node count: a procedural mesh's, or a mesh file resampled to it.")
+]
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler.")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]

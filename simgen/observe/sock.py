@@ -74,7 +74,8 @@ class Sock(ObservationOperator):
         if len(epi) < self.n_electrodes:
             raise InputError(
                 f"sock: mesh {mesh.name!r} has {len(epi)} epicardial nodes, "
-                f"fewer than n_electrodes={self.n_electrodes}; use a finer mesh or fewer electrodes"
+                f"fewer than n_electrodes={self.n_electrodes}; use a finer mesh or fewer electrodes "
+                "(a build spec's [output] sock_electrodes, default 247; 0 stores none)"
             )
         pts = mesh.points[epi]
         anchor = mesh.axis.apex if mesh.axis is not None else pts.mean(axis=0)
