@@ -167,7 +167,7 @@ def _cg(ptr, idx, off, diagonal, inverse_diagonal, x, b, change, free, holding, 
     r, p, q, pq, rz, bz, alpha, beta, limit = work
     n, s = x.shape
     zero = np.float32(0.0)
-    _product(ptr, idx, off, diagonal, x, q, free, holding, pq)  # q = B x (pq unused here)
+    _product(ptr, idx, off, diagonal, x, q, free, holding, pq)  # q = B x (pq is reset before it counts)
     rz[:] = zero
     bz[:] = zero
     for i in range(n):
@@ -226,7 +226,7 @@ def _guess(u, up, free, restart, holding, x):  # pragma: no cover - compiled
 
 @njit(nogil=True, cache=True, **_STRICT)
 def _run_block(matrices, a, u0, free, counts, params, solver, perm, col0, frames, act, iterations):  # pragma: no cover
-    """Every step of one block of columns, ``col0`` its first column in the run (see :func:`run_imex`).
+    """Every step of one block of columns, ``col0`` its first column in the run (see :func:`run_imex_cg`).
 
     ``matrices = (indptr, indices, offdiagonal, step diagonal, start diagonal, mass)``;
     ``solver = (tol^2, max iterations)``; ``iterations[0]`` receives the
