@@ -31,7 +31,6 @@ bitwise reproducible. They agree with the factor solves to the tolerance.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +38,7 @@ import scipy.sparse as sp
 from numba import njit
 from numpy.typing import NDArray
 
-from simgen.solver.imex_kernel import _STRICT, _explicit, _record
+from simgen.solver.imex_kernel import _STRICT, _explicit, _record, each_block, padded_blocks
 from simgen.solver.simd import LANES, vfma, vload, vsplat, vstore
 
 __all__ = ["TOL", "FLOOR", "MAX_ITERATIONS", "Implicit", "implicit_matrices", "run_imex_cg"]
@@ -296,14 +295,8 @@ def run_imex_cg(
     :data:`MAX_ITERATIONS` instead of the tolerance, summed over the blocks
     (padding columns included).
     """
-    n, s = stim.shape
-    padded = np.zeros((n, -(-s // width) * width), bool)
-    padded[:, :s] = stim
-    block_act = np.full(padded.shape, -1.0, np.float32)
-    block_act[:, :s] = act
-    u0 = padded.astype(np.float32)
-    if initial is not None:
-        u0[:, :s] = initial
+    s = stim.shape[1]
+    padded, u0, block_act = padded_blocks(stim, act, width, initial)
     free = (~padded).astype(np.float32)
     fields = (matrices.indptr, matrices.indices, matrices.offdiagonal)
     fields += (matrices.step_diagonal, matrices.start_diagonal, matrices.mass)
@@ -319,12 +312,6 @@ def run_imex_cg(
         _run_block(fields, a, u_block, free_block, counts, params, solver, perm, start, frames, block, tally)
         block_act[:, columns] = block
 
-    starts = range(0, padded.shape[1], width)
-    if threads > 1 and len(starts) > 1:
-        with ThreadPoolExecutor(min(threads, len(starts)), thread_name_prefix="simgen-imex-cg") as pool:
-            list(pool.map(run_block, starts))
-    else:
-        for start in starts:
-            run_block(start)
+    blocks = each_block(padded.shape[1], width, threads, run_block)
     act[:] = block_act[:, :s]
-    return len(starts) * counts[1], int(totals[:, 0].sum()), int(totals[:, 1].sum())
+    return blocks * counts[1], int(totals[:, 0].sum()), int(totals[:, 1].sum())

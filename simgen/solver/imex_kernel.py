@@ -34,6 +34,7 @@ solve adds ``B^{-1} E_C lambda`` (:class:`Patches`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -369,17 +370,11 @@ def run_imex(
     ``threads`` threads (the result depends on neither). ``initial``: ``u`` at ``t = 0`` (N, S) instead of
     1 on the patches and 0 elsewhere (``v`` starts at 0).
     """
-    n, s = stim.shape
-    padded = np.zeros((n, -(-s // width) * width), bool)  # whole blocks; the padding columns stay at rest
-    padded[:, :s] = stim
+    s = stim.shape[1]
+    padded, u0, block_act = padded_blocks(stim, act, width, initial)
     operands = tuple(
         part for factor in (factors.step, factors.start) for part in (factor.triangles, patches(factor, padded).tables)
     )
-    block_act = np.full(padded.shape, -1.0, np.float32)
-    block_act[:, :s] = act
-    u0 = padded.astype(np.float32)
-    if initial is not None:
-        u0[:, :s] = initial
     counts = tuple(int(c) for c in counts)
 
     def run_block(start: int) -> None:
@@ -389,11 +384,34 @@ def run_imex(
         _run_block(operands, factors.mass, a, u_block, start, counts, params, factors.perm, frames, block)
         block_act[:, columns] = block
 
-    starts = range(0, padded.shape[1], width)
+    each_block(padded.shape[1], width, threads, run_block)
+    act[:] = block_act[:, :s]
+
+
+def padded_blocks(
+    stim: NDArray[np.bool_], act: NDArray[np.float32], width: int, initial: NDArray[np.float32] | None
+) -> tuple[NDArray[np.bool_], NDArray[np.float32], NDArray[np.float32]]:
+    """The (N, S) mask ``stim`` padded to whole blocks of ``width`` columns (the padding stays at rest),
+    ``u`` at ``t = 0`` (``initial``, else 1 on the patches) and ``act`` in that width."""
+    n, s = stim.shape
+    padded = np.zeros((n, -(-s // width) * width), bool)
+    padded[:, :s] = stim
+    u0 = padded.astype(np.float32)
+    if initial is not None:
+        u0[:, :s] = initial
+    block_act = np.full(padded.shape, -1.0, np.float32)
+    block_act[:, :s] = act
+    return padded, u0, block_act
+
+
+def each_block(columns: int, width: int, threads: int, run_block: Callable[[int], None]) -> int:
+    """``run_block(start)`` for each block of ``width`` of the ``columns``, on up to ``threads`` threads
+    (the kernels release the GIL); the number of blocks."""
+    starts = range(0, columns, width)
     if threads > 1 and len(starts) > 1:
         with ThreadPoolExecutor(min(threads, len(starts)), thread_name_prefix="simgen-imex") as pool:
-            list(pool.map(run_block, starts))  # the kernel releases the GIL
+            list(pool.map(run_block, starts))
     else:
         for start in starts:
             run_block(start)
-    act[:] = block_act[:, :s]
+    return len(starts)
