@@ -38,7 +38,7 @@ import scipy.sparse as sp
 from numba import njit
 from numpy.typing import NDArray
 
-from simgen.solver.imex_kernel import _STRICT, _explicit, _record, each_block, padded_blocks
+from simgen.solver.imex_kernel import _STRICT, _explicit, _output, _record, each_block, padded_blocks
 from simgen.solver.simd import LANES, vfma, vload, vsplat, vstore
 
 __all__ = ["TOL", "FLOOR", "MAX_ITERATIONS", "Implicit", "implicit_matrices", "run_imex_cg"]
@@ -265,10 +265,7 @@ def _run_block(matrices, a, u0, free, counts, params, solver, perm, col0, frames
         _record(u, x, act, np.float32(step) * dt, dt, thr)
         u, x = x, u
         if (step + 1) % out_every == 0:
-            for i in range(n):
-                j = perm[i]
-                for c in range(min(s, frames.shape[0] - col0)):  # padding columns are not output
-                    frames[col0 + c, frame, j] = u[i, c]
+            _output(u, perm, col0, frames, frame)
             frame += 1
 
 

@@ -311,6 +311,16 @@ def _record(u_old, u_new, act, t0, dt, thr):  # pragma: no cover - compiled
                         act[i, c] = t0 + dt * (thr - ui) / (un - ui)
 
 
+@njit(inline="always", **_STRICT)
+def _output(u, perm, col0, frames, frame):  # pragma: no cover - compiled
+    """Frame ``frame`` of the block's columns (``col0`` the first) in mesh order; padding columns are not output."""
+    n, s = u.shape
+    for i in range(n):
+        j = perm[i]
+        for c in range(min(s, frames.shape[0] - col0)):
+            frames[col0 + c, frame, j] = u[i, c]
+
+
 @njit(nogil=True, cache=True, **_STRICT)
 def _run_block(operands, mass, a, u0, col0, counts, params, perm, frames, act):  # pragma: no cover - compiled
     """Every step of one block of columns, ``col0`` its first column in the run (see :func:`run_imex`).
@@ -338,10 +348,7 @@ def _run_block(operands, mass, a, u0, col0, counts, params, perm, frames, act): 
         _record(u, rhs, act, np.float32(step) * dt, dt, thr)
         u, rhs = rhs, u
         if (step + 1) % out_every == 0:
-            for i in range(n):
-                j = perm[i]
-                for c in range(min(s, frames.shape[0] - col0)):  # padding columns are not output
-                    frames[col0 + c, frame, j] = u[i, c]
+            _output(u, perm, col0, frames, frame)
             frame += 1
 
 
