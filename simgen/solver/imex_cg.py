@@ -235,7 +235,7 @@ def _run_block(matrices, a, u0, free, counts, params, solver, perm, col0, frames
     stim_steps, n_steps, out_every = counts
     dt, k, eps0, mu1, mu2, thr = params
     tol2, max_iterations = solver
-    n, s = u0.shape
+    s = u0.shape[1]
     u = u0.copy()
     x, v, up, vp = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
     fp, gp, rhs, change = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)

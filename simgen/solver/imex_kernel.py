@@ -330,7 +330,6 @@ def _run_block(operands, mass, a, u0, col0, counts, params, perm, frames, act): 
     step_triangles, step_held, start_triangles, start_held = operands
     stim_steps, n_steps, out_every = counts
     dt, k, eps0, mu1, mu2, thr = params
-    n, s = u0.shape
     u = u0.copy()
     rhs, v, up, vp = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
     fp, gp, z = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
