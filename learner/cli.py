@@ -92,7 +92,7 @@ def train(
         Path(cfg.out).mkdir(parents=True, exist_ok=True)  # an unusable run directory fails before torch loads
     except (InputError, OSError) as exc:
         _fail(exc, config)
-    from learner.train.distributed import RankFailed, launch
+    from learner.train.launcher import RankFailed, launch
     from learner.train.trainer import TrainingDiverged
     from learner.train.trainer import train as run
 

@@ -1,8 +1,8 @@
-"""Training across processes with torch.distributed: ranks, the process group and the ``--nproc`` launcher.
+"""Training across processes with torch.distributed: ranks and the process group.
 
 ``torchrun --nproc-per-node N -m learner train CFG`` (or ``learner train CFG
 --nproc N``, which starts the same through torch's elastic launcher on
-127.0.0.1) runs one training process per rank; each wraps the model in
+127.0.0.1) runs one training process per rank (:mod:`learner.train.launcher` starts them); each wraps the model in
 ``DistributedDataParallel`` (gloo on the CPU, NCCL on GPUs). An epoch's
 subject order is cut into global steps of ``W`` episodes: rank ``r`` trains
 position ``i W + r`` at step ``i``, and DDP averages the gradients. A last
@@ -14,42 +14,21 @@ the step's gradient is the mean over its ``n`` real episodes
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
-import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 import torch.distributed as dist
 
 from learner.runtime import resolve_device
 
-if TYPE_CHECKING:
-    from learner.config import LearnerConfig
-    from learner.train.trainer import TrainResult
-
-__all__ = [
-    "KILL_AT_ENV",
-    "World",
-    "SINGLE_PROCESS",
-    "RankFailed",
-    "world_from_env",
-    "process_group",
-    "kill_point",
-    "launch",
-]
+__all__ = ["KILL_AT_ENV", "World", "SINGLE_PROCESS", "world_from_env", "process_group", "kill_point"]
 
 #: Test hook: ``"RANK:STEP"`` makes that rank SIGKILL itself at its STEP-th optimiser step (1-based).
 KILL_AT_ENV = "LEARNER_TEST_KILL_AT"
-
-
-class RankFailed(RuntimeError):
-    """A training process of a multi-process run failed; the message names it and the checkpoint to resume."""
 
 
 @dataclass(frozen=True)
@@ -117,73 +96,3 @@ def kill_point(world: World, step: int) -> None:
     target = os.environ.get(KILL_AT_ENV, "")
     if target and target == f"{world.rank}:{step}":
         os.kill(os.getpid(), signal.SIGKILL)
-
-
-def _run_rank(config: LearnerConfig, fresh: bool, on_epoch: Callable[[dict], None] | None) -> TrainResult:
-    """One process of a ``--nproc`` run: train, and report an expected failure on one line without a traceback."""
-    from learner.train.trainer import TrainingDiverged, train
-
-    try:
-        return train(config, fresh=fresh, progress=world_from_env().main, on_epoch=on_epoch)
-    except (ValueError, OSError, TrainingDiverged, dist.DistError) as exc:
-        print(f"rank {world_from_env().rank}: {exc}", flush=True)
-        raise SystemExit(1) from None
-
-
-def _quiet_launcher_logs() -> None:
-    """Keep the elastic agent's per-failure log lines and tracebacks off the terminal (:func:`launch` reports)."""
-    for name in ("torch.distributed.elastic", "torch.distributed.launcher", "torch.multiprocessing"):
-        logger = logging.getLogger(name)
-        logger.addHandler(logging.NullHandler())
-        logger.propagate = False
-
-
-def _failure_message(exc: Exception, nproc: int, out: Path) -> str:
-    """One line: which rank failed how, and where the run resumes."""
-    from torch.distributed.elastic.multiprocessing.errors import ChildFailedError
-
-    parts = []
-    if isinstance(exc, ChildFailedError):
-        first, _ = exc.get_first_failure()
-        for rank, failure in sorted(exc.failures.items(), key=lambda item: item[0] != first):
-            how = (
-                f"was killed by {failure.signal_name()}"
-                if failure.exitcode < 0
-                else f"exited with code {failure.exitcode}"
-            )
-            parts.append(f"rank {rank} {how}")
-    else:
-        parts.append(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    last = out / "last.pt"
-    resume = f"{last} resumes it (rerun the same command)" if last.exists() else "no checkpoint was written yet"
-    return f"training on {nproc} processes failed: {', '.join(parts)}; {resume}"
-
-
-def launch(
-    config: LearnerConfig, nproc: int, fresh: bool = False, on_epoch: Callable[[dict], None] | None = None
-) -> TrainResult:
-    """Train on ``nproc`` local processes, as ``torchrun --nproc-per-node nproc`` would; returns rank 0's result.
-
-    Raises :class:`RankFailed` (one line, no traceback) when any rank fails;
-    ``<out>/last.pt`` then holds the last completed epoch.
-    """
-    from torch.distributed.launcher.api import LaunchConfig, elastic_launch
-
-    resolve_device(config.train.device, 0, nproc)  # a bad device fails here, once, not in every rank
-    if nproc > 1:  # as torchrun does: one process per core share instead of every process on every core
-        os.environ.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // nproc)))
-    _quiet_launcher_logs()
-    launch_config = LaunchConfig(
-        min_nodes=1,
-        max_nodes=1,
-        nproc_per_node=nproc,
-        run_id=uuid.uuid4().hex,
-        rdzv_backend="c10d",
-        rdzv_endpoint="127.0.0.1:0",
-        max_restarts=0,
-        local_addr="127.0.0.1",
-    )
-    try:
-        return elastic_launch(launch_config, _run_rank)(config, fresh, on_epoch)[0]
-    except Exception as exc:  # ChildFailedError, or a rendezvous error before any rank started
-        raise RankFailed(_failure_message(exc, nproc, Path(config.out))) from None
