@@ -36,6 +36,7 @@ from learner.metrics import METRIC_NAMES, activation_times, mse, spatial_cc, tem
 from learner.models.site_evidence import SiteEvidence
 from learner.personalize import Observations
 from learner.plot import plot_activation_panels, plot_context_curves
+from learner.pretrained import resolve_reference
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
@@ -87,7 +88,7 @@ class BenchmarkConfig:
 
     out: str = "report/benchmark"
     store: str = ""
-    metapns: str = ""  # checkpoints (best.pt) of the two models
+    metapns: str = ""  # checkpoints (best.pt) of the two models; a shipped model's name works too
     pns: str = ""
     context: tuple[int, int] = (1, 5)
     context_sets: int = 3
@@ -115,8 +116,8 @@ def load_benchmark_config(path: str | Path) -> BenchmarkConfig:
         cfg,
         out=rel(cfg.out),
         store=rel(cfg.store),
-        metapns=rel(cfg.metapns),
-        pns=rel(cfg.pns),
+        metapns=resolve_reference(cfg.metapns, path.parent),
+        pns=resolve_reference(cfg.pns, path.parent),
         real_data=replace(cfg.real_data, store=rel(cfg.real_data.store)),
     )
 

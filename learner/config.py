@@ -29,6 +29,7 @@ from typing import Literal
 
 from learner.data.episodes import EpisodeSpec
 from learner.data.split import SplitSpec
+from learner.pretrained import resolve_reference
 from learner.runtime import PRECISIONS, check_device
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError
@@ -103,7 +104,7 @@ class TrainConfig:
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
     validate_every: int = 5  # epochs between validation passes (best checkpoint kept)
-    init: str = ""  # warm start: a checkpoint of the same splits whose matching parameters start this run
+    init: str = ""  # warm start: a checkpoint or a shipped model's name; its matching parameters start this run
     device: str = "auto"  # auto (CUDA where available), cpu, cuda or cuda:N
     precision: str = "fp32"  # fp32, or autocast to bf16 / fp16 (docs/training.md measures bf16)
 
@@ -148,7 +149,7 @@ def config_from_mapping(data: dict, base: Path | None = None) -> LearnerConfig:
         raise ConfigError("data.store is required: the dataset store built by `simgen build`")
     if base is not None:
         store = resolve_location(cfg.data.store, base)
-        init = str((base / cfg.train.init).resolve()) if cfg.train.init else ""
+        init = resolve_reference(cfg.train.init, base)
         cfg = replace(
             cfg,
             out=str((base / cfg.out).resolve()),

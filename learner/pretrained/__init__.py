@@ -31,6 +31,7 @@ from typing import Any
 import torch
 
 from shared.errors import InputError
+from shared.location import resolve_location
 
 __all__ = [
     "SHIPPED_DIR",
@@ -43,6 +44,7 @@ __all__ = [
     "checkpoint",
     "load",
     "export",
+    "resolve_reference",
 ]
 
 #: The folder holding one sub-folder per shipped model.
@@ -98,6 +100,14 @@ def info(name: str, root: str | Path | None = None) -> ShippedModel:
     if not isinstance(config, dict) or config.get("format") != FORMAT:
         raise InputError(f"{folder / CONFIG}: format {config.get('format')!r}, this code reads format {FORMAT}")
     return ShippedModel(name, folder, config)
+
+
+def resolve_reference(reference: str, base: str | Path) -> str:
+    """A checkpoint named in a config file: a shipped model's name stays a name (unless ``base`` holds
+    a file of that name); anything else is a location resolved against ``base``."""
+    if reference in names() and not (Path(base) / reference).is_file():
+        return reference
+    return resolve_location(reference, base)
 
 
 def _sha256(path: Path) -> str:

@@ -107,13 +107,17 @@ class Trainer:
     def _warm_start(self, path: Path) -> dict[str, list[str]]:
         """Copy the parameters of matching name and shape from a trained checkpoint (fine-tuning).
 
-        The checkpoint must come from the same subject splits, or its test
-        subjects could be in this run's training set. Returns the names
-        copied and those left at their fresh initialisation.
+        The checkpoint (a file or a shipped model's name) must not have been
+        trained on a subject this run holds out for validation or test.
+        Returns the names copied and those left at their fresh initialisation.
         """
         ckpt = load_checkpoint(path, kind="model")
-        if ckpt["splits"] != self.splits:
-            raise InputError(f"train.init {path} was trained on other subject splits (data.split must match)")
+        held_out = set(ckpt["splits"].get("train", ())) & {*self.splits["validation"], *self.splits["test"]}
+        if held_out:
+            raise InputError(
+                f"train.init {path} was trained on other subject splits: it saw {len(held_out)} subject(s) this "
+                f"run holds out, e.g. {sorted(held_out)[0]!r} (data.split must match)"
+            )
         own = self.model.state_dict()
         taken = {k: v for k, v in ckpt["model"].items() if k in own and own[k].shape == v.shape}
         self.model.load_state_dict(taken, strict=False)

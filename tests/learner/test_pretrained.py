@@ -77,6 +77,26 @@ def test_models_lists_the_shipped_models():
     assert NAME in result.output and "metapns" in result.output
 
 
+def test_config_files_take_a_shipped_name(tiny_store, tiny_toml, tmp_path):
+    """A train config's ``init`` and a benchmark config's checkpoints name a shipped model as the CLI does."""
+    from learner.benchmark import load_benchmark_config
+    from learner.config import load_config
+    from learner.train.trainer import Trainer
+
+    train_toml = tmp_path / "train.toml"
+    train_toml.write_text(tiny_toml(tiny_store, train=f'epochs = 1\ninit = "{NAME}"'))
+    cfg = load_config(train_toml)
+    assert cfg.train.init == NAME
+    trainer = Trainer(cfg, progress=False)
+    assert sorted(trainer.warm_start["copied"] + trainer.warm_start["fresh"]) == sorted(trainer.model.state_dict())
+    bench_toml = tmp_path / "bench.toml"
+    bench_toml.write_text(f'store = "{tiny_store}"\nmetapns = "{NAME}"\npns = "pns.pt"\n')
+    bench = load_benchmark_config(bench_toml)
+    assert bench.metapns == NAME and bench.pns == str(tmp_path / "pns.pt")
+    (tmp_path / NAME).write_bytes(b"")  # a file of that name next to the config wins
+    assert load_benchmark_config(bench_toml).metapns == str(tmp_path / NAME)
+
+
 def test_damaged_weights_are_refused(tmp_path, monkeypatch):
     shutil.copytree(pretrained.info(NAME).folder, tmp_path / NAME)
     weights = tmp_path / NAME / pretrained.WEIGHTS
