@@ -16,7 +16,9 @@ length ``L``, so that no triangle is a needle or a cap. Each iteration
    onto the crease instead, so that sharp rims are not worn away.
 
 A final pass flips edges to the Delaunay condition, collapses the shortest
-edge of any triangle still below :data:`MIN_ANGLE` and smooths again. Each
+edge of any triangle still below :data:`MIN_ANGLE`, removes interior nodes
+with three neighbours (their fan folds over itself where creases meet)
+and smooths again. Each
 operation works on many edges at once: the edges are chosen so that no two
 share a triangle (splits) or a node neighbourhood (collapses, flips), which
 makes the batch equal to doing them one by one. Deterministic. Nodes on
@@ -86,10 +88,13 @@ def remesh(
         T = _flip(P, T, "valence")
         P = _smooth(P, T, *reference)
     T = _flip(P, T, "delaunay")
-    P, T = _collapse(P, T, 4 / 5 * length, 4 / 3 * length, needles=MIN_ANGLE)
-    T = _flip(P, T, "delaunay")
-    P = _smooth(P, T, *reference)
-    T = _flip(P, T, "delaunay")
+    for smooth in (True, False):  # the smoothing can put a node onto a crease next to a neighbour
+        P, T = _collapse(P, T, 4 / 5 * length, 4 / 3 * length, needles=MIN_ANGLE)
+        T = _drop_valence_three(P, T)
+        T = _flip(P, T, "delaunay")
+        if smooth:
+            P = _smooth(P, T, *reference)
+            T = _flip(P, T, "delaunay")
     used = np.unique(T)
     index = np.full(len(P), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
@@ -311,6 +316,38 @@ def _collapse(
         T = remap[T]
         T = T[(T[:, 0] != T[:, 1]) & (T[:, 1] != T[:, 2]) & (T[:, 2] != T[:, 0])]
     return P, T
+
+
+def _drop_valence_three(P: NDArray[np.float64], T: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``T`` without its interior nodes of valence 3: each node's three triangles become the one of its ring.
+
+    Such a node carries no shape a ring triangle lacks, and where creases meet its fan can fold over
+    itself. Skipped where a ring node would fall below valence 3 or the ring triangle exists already.
+    """
+    for _ in range(_PASSES):
+        n = len(P)
+        edges = _edges(T, n)
+        valence = np.asarray(_adjacency(edges, n).sum(axis=1)).ravel()
+        centre = np.flatnonzero((valence == 3) & ~_boundary_nodes(edges, n))
+        if len(centre) == 0:
+            break
+        incidence = sp.csr_matrix((np.ones(T.size), (T.ravel(), np.repeat(np.arange(len(T)), 3))), shape=(n, len(T)))
+        fan = incidence[centre].indices.reshape(-1, 3)  # each centre's three triangles
+        first = T[fan[:, 0]]
+        turn = np.argmax(first == centre[:, None], axis=1)
+        a, b = first[np.arange(len(centre)), (turn + 1) % 3], first[np.arange(len(centre)), (turn + 2) % 3]
+        c = (T[fan].reshape(len(centre), 9).sum(axis=1) - 3 * centre) // 2 - a - b  # each ring node is in two
+        cap = np.stack([a, b, c], axis=1)
+        existing = set(map(tuple, np.sort(T, axis=1).tolist()))
+        ok = (valence[cap] > 3).all(axis=1) & np.array([tuple(t) not in existing for t in np.sort(cap, axis=1).tolist()])
+        if not ok.any():
+            break
+        idx = np.flatnonzero(ok)
+        chosen = idx[_independent(np.arange(len(idx)), np.c_[centre[idx], cap[idx]], n, None)]
+        keep = np.ones(len(T), dtype=bool)
+        keep[fan[chosen].ravel()] = False
+        T = np.concatenate([T[keep], cap[chosen]])
+    return T
 
 
 def _sharpness(P: NDArray[np.float64], edges: _Edges) -> NDArray[np.float64]:

@@ -15,7 +15,8 @@
   smoothing towards dihedral angles between 15 and 160 degrees (a bound
   TetGen tries to meet, not a guarantee); ``L`` is corrected from the total
   node count in the same way (a remeshed surface that crosses itself, at
-  a thin wall, is remeshed 15 % finer before TetGen sees it). Slivers lying flat
+  a thin wall, is remeshed finer, 5 % at a time, before TetGen sees it; the
+  interior keeps the coarser length). Slivers lying flat
   against the surface (two faces on it, a dihedral angle below
   :data:`PEEL_ANGLE`) are removed, which flips the surface diagonal under
   them.
@@ -79,6 +80,8 @@ _TETGEN = {
     "quiet": True,
 }
 _TRIES = 4
+#: A remeshed surface that crosses itself is remeshed with edges this much shorter, up to _UNCROSS_TRIES times.
+_UNCROSS_STEP, _UNCROSS_TRIES = 0.95, 8
 #: Remeshed surfaces keep about 30 % more nodes than an equilateral one of edge ``L``: ``L`` starts longer.
 _LENGTH_FACTOR = 1.1
 #: Interior volume per node (in units of ``L^3``) of a TetGen fill, for the first guess of ``L``.
@@ -188,13 +191,14 @@ def tetrahedralise(
     start = decimate_surface(points, tris, 2 * nodes)
 
     def fill(length: float) -> tuple:
+        surface_length = length
         sp, st = remesh(*start, length, reference=(points, tris))
-        for _ in range(_TRIES):  # a coarse surface can cross itself at a thin wall: remesh it finer
+        for _ in range(_UNCROSS_TRIES):  # a coarse surface can cross itself at a thin wall: remesh it finer
             if not crossing_edges(sp, st):
                 break
-            length *= 0.85
-            sp, st = remesh(*start, length, reference=(points, tris))
-        try:
+            surface_length *= _UNCROSS_STEP
+            sp, st = remesh(*start, surface_length, reference=(points, tris))
+        try:  # the interior keeps the asked length
             tet_points, tets, *_ = _tetrahedralize(tetgen.TetGen(sp, st.astype(np.int32)), length**3 / (6 * np.sqrt(2)))
         except RuntimeError as exc:  # no second try: TetGen can corrupt memory when it fails twice in a process
             raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None

@@ -12,7 +12,7 @@ from shared.mesh import Mesh
 from simgen.meshes import get_mesh, lv_ellipsoid
 from simgen.meshes.io import load_mesh, save_mesh
 from simgen.meshes.quality import mesh_quality
-from simgen.meshes.remesh import closest_points, remesh
+from simgen.meshes.remesh import closest_points, crossing_edges, remesh
 from simgen.meshes.resample import hausdorff_distance, resample
 from simgen.meshes.shipped import unpacked
 from simgen.meshes.topology import extract_surface
@@ -31,8 +31,11 @@ REAL = ["real:rodero01-lv", "real:tof-biv", "real:cobiveco-mean-biv"]
 
 
 def check(mesh: Mesh, nodes: int, kind: str) -> None:
-    """Node count within :data:`TOLERANCE`, cell type, and the quality bounds of the kind."""
+    """Node count within :data:`TOLERANCE`, cell type, a surface that does not cross itself, and the quality
+    bounds of the kind."""
     assert mesh.cell_type == kind and abs(mesh.n_nodes / nodes - 1) <= TOLERANCE, mesh.n_nodes
+    surface = extract_surface(mesh)
+    assert crossing_edges(surface.points, surface.cells) == 0
     q = mesh_quality(mesh)
     if kind == "triangle":
         assert q.min_angle >= MIN_TRIANGLE_ANGLE, q
@@ -69,6 +72,14 @@ def test_surface_merged_from_three_parts(merged_file, kind, caplog):
     assert "winding" in caplog.text and mesh_quality(raw).min_angle < 1.0  # mis-wound part, seam slivers
     check(resample(raw, 1000, kind), 1000, kind)
     check(get_mesh(str(merged_file), 1000, kind), 1000, kind)
+
+
+@pytest.mark.parametrize("kind", ["triangle", "tetra"])
+def test_merged_and_dense_surfaces_at_5000_nodes(merged_file, dense, kind):
+    """Finer meshes of the hard surfaces: crease junctions that fold a remeshed fan, creases that leave a
+    needle after the last smoothing (6 to 25 s each)."""
+    source = load_mesh(merged_file) if kind == "tetra" else dense
+    check(resample(source, 5000, kind), 5000, kind)
 
 
 def test_ct_volume_mesh():
