@@ -44,6 +44,7 @@ from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError, InputError
 from shared.location import resolve_location
 from shared.mesh import Mesh
+from shared.observation import Observation, gaussian_noise
 from shared.reader import read_solver_settings, read_tissue
 from shared.simulator import load_simulator
 from shared.units import MS_PER_TIME_UNIT
@@ -55,6 +56,7 @@ __all__ = [
     "load_benchmark_config",
     "BaselineMethod",
     "baseline_methods",
+    "observe_fold",
     "run_benchmark",
 ]
 
@@ -238,6 +240,19 @@ def calibration(
     }
 
 
+def observe_fold(
+    store: str, subject: str, context_rows: list[int], left: int, observation: Observation, rng: np.random.Generator
+) -> tuple[Episode, np.ndarray]:
+    """A real-data fold as observed: the context episode and the noisy recording of the left-out site ``left``.
+
+    ``rng`` draws the context noise (as it would for a training episode: :func:`shared.observation.observe`)
+    and then the recording's, in float64.
+    """
+    ep = load_episode(store, subject, context_rows, [left], observation.nodes, observation.noise_std, rng)
+    recording = ep.target_u[0].numpy() + gaussian_noise(ep.target_u[0].shape, observation.noise_std, rng, np.float64)
+    return ep, recording
+
+
 def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkConfig, folds: int = 0) -> dict:
     """Leave one pacing site out on an unseen geometry observed by the sock (+ noise), for every method.
 
@@ -254,7 +269,7 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
     for the ``ceiling``: where the error is.
     """
     spec = cfg.real_data
-    view = StoreView(spec.store)
+    view, observation = StoreView(spec.store), Observation(spec.observe, spec.noise_std)
     for m in methods:
         if isinstance(m, NeuralMethod) and view.frames != m.model.frames:
             raise InputError(f"{spec.store} has {view.frames} frames per simulation, {m.name} expects {m.model.frames}")
@@ -265,10 +280,10 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
         mesh, hier = view.mesh(mesh_id), view.hierarchy(mesh_id, levels, coarsest)
         n_sites = min(spec.sites, len(view.sites(mesh_id)))
         for left in range(n_sites if folds <= 0 else min(folds, n_sites)):
-            rng = np.random.default_rng([cfg.seed, si, left])
             ctx = [r for r in range(n_sites) if r != left]
-            ep = load_episode(view.store, subject, ctx, [left], spec.observe, spec.noise_std, rng)
-            noisy_target = ep.target_u[0].numpy() + rng.normal(0, spec.noise_std, ep.target_u[0].shape)
+            ep, noisy_target = observe_fold(
+                view.store, subject, ctx, left, observation, np.random.default_rng([cfg.seed, si, left])
+            )
             obs_nodes = ep.observed.numpy()
             truths = [*ep.context_obs.numpy(), noisy_target]
             fold = {"subject": subject, "left_out": left}

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from learner.config import LearnerConfig
-from learner.data.episodes import OBSERVE_SETS, Episode, load_episode
+from learner.data.episodes import Episode, load_episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.site_evidence import SiteEvidence
@@ -34,6 +34,7 @@ from learner.store_view import StoreView
 from learner.train.trainer import load_model
 from shared.errors import InputError
 from shared.mesh import Mesh
+from shared.observation import check_noise_std, check_observation_set
 from shared.units import MS_PER_TIME_UNIT
 
 __all__ = [
@@ -70,10 +71,10 @@ class EvalSpec:
     refine: Refinement = Refinement()  # steps > 0: refine c on each context set (learner.refine)
 
     def __post_init__(self) -> None:
-        if self.observe is not None and self.observe not in OBSERVE_SETS:
-            raise InputError(f"unknown observation set {self.observe!r}; choose one of {', '.join(OBSERVE_SETS)}")
-        if self.noise_std is not None and not (np.isfinite(self.noise_std) and self.noise_std >= 0):
-            raise InputError(f"noise_std must be a finite number >= 0, got {self.noise_std!r}")
+        if self.observe is not None:
+            check_observation_set(self.observe)
+        if self.noise_std is not None:
+            check_noise_std(self.noise_std)
 
 
 @dataclass

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from learner.data.episodes import OBSERVE_SETS, Episode, EpisodeDataset, EpisodeSpec, load_episode
+from learner.data.episodes import OBSERVATION_SETS, Episode, EpisodeDataset, EpisodeSpec, load_episode
 from learner.data.split import SPLITS, SplitSpec, split_subjects
 
 __all__ = [
-    "OBSERVE_SETS",
+    "OBSERVATION_SETS",
     "SPLITS",
     "Episode",
     "EpisodeDataset",

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from torch.utils.data import IterableDataset, get_worker_info
 
 from shared.errors import InputError, SchemaError
+from shared.observation import OBSERVATION_SETS, check_noise_std, check_observation_set, node_mask, observe
 from shared.reader import (
     SubjectReader,
     check_store,
@@ -44,12 +45,8 @@ from shared.reader import (
     subject_array,
     subject_attrs,
 )
-from shared.schema import MESH_INDEX_SETS
 
-__all__ = ["OBSERVE_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode"]
-
-#: Observation sets an episode may use: a stored mesh node set, or every node.
-OBSERVE_SETS = (*MESH_INDEX_SETS, "all")
+__all__ = ["OBSERVATION_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode"]
 
 
 @dataclass(frozen=True)
@@ -63,7 +60,7 @@ class EpisodeSpec:
     targets
         Number of target simulations ``M`` per episode.
     observe
-        Node set the context is observed on: one of :data:`OBSERVE_SETS`, or a
+        Node set the context is observed on: one of :data:`~shared.observation.OBSERVATION_SETS`, or a
         sequence of them, one drawn uniformly per episode (e.g. ``("surface",
         "electrodes")``: the encoder learns both the whole surface and the
         sparse sock). Evaluation observes the first (:attr:`primary_observe`)
@@ -101,11 +98,9 @@ class EpisodeSpec:
             raise InputError(f"observe must be an observation set or a list of distinct ones, got {self.observe!r}")
         sets = tuple(sets)
         for name in sets:
-            if name not in OBSERVE_SETS:
-                raise InputError(f"unknown observation set {name!r}; choose one of {', '.join(OBSERVE_SETS)}")
+            check_observation_set(name)
         object.__setattr__(self, "observe", sets[0] if len(sets) == 1 else sets)
-        if not (isinstance(self.noise_std, (int, float)) and np.isfinite(self.noise_std) and self.noise_std >= 0):
-            raise InputError(f"noise_std must be a finite number >= 0, got {self.noise_std!r}")
+        check_noise_std(self.noise_std)
         if not _is_int(self.chunks_per_episode) or self.chunks_per_episode < 0:
             raise InputError(f"chunks_per_episode must be an integer >= 0, got {self.chunks_per_episode!r}")
 
@@ -211,19 +206,11 @@ class _SubjectMeta:
         return np.unique(rows // self.chunk_sites)
 
 
-def _observed_mask(store: str, mesh_id: str, n_nodes: int, observe: str) -> NDArray[np.bool_]:
-    if observe not in OBSERVE_SETS:
-        raise InputError(f"unknown observation set {observe!r}; choose one of {', '.join(OBSERVE_SETS)}")
-    if observe == "all":
+def _observed_mask(store: str, mesh_id: str, n_nodes: int, nodes: str) -> NDArray[np.bool_]:
+    """The (node,) mask of the stored node set ``nodes`` of mesh ``mesh_id`` (``"all"``: every node)."""
+    if check_observation_set(nodes) == "all":
         return np.ones(n_nodes, dtype=bool)
-    idx = read_index_set(store, mesh_id, observe)
-    if idx.size == 0:
-        raise InputError(f"mesh {mesh_id!r} has an empty {observe!r} node set: nothing would be observed")
-    if idx.min() < 0 or idx.max() >= n_nodes:
-        raise SchemaError(f"node set {observe!r} of mesh {mesh_id!r} has ids outside [0, {n_nodes})")
-    mask = np.zeros(n_nodes, dtype=bool)
-    mask[idx] = True
-    return mask
+    return node_mask(n_nodes, read_index_set(store, mesh_id, nodes), nodes, mesh_id)
 
 
 def _subject_meta(
@@ -300,15 +287,10 @@ def _build_episode(
     noise_std: float,
     rng: np.random.Generator | None,
 ) -> Episode:
-    if noise_std > 0 and rng is None:
-        raise InputError("noise_std > 0 needs an rng (np.random.Generator) for reproducible noise")
     k = context_rows.size
     data = u.rows("u", np.concatenate([context_rows, target_rows]))  # checked: done, checksums, fingerprint, finite
     context_u, target_u = data[:k], data[k:]
-    obs = context_u.copy()
-    if noise_std > 0:
-        obs += np.float32(noise_std) * rng.standard_normal(obs.shape, dtype=np.float32)
-    obs[:, :, ~observed] = 0.0  # unobserved nodes carry no information, noise included
+    obs = observe(context_u, observed, noise_std, rng)
     return Episode(
         subject_id=meta.subject_id,
         mesh_id=meta.mesh_id,
@@ -346,7 +328,7 @@ def load_episode(
         n_sites-1``), disjoint; ``target_sites`` may be empty. The episode's
         ``*_sites`` hold the matching stimulation node ids.
     observe
-        Observation set (one of :data:`OBSERVE_SETS`).
+        Observation set (one of :data:`~shared.observation.OBSERVATION_SETS`).
     noise_std, rng
         Observation noise and its generator (required when ``noise_std > 0``).
 
@@ -367,8 +349,7 @@ def load_episode(
     overlap = np.intersect1d(context_rows, target_rows)
     if overlap.size:
         raise InputError(f"target sites must not include context sites; both have rows {overlap.tolist()}")
-    if not (np.isfinite(noise_std) and noise_std >= 0):
-        raise InputError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
+    check_noise_std(noise_std)
     # Only the chunks actually read must be finished: evaluation may run on a partial store.
     _refuse_missing(meta, meta.chunks_of(np.concatenate([context_rows, target_rows])))
     u, times = SubjectReader(store, subject_id), read_times(store, subject_id)

@@ -1,7 +1,10 @@
 """Observation operators: which nodes the learner's encoders see.
 
 The full field lives on all mesh nodes; observations live on all surface
-nodes, the epicardium only, or a sparse epicardial sock, optionally noisy.
+nodes, the epicardium only, or the electrodes of a sparse epicardial sock,
+optionally noisy. Kinds are named as the store names the node sets
+(:data:`shared.observation.OBSERVATION_SETS`); the noise is
+:func:`shared.observation.observe`'s.
 """
 
 from __future__ import annotations
@@ -29,12 +32,12 @@ __all__ = [
 OBSERVATION_KINDS: dict[str, type[ObservationOperator]] = {
     "surface": AllSurface,
     "epicardium": Epicardial,
-    "sock": Sock,
+    "electrodes": Sock,
 }
 
 
 def make_observation(kind: str, **kwargs: Any) -> ObservationOperator:
-    """Observation operator of ``kind`` ("surface", "epicardium" or "sock").
+    """Observation operator of ``kind`` ("surface", "epicardium" or "electrodes": the sock).
 
     Keyword arguments go to the operator (``noise_std``, ``seed``, and
     ``n_electrodes`` for the sock).

@@ -2,7 +2,9 @@
 
 The full field ``x`` lives on all ``N`` mesh nodes; an observation ``y`` is its
 restriction to a sorted subset of nodes, optionally with additive Gaussian
-noise, ``y = x[..., idx] + noise_std * e``, ``e ~ N(0, I)`` (``u`` units).
+noise, ``y = (x + noise_std * e)[..., idx]``, ``e ~ N(0, I)`` (``u`` units):
+the observation model of :mod:`shared.observation`, which training episodes
+and the benchmark use too.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.errors import InputError
 from shared.mesh import Mesh
+from shared.observation import check_noise_std, observe
 
 __all__ = ["ObservationOperator"]
 
@@ -25,7 +28,7 @@ class ObservationOperator(ABC):
 
     Parameters
     ----------
-    name : identifier stored with the observed indices.
+    name : the node set's name in the store (:data:`shared.observation.OBSERVATION_SETS`).
     noise_std : standard deviation of additive Gaussian noise, in units of ``u``.
     seed : seed of the default noise generator, so repeated calls are reproducible.
     """
@@ -35,8 +38,7 @@ class ObservationOperator(ABC):
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not np.isfinite(self.noise_std) or self.noise_std < 0:
-            raise InputError(f"observation {self.name!r}: noise_std must be finite and >= 0, got {self.noise_std}")
+        check_noise_std(self.noise_std)
 
     @abstractmethod
     def indices(self, mesh: Mesh) -> NDArray[np.int32]:
@@ -49,7 +51,7 @@ class ObservationOperator(ABC):
         return out
 
     def observe(self, mesh: Mesh, u: ArrayLike, rng: np.random.Generator | None = None) -> NDArray[np.float32]:
-        """Observed values ``u[..., indices]`` (float32) plus noise.
+        """Observed values ``u[..., indices]`` (float32) plus noise (:func:`shared.observation.observe`).
 
         Parameters
         ----------
@@ -65,8 +67,8 @@ class ObservationOperator(ABC):
             )
         if not np.issubdtype(u.dtype, np.number) or not np.all(np.isfinite(u)):
             raise InputError(f"observation {self.name!r}: u contains NaN, infinite or non-numeric values")
-        y = u[..., self.indices(mesh)].astype(np.float32)
-        if self.noise_std > 0:
-            rng = np.random.default_rng(self.seed) if rng is None else rng
-            y += np.float32(self.noise_std) * rng.standard_normal(y.shape, dtype=np.float32)
-        return y
+        idx = self.indices(mesh)
+        observed = np.zeros(mesh.n_nodes, dtype=bool)
+        observed[idx] = True
+        rng = np.random.default_rng(self.seed) if rng is None else rng
+        return observe(u, observed, self.noise_std, rng)[..., idx]

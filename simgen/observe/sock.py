@@ -60,7 +60,7 @@ class Sock(ObservationOperator):
     deterministic, so the same mesh always gives the same sock.
     """
 
-    name: str = "sock"
+    name: str = "electrodes"
     n_electrodes: int = 247
 
     def __post_init__(self) -> None:

@@ -144,9 +144,9 @@ def test_bad_inputs(tet: Mesh) -> None:
 def test_make_observation() -> None:
     assert isinstance(make_observation("surface"), AllSurface)
     assert isinstance(make_observation("epicardium", noise_std=0.1), Epicardial)
-    sock = make_observation("sock", n_electrodes=100, seed=2)
+    sock = make_observation("electrodes", n_electrodes=100, seed=2)
     assert isinstance(sock, Sock) and sock.n_electrodes == 100 and sock.seed == 2
-    with pytest.raises(InputError, match="allowed kinds: surface, epicardium, sock"):
+    with pytest.raises(InputError, match="allowed kinds: surface, epicardium, electrodes"):
         make_observation("ecg")
     with pytest.raises(InputError, match="n_electrodes"):
         make_observation("surface", n_electrodes=3)
