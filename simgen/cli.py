@@ -103,7 +103,7 @@ def simulate(
     tissue: Annotated[
         str, typer.Option(help="Default setting name (see `simgen tissues`) or a TOML file.")
     ] = "healthy",
-    sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")] = "0",
+    sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the mesh.")] = "0",
     threads: ThreadsOpt = 2,
     dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
     integrator: Annotated[
@@ -211,14 +211,14 @@ def _tissue_spec(tissue: str):
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("report/demo"),
     nodes: NodesOpt = 2000,
-    sites: Annotated[int, typer.Option(min=1, help="Stimulation sites per setting.")] = 4,
+    sites_per_setting: Annotated[int, typer.Option(min=1, help="Stimulation sites per tissue setting.")] = 4,
     threads: ThreadsOpt = 2,
 ) -> None:
     """Run the demo sweep (LV + BiV, four tissue settings) and write figures and a summary."""
     from simgen.demo import run_demo
 
     try:
-        rows = run_demo(out, n_nodes=nodes, n_sites=sites, threads=threads)
+        rows = run_demo(out, n_nodes=nodes, n_sites=sites_per_setting, threads=threads)
     except (InputError, OSError) as exc:
         _fail(exc, out)
     console.print((out / "summary.md").read_text())
@@ -336,7 +336,10 @@ def add_subject(
 def regenerate(
     store: StoreArg,
     subjects: Annotated[str, typer.Option(help="Comma-separated subject ids (see `simgen status`).")],
-    sites: Annotated[str | None, typer.Option(help="Comma-separated site indices; all when omitted.")] = None,
+    site_index: Annotated[
+        str | None,
+        typer.Option(help="Comma-separated site indices (`simgen sites` maps them to node ids); all when omitted."),
+    ] = None,
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
 ) -> None:
@@ -344,11 +347,11 @@ def regenerate(
     from simgen.build.edit import regenerate as run_regenerate
 
     def job(on_start, on_done):
-        site_ids = None if sites is None else parse_ids(sites, "--sites")
+        indices = None if site_index is None else parse_ids(site_index, "--site-index")
         return run_regenerate(
             store,
             [s.strip() for s in subjects.split(",") if s.strip()],
-            site_ids,
+            indices,
             scheduler=scheduler,
             workers=workers,
             on_start=on_start,
@@ -505,14 +508,16 @@ def card(
 def export_vtk(
     store: StoreArg,
     subject: Annotated[str, typer.Argument(help="Subject id (see `simgen status`).")],
-    site: Annotated[int, typer.Argument(min=0, help="Site index within the subject (0-based).")],
+    site_index: Annotated[
+        int, typer.Argument(min=0, help="Site index within the subject (0-based; `simgen sites` lists them).")
+    ],
     out: Annotated[Path, typer.Option(help="Output folder for the .vtu frames and .pvd collection.")] = Path("vtk"),
 ) -> None:
     """Write one simulation as a ParaView time series (.pvd + one .vtu per frame)."""
     from simgen.build.export import export_vtk as run_export
 
     try:
-        pvd = run_export(store, subject, site, out)
+        pvd = run_export(store, subject, site_index, out)
     except (InputError, OSError) as exc:
         _fail(exc, out)
     console.print(f"wrote {pvd} (open it in ParaView)")

@@ -317,7 +317,9 @@ CASES: dict[str, dict[str, Case]] = {
         "retries -1": Case(build("good", "--retries", "-1"), usage("--retries")),
         "threads 0": Case(("simgen", "simulate", "{d}/o", "--threads", "0"), usage("--threads")),
         "nodes 0": Case(("simgen", "mesh", "{d}/m.vtu", "--nodes", "0"), usage("--nodes")),
-        "demo sites 0": Case(("simgen", "demo", "--out", "{d}/demo", "--sites", "0"), usage("--sites")),
+        "demo sites 0": Case(
+            ("simgen", "demo", "--out", "{d}/demo", "--sites-per-setting", "0"), usage("--sites-per-setting")
+        ),
         "duplicate sites": Case(
             ("simgen", "simulate", "{d}/o", "--sites", "3,0,3"), ("--sites: [3] given more than once",)
         ),
@@ -330,9 +332,10 @@ CASES: dict[str, dict[str, Case]] = {
         "dt inf": Case(("simgen", "simulate", "{d}/o", "--dt", "inf"), usage("--dt", "inf is not a finite number")),
         "dt negative": Case(("simgen", "simulate", "{d}/o", "--dt", "-1"), ("dt=-1.0 must be finite and > 0",)),
         "verify sample -1": Case(("simgen", "verify", "{s}", "--sample", "-1"), usage("--sample")),
-        "export site -1": Case((*EXPORT[:4], "--out", "{d}/vtk", "--", "-1"), usage("site")),
+        "export site -1": Case((*EXPORT[:4], "--out", "{d}/vtk", "--", "-1"), usage("site_index")),
         "regenerate duplicate sites": Case(
-            ("simgen", "regenerate", "{s}", "--subjects", "lv-healthy", "--sites", "1,1"), ("--sites: [1] given more",)
+            ("simgen", "regenerate", "{s}", "--subjects", "lv-healthy", "--site-index", "1,1"),
+            ("--site-index: [1] given more",),
         ),
         "epochs 0": Case(("learner", "train", "{d}/train.toml", "--epochs", "0"), usage("--epochs")),
         "max-minutes NaN": Case(("learner", "train", "{d}/train.toml", "--max-minutes", "nan"), usage("--max-minutes")),

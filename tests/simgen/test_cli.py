@@ -157,7 +157,7 @@ def test_add_subject_and_regenerate_commands(tmp_path):
     status = text(runner.invoke(app, ["status", str(store)]))
     assert "patient-scar-apex" in status and "6/6 chunks done" in status
     regen = runner.invoke(
-        app, ["regenerate", str(store), "--subjects", "patient-healthy", "--sites", "3", "--workers", "1"]
+        app, ["regenerate", str(store), "--subjects", "patient-healthy", "--site-index", "3", "--workers", "1"]
     )
     assert regen.exit_code == 0 and "1/" in text(regen)
     unknown = runner.invoke(app, ["regenerate", str(store), "--subjects", "nobody"])

@@ -1,0 +1,46 @@
+"""One vocabulary across the simgen and learner commands: ``--sites`` takes node ids, ``--site-index`` site indices."""
+
+from __future__ import annotations
+
+import click
+import typer
+
+from learner.cli import app as learner_app
+from simgen.cli import app as simgen_app
+
+
+def _params() -> list[tuple[str, click.Parameter]]:
+    """(``tool command``, parameter) of every command of both tools."""
+    found = []
+    for tool, app in (("simgen", simgen_app), ("learner", learner_app)):
+        group = typer.main.get_command(app)
+        for name, command in group.commands.items():
+            found.extend((f"{tool} {name}", param) for param in command.params)
+    return found
+
+
+def _help(param: click.Parameter) -> str:
+    return (getattr(param, "help", None) or "").lower()
+
+
+#: Every parameter about stimulation sites, by name, and a phrase its help must hold.
+SITE_PARAMS = {"sites": "node id", "site_index": "site ind", "sites_per_setting": "sites per"}
+
+
+def _problem(param: click.Parameter) -> str:
+    """What is wrong with a site parameter's name or help; ``""`` when nothing is."""
+    if param.name not in SITE_PARAMS:
+        return "use --sites (node ids) or --site-index (site indices)"
+    if SITE_PARAMS[param.name] not in _help(param):
+        return f"help lacks {SITE_PARAMS[param.name]!r}"
+    if param.name == "sites" and ("ind" in _help(param) or param.opts != ["--sites"]):
+        return "--sites takes node ids only"
+    if param.name == "site_index" and param.opts not in (["--site-index"], ["site_index"]):
+        return "site indices are --site-index (or the SITE_INDEX argument)"
+    return ""
+
+
+def test_site_options_say_what_they_take():
+    """Node ids (``--sites``) and site indices (``--site-index``, ``SITE_INDEX``) never share a name."""
+    problems = [f"{command} {p.name}: {_problem(p)}" for command, p in _params() if "site" in p.name and _problem(p)]
+    assert not problems
