@@ -29,7 +29,7 @@ from typing import Literal
 
 from learner.data.episodes import EpisodeSpec
 from learner.data.split import SplitSpec
-from learner.pretrained import resolve_reference
+from learner.pretrained.shipped import resolve_reference
 from learner.runtime import PRECISIONS, check_device
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError

@@ -41,7 +41,7 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]
     """
     path = Path(path)
     if not path.is_file():
-        from learner import pretrained
+        from learner.pretrained import shipped as pretrained  # names only: not the package's training imports
 
         shipped = pretrained.names()
         if str(path) in shipped:

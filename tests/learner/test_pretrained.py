@@ -15,6 +15,7 @@ from learner.cli import app
 from learner.evaluate import EvalSpec, evaluate
 from learner.metrics import mse
 from learner.models.surrogate import MetaPNS
+from learner.pretrained import shipped as shipped_models
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
 from learner.train.trainer import load_model
@@ -103,7 +104,7 @@ def test_damaged_weights_are_refused(tmp_path, monkeypatch):
     raw = bytearray(weights.read_bytes())
     raw[-1] ^= 0xFF
     weights.write_bytes(bytes(raw))
-    monkeypatch.setattr(pretrained, "SHIPPED_DIR", tmp_path)
+    monkeypatch.setattr(shipped_models, "SHIPPED_DIR", tmp_path)
     with pytest.raises(InputError, match="is damaged"):
         pretrained.load(NAME)
     with pytest.raises(InputError, match="no shipped model named 'other' \\(shipped: anatomies"):
@@ -121,7 +122,7 @@ def test_export_writes_what_load_reads(tiny_store, tiny_toml, tmp_path, monkeypa
     config = json.loads((root / "tiny" / pretrained.CONFIG).read_text())
     assert config["config"]["data"]["store"] == tiny_store.name and str(tmp_path) not in json.dumps(config)
     assert config["training"]["store_spec_hash"] == StoreView(tiny_store).attrs["spec_hash"]
-    monkeypatch.setattr(pretrained, "SHIPPED_DIR", root)
+    monkeypatch.setattr(shipped_models, "SHIPPED_DIR", root)
     trained, _, _ = load_model(tmp_path / "run" / "best.pt")
     shipped = pretrained.load("tiny")
     assert all((a == b).all() for a, b in zip(trained.state_dict().values(), shipped.state_dict().values()))
