@@ -132,6 +132,10 @@ class LearnerConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self) -> None:
+        if self.data.episodes.targets < 1:
+            raise ConfigError(
+                "data.episodes.targets must be >= 1: training fits the model to each episode's targets, got 0"
+            )
         if self.train.gate_loss > 0 and not (self.model.kind == "metapns" and self.model.capture_gate):
             raise ConfigError(
                 "train.gate_loss fits the capture gate: set model.kind = 'metapns' and model.capture_gate"

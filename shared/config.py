@@ -1,12 +1,14 @@
 """Strict loading of TOML configuration into dataclasses.
 
-Defaults live on the dataclasses; :func:`from_mapping` refuses unknown keys
-and wrong types with a message naming the offending key path.
+Defaults live on the dataclasses; :func:`from_mapping` refuses unknown keys,
+wrong types and non-finite numbers (TOML's ``nan``, ``inf``) with a message
+naming the offending key path.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -83,6 +85,8 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):

@@ -493,6 +493,8 @@ def card(
     from simgen.build.card import dataset_card
 
     try:
+        if out is not None and not out.parent.exists():
+            raise InputError(f"{out}: folder {out.parent} does not exist")
         text = dataset_card(store)
         if out is not None:
             out.write_text(text + "\n")

@@ -98,6 +98,7 @@ SPECS = {
     "no-meshes": 'meshes = []\ntissue = ["healthy"]\n',
     "random-count0": spec("nodes = 300", 'nodes = 300\nshape = "random"\ncount = 0'),
     "missing-mesh-file": spec("nodes = 300", 'source = "missing.vtu"'),
+    "bad-cells-mesh-file": spec("nodes = 300", 'source = "badcells.vtu"'),
     "garbage-mesh-file": spec("nodes = 300", 'source = "garbage.vtu"'),
     "nan-mesh-file": spec("nodes = 300", 'source = "nan.vtu"'),
     "out-of-memory": spec("frames = 6", "frames = 1000000000"),
@@ -195,7 +196,7 @@ CASES: dict[str, dict[str, Case]] = {
         "TOML syntax": Case(build("toml-syntax"), ("toml-syntax.toml",)),
         "unstable dt": Case(build("unstable-dt"), ("dt=10 is unstable",)),
         "negative diffusivity": Case(build("negative-diffusivity"), ("diffusivity must be finite and > 0",)),
-        "NaN diffusivity": Case(build("nan-diffusivity"), ("diffusivity must be finite and > 0", "nan")),
+        "NaN diffusivity": Case(build("nan-diffusivity"), ("solver.diffusivity: expected a finite number, got nan",)),
         "empty meshes": Case(build("no-meshes"), ("the spec has no meshes",)),
         "random anatomies count 0": Case(build("random-count0"), ("count must be an integer >= 1, got 0",)),
         "spec file missing": Case(build("missing"), ("missing.toml",)),
@@ -210,6 +211,14 @@ CASES: dict[str, dict[str, Case]] = {
     },
     "mesh": {
         "mesh file missing": Case(build("missing-mesh-file"), ("missing.vtu",)),
+        "mesh file with a cell index out of range": Case(
+            build("bad-cells-mesh-file"),
+            ("badcells.vtu: cell node index out of range [0, 316): 1 cell(s), first cell 3",),
+        ),
+        "no conduction anywhere": Case(
+            ("simgen", "simulate", "{d}/o", "--nodes", "300", "--tissue", "{d}/blocked.toml"),
+            ("tissue 'blocked': D = 0 at every node",),
+        ),
         "mesh file of garbage": Case(build("garbage-mesh-file"), ("garbage.vtu",)),
         "mesh file with a NaN point": Case(build("nan-mesh-file"), ("nan",)),
         "unknown procedural mesh": Case(("simgen", "simulate", "{d}/o", "--mesh", "heart"), ("heart",)),
@@ -223,6 +232,11 @@ CASES: dict[str, dict[str, Case]] = {
         ),
     },
     "store": {
+        "card of a store whose subjects group is gone": Case(
+            ("simgen", "card", "{s}"),
+            ("is damaged (1 problem(s)): store: group missing (subjects)", "Run `simgen repair {s}`"),
+            delete("subjects/zarr.json"),
+        ),
         "status of a missing store": Case(("simgen", "status", "{d}/missing.zarr"), ("missing.zarr",)),
         "status of a folder that is no store": Case(("simgen", "status", "{d}/readonly"), ("readonly",)),
         "verify a plain file": Case(("simgen", "verify", "{d}/afile"), ("afile",)),
@@ -337,6 +351,14 @@ CASES: dict[str, dict[str, Case]] = {
             ("simgen", "regenerate", "{s}", "--subjects", "lv-healthy", "--site-index", "1,1"),
             ("--site-index: [1] given more",),
         ),
+        "lr NaN in a config": Case(
+            ("learner", "train", "{d}/train-lr-nan.toml", "--store", "{d}/missing.zarr"),
+            ("train.lr: expected a finite number, got nan",),
+        ),
+        "targets 0 in a config": Case(
+            ("learner", "train", "{d}/train-targets0.toml", "--store", "{d}/missing.zarr"),
+            ("data.episodes.targets must be >= 1",),
+        ),
         "epochs 0": Case(("learner", "train", "{d}/train.toml", "--epochs", "0"), usage("--epochs")),
         "max-minutes NaN": Case(("learner", "train", "{d}/train.toml", "--max-minutes", "nan"), usage("--max-minutes")),
         "max-minutes inf": Case(
@@ -381,6 +403,10 @@ CASES: dict[str, dict[str, Case]] = {
         "incomplete model": Case(
             ("learner", "personalize", "{d}/incomplete.pt", "--out", "{d}/p.pt", "--observations", "{d}/obs.npz"),
             ("incomplete.pt", "config"),
+        ),
+        "empty file": Case(
+            ("learner", "predict", "{d}/empty.pt", "--sites", "1"),
+            ("empty.pt is not a readable learner checkpoint: the file is empty (0 bytes)",),
         ),
         "evaluate a garbage checkpoint": Case(
             ("learner", "evaluate", "{d}/garbage.pt", "{s}"), ("garbage.pt is not a readable learner checkpoint",)
@@ -429,6 +455,9 @@ CASES: dict[str, dict[str, Case]] = {
         "export out is a file": Case((*EXPORT, "{d}/afile"), A_FILE),
         "export out in a read-only folder": Case((*EXPORT, "{d}/readonly/vtk"), READ_ONLY),
         "card out in a read-only folder": Case(("simgen", "card", "{s}", "--out", "{d}/readonly/card.md"), READ_ONLY),
+        "card out in a missing folder": Case(
+            ("simgen", "card", "{s}", "--out", "{d}/nofolder/card.md"), ("nofolder/card.md: folder", "does not exist")
+        ),
         "train out is a file": Case(("learner", "train", "{d}/train.toml", "--out", "{d}/afile"), A_FILE),
         "train out in a read-only folder": Case(
             ("learner", "train", "{d}/train.toml", "--out", "{d}/readonly/run"), READ_ONLY
@@ -529,19 +558,24 @@ def write_checkpoints(d: Path, mesh) -> None:
     save_checkpoint(d / "incomplete.pt", {"kind": "model"})
     personalize(d / "model.pt", observations_from_file(d / "obs.npz"), d / "personalized.pt")
     (d / "garbage.pt").write_bytes(b"not a checkpoint at all\n" * 10)
+    (d / "empty.pt").write_bytes(b"")
     torch.save({"format": CHECKPOINT_FORMAT, "kind": "model", "config": Evil(d / "pwned")}, d / "evil.pt")
     torch.save({"format": 1, "kind": "personalized"}, d / "format1.pt")
     torch.save([1, 2, 3], d / "list.pt")
 
 
 def write_meshes(d: Path, mesh) -> None:
-    """Mesh files: ``garbage.vtu`` (not a mesh) and ``nan.vtu`` (a NaN coordinate)."""
+    """Mesh files: ``garbage.vtu`` (not a mesh), ``nan.vtu`` (a NaN coordinate), ``badcells.vtu`` (a cell refers
+    to a node past the last)."""
     import meshio
 
     (d / "garbage.vtu").write_text("<VTKFile>not really</VTKFile>\n")
     points = mesh.points.copy()
     points[7, 2] = np.nan
     meshio.write(d / "nan.vtu", meshio.Mesh(points, [("tetra", mesh.cells)]))
+    cells = mesh.cells.copy()
+    cells[3, 1] = mesh.n_nodes + 7
+    meshio.write(d / "badcells.vtu", meshio.Mesh(mesh.points, [("tetra", cells)]))
 
 
 @pytest.fixture(scope="module")
@@ -554,6 +588,9 @@ def d(tmp_path_factory) -> Iterator[Path]:
         (d / f"{name}.toml").write_text(text)
     (d / "train.toml").write_text('out = "run"\n[data]\nstore = "missing.zarr"\n')
     (d / "train-small.toml").write_text(TRAIN_SMALL)
+    (d / "train-lr-nan.toml").write_text(TRAIN_SMALL.replace("epochs = 1", "epochs = 1\nlr = nan"))
+    (d / "train-targets0.toml").write_text(TRAIN_SMALL.replace("targets = 2", "targets = 0"))
+    (d / "blocked.toml").write_text('name = "blocked"\n[healthy]\nD = 0.0\n')
     (d / "afile").write_text("not a folder")
     (d / "folder.npz").mkdir()
     mesh = get_mesh("lv", 300)

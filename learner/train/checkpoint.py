@@ -51,6 +51,8 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]
                 f"{path} is a shipped model, not a {kind!r} file: `learner personalize {path} ...` makes one"
             )
         raise InputError(f"checkpoint not found: {path} (nor a shipped model: {', '.join(shipped) or 'none'})")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path} is not a readable learner checkpoint: the file is empty (0 bytes)")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # unpickling errors have many types

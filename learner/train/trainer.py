@@ -177,6 +177,13 @@ class Trainer:
         model = self.config.model
         return on_device(self.view.hierarchy(mesh_id, model.levels, model.coarsest), self.device)
 
+    def _last_good(self) -> str:
+        """Where the last good checkpoint is, or that none was written yet."""
+        last = self.out / "last.pt"
+        return (
+            f"the last good checkpoint is {last}" if last.is_file() else f"no checkpoint was written yet in {self.out}"
+        )
+
     def _kl_weight(self) -> float:
         ramp = self.config.train.kl_anneal_epochs
         return 1.0 if ramp <= 0 else min(1.0, (self.epoch + 1) / ramp)
@@ -232,7 +239,7 @@ class Trainer:
             if not torch.isfinite(terms.total) or (not self.scaler.is_enabled() and not torch.isfinite(grad_norm)):
                 raise TrainingDiverged(
                     f"non-finite loss or gradient at epoch {self.epoch + 1}, subject {ep.subject_id}; "
-                    f"the last good checkpoint is {self.out / 'last.pt'} (lower train.lr or train.grad_clip)"
+                    f"{self._last_good()} (lower train.lr or train.grad_clip)"
                 )
             if on_step is not None:
                 on_step(ep, terms, float(grad_norm))

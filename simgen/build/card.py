@@ -24,6 +24,7 @@ from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
 from simgen.build import location
 from simgen.build.metadata import simulation_attrs
 from simgen.build.spec import spec_from_mapping
+from simgen.build.structure import refuse_damaged
 from simgen.meshes.quality import mesh_quality
 
 __all__ = ["StoreFacts", "store_facts", "short_card", "dataset_card", "CITATIONS"]
@@ -70,10 +71,15 @@ class StoreFacts:
         return f"not recorded (schema version {self.version})" if self.version < METADATA_VERSION else otherwise
 
 
-def store_facts(store: str | Path) -> StoreFacts:
-    """Root attributes, mesh sizes and subject attributes of ``store`` (live metadata, not the consolidated copy)."""
+def store_facts(store: str | Path, check: bool = False) -> StoreFacts:
+    """Root attributes, mesh sizes and subject attributes of ``store`` (live metadata, not the consolidated copy).
+
+    ``check``: first refuse a damaged store with :class:`~simgen.build.structure.StoreDamaged`.
+    """
     store = location.store_location(store)
     attrs = check_store(store)
+    if check:
+        refuse_damaged(store)
     root = zarr.open_group(store, mode="r", use_consolidated=False)
     meshes = {
         mesh_id: MeshFacts(g["points"].shape[0], g["cells"].shape[0], g.attrs["cell_type"], g["stim_nodes"].shape[0])
@@ -313,9 +319,10 @@ def _citation(facts: StoreFacts) -> list[str]:
 
 
 def dataset_card(store: str | Path) -> str:
-    """The Markdown dataset card of ``store`` (a folder or an fsspec URL)."""
+    """The Markdown dataset card of ``store`` (a folder or an fsspec URL); a damaged store is refused
+    (:func:`~simgen.build.structure.refuse_damaged`)."""
     store = location.store_location(store)
-    facts = store_facts(store)
+    facts = store_facts(store, check=True)
     return "\n".join(
         [
             f"# Dataset card: {facts.attrs['spec']['name']}",

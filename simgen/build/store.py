@@ -10,7 +10,9 @@ so workers never coordinate, and a resumed build rewrites missing chunks only.
 
 from __future__ import annotations
 
+import asyncio
 import json
+import logging
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
@@ -23,8 +25,10 @@ from numpy.typing import NDArray
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 from zarr.core.group import GroupMetadata
 from zarr.core.metadata import ArrayV3Metadata
+from zarr.core.sync import sync
 from zarr.storage import MemoryStore
 
+from shared.cli import PATH_ERRNOS
 from shared.config import to_mapping
 from shared.errors import InputError
 from shared.mesh import Mesh
@@ -229,7 +233,11 @@ def write_subject_groups(
             meshes[s.mesh_id].n_nodes, len(sites[s.mesh_id]), output, solver
         ).items():
             nodes[f"{subject_path(s.id)}/{name}"] = subject_array_metadata(name, shape, chunks, output)
-    arrays = dict(zarr.create_hierarchy(store=root.store, nodes=nodes))
+    try:
+        arrays = dict(zarr.create_hierarchy(store=root.store, nodes=nodes))
+    except OSError:
+        _abandon_writes()
+        raise
     times = solver.output_interval * np.arange(1, solver.frames + 1)
 
     def write_fields(s: Subject) -> None:
@@ -250,6 +258,35 @@ def write_subject_groups(
 
     with ThreadPoolExecutor(IO_THREADS) as pool:
         list(pool.map(write_fields, subjects))
+
+
+class _AbandonedWrite(logging.Filter):
+    """Drops asyncio's "Task exception was never retrieved" report of a write the file system refused."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not (isinstance(exc, OSError) and exc.errno in PATH_ERRNOS and "never retrieved" in record.getMessage())
+
+
+async def _settle_abandoned_writes() -> None:
+    """Wait for the writes still in flight on zarr's event loop and take their errors."""
+    others = asyncio.all_tasks() - {asyncio.current_task()}
+    await asyncio.gather(*others, return_exceptions=True)
+
+
+def _abandon_writes() -> None:
+    """Silence the writes :func:`zarr.create_hierarchy` abandoned after the first one the file system refused.
+
+    It writes a hierarchy's metadata files concurrently and raises the first
+    failure (a full disk: no space or no inodes). The writes already failed
+    would each print a traceback when collected, those still in flight would
+    fail the same way (or at exit, on a closed executor): they are awaited
+    here and their reports dropped, so the first failure is the one reported.
+    """
+    logger = logging.getLogger("asyncio")
+    if not any(isinstance(f, _AbandonedWrite) for f in logger.filters):
+        logger.addFilter(_AbandonedWrite())
+    sync(_settle_abandoned_writes())
 
 
 def subject_shapes(

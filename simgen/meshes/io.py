@@ -79,6 +79,7 @@ def load_mesh(
     if points.shape[1] == 2:
         points = np.hstack([points, np.zeros((len(points), 1))])
     kind, cells = _select_cells(raw, path)
+    _check_indices(cells, len(points), path)
     scale, origin = mm_per_unit(points, file_units(raw.field_data, raw.point_data, where), units, where)
     if scale != 1.0:
         points = points * scale
@@ -154,6 +155,16 @@ def _select_cells(raw: meshio.Mesh, path: Path) -> tuple[str, NDArray[np.int64]]
             "convert the mesh to pure linear tetrahedra, hexahedra or triangles"
         )
     return kind, np.concatenate([block.data for block in raw.cells if block.type == kind]).astype(np.int64)
+
+
+def _check_indices(cells: NDArray[np.int64], n: int, path: Path) -> None:
+    """Refuse cells that refer to nodes outside ``[0, n)``, naming the first such cell."""
+    bad = np.flatnonzero(((cells < 0) | (cells >= n)).any(axis=1))
+    if bad.size:
+        raise MeshError(
+            f"{path}: cell node index out of range [0, {n}): {bad.size} cell(s), "
+            f"first cell {bad[0]} with nodes {cells[bad[0]].tolist()}"
+        )
 
 
 def _set_arrays(raw: meshio.Mesh, node_set_arrays: Mapping[str, str] | None, path: Path) -> dict[str, str]:

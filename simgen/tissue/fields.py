@@ -100,7 +100,8 @@ def tissue_fields(
     ------
     TissueError
         Naming the scar: a region that selects no node, a sphere node out of
-        range, or a whole-heart scar (more than ``max_scar_fraction``).
+        range, or a whole-heart scar (more than ``max_scar_fraction``); naming
+        the setting: ``D = 0`` at every node (nothing conducts).
     """
     if not 0.0 < max_scar_fraction <= 1.0:
         raise TissueError(f"max_scar_fraction={max_scar_fraction} must lie in (0, 1]")
@@ -130,6 +131,11 @@ def tissue_fields(
         _paint(border, scar.border, LABEL_BORDER, a, D, label)
     for scar, (core, _) in zip(spec.scars, regions):
         _paint(core, scar.core, LABEL_CORE, a, D, label)
+    if not D.any():
+        raise TissueError(
+            f"tissue {spec.name!r}: D = 0 at every node of mesh {mesh.name!r}, so no wave can propagate; "
+            "give the healthy material (or a scar) a diffusivity scale D > 0"
+        )
     return TissueFields(a=a, D=D, label=label)
 
 

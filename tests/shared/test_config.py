@@ -46,6 +46,8 @@ def test_nested_values_and_defaults():
         ({"centre": [0, 1]}, "centre"),
         ({"inner": 3}, "inner: expected a table"),
         ({"name": 5}, "name: expected a string"),
+        ({"inner": {"x": float("nan")}}, "inner.x: expected a finite number, got nan"),
+        ({"values": [1.0, float("-inf")]}, r"values\[1\]: expected a finite number, got -inf"),
     ],
 )
 def test_bad_values_name_the_key(data, match):

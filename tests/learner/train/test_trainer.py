@@ -128,11 +128,15 @@ def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_store, tiny_conf
         return terms
 
     monkeypatch.setattr(loss_module, "episode_loss", poisoned)
-    with pytest.raises(TrainingDiverged, match="non-finite"):
+    with pytest.raises(
+        TrainingDiverged, match=f"non-finite.*the last good checkpoint is {tmp_path / 'nan' / 'last.pt'}"
+    ):
         train(dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, epochs=2)), progress=False)
     kept = load_checkpoint(tmp_path / "nan" / "last.pt")
     assert kept["epoch"] == good["epoch"] == 1
     assert all(torch.equal(kept["model"][k], good["model"][k]) for k in good["model"])
+    with pytest.raises(TrainingDiverged, match=f"non-finite.*no checkpoint was written yet in {tmp_path / 'fresh'}"):
+        train(tiny_config(tiny_store, tmp_path / "fresh", epochs=1), progress=False)
 
 
 def test_checkpoint_loads_with_weights_only_and_rebuilds_the_model(tiny_store, tiny_config, tmp_path):
@@ -158,6 +162,10 @@ def test_bad_configs_are_refused(tiny_store, tiny_config, tmp_path):
         config_from_mapping({"data": {"store": "x"}, "model": {"levels": 3}})
     with pytest.raises(ConfigError, match="train.c_from: 'targets' is not one of"):
         config_from_mapping({"data": {"store": "x"}, "train": {"c_from": "targets"}})
+    with pytest.raises(ConfigError, match="train.lr: expected a finite number, got nan"):
+        config_from_mapping({"data": {"store": "x"}, "train": {"lr": float("nan")}})
+    with pytest.raises(ConfigError, match="data.episodes.targets must be >= 1"):
+        config_from_mapping({"data": {"store": "x", "episodes": {"targets": 0}}})
     with pytest.raises(InputError):
         Trainer(tiny_config(tmp_path / "missing.zarr", tmp_path / "o"), progress=False)
 

@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import errno
+import gc
+import os
+
 import numpy as np
+import pytest
 import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec
+from zarr.storage import LocalStore
 
 from shared.schema import SCHEMA_VERSION
 from simgen.build import make_plan, spec_hash
@@ -60,3 +66,19 @@ def test_chunk_tasks_lists_every_chunk_with_its_flag(tmp_path, tiny_spec):
     assert list(chunk_tasks(store).items()) == list(expected.items())  # subject then chunk order
     assert chunk_tasks(store, ["lv-scar-apex"]) == {t: d for t, d in expected.items() if t.subject_id == "lv-scar-apex"}
     assert pending_tasks(store) == [t for t, d in expected.items() if not d]
+
+
+def test_a_full_disk_during_the_layout_is_one_error(tmp_path, tiny_spec, monkeypatch, caplog):
+    spec = tiny_spec()
+    real = LocalStore.set
+
+    async def full(self, key, value, *args, **kw):
+        if key.startswith("subjects/lv-"):  # the subject groups, written at once: the disk fills among them
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), key)
+        return await real(self, key, value, *args, **kw)
+
+    monkeypatch.setattr(LocalStore, "set", full)
+    with pytest.raises(OSError, match="No space left on device"):
+        create_layout(tmp_path / "s.zarr", make_plan(spec), spec_to_dict(spec), spec_hash(spec))
+    gc.collect()  # the writes zarr abandoned after the first failure: none reported again
+    assert "never retrieved" not in caplog.text and "Traceback" not in caplog.text

@@ -127,6 +127,16 @@ def test_mixed_volume_cells(tmp_path):
         load_mesh(path)
 
 
+@pytest.mark.parametrize("index", [-2, 7])
+def test_cell_index_out_of_range_names_the_cell(tmp_path, index):
+    path = tmp_path / "outside.vtu"
+    meshio.write(path, meshio.Mesh(TET, [("tetra", np.array([[0, 1, 2, 3], [0, 1, index, 3]]))]))
+    with pytest.raises(
+        MeshError, match=r"outside\.vtu: cell node index out of range \[0, 4\): 1 cell\(s\), first cell 1"
+    ):
+        load_mesh(path, units="mm")
+
+
 def test_invalid_mesh_in_file_names_path_and_problem(tmp_path):
     path = tmp_path / "flipped.vtu"
     meshio.write(path, meshio.Mesh(TET, [("tetra", np.array([[1, 0, 2, 3]]))]))

@@ -180,3 +180,11 @@ def test_invalid_inputs(lv: Mesh) -> None:
         Material(a=0.9)
     with pytest.raises(TissueError, match="max_scar_fraction"):
         tissue_fields(lv, TissueSpec(), max_scar_fraction=0.0)
+
+
+def test_no_conduction_anywhere_is_refused_naming_the_setting(lv: Mesh) -> None:
+    blocked = TissueSpec(name="blocked", healthy=Material(D=0.0))
+    with pytest.raises(TissueError, match=r"tissue 'blocked': D = 0 at every node"):
+        tissue_fields(lv, blocked)
+    scar = ScarSpec(region="sphere", node=0, radius=5.0, core=Material(a=0.5, D=0.2))
+    assert tissue_fields(lv, dataclasses.replace(blocked, scars=(scar,))).D.max() == 0.2  # some conduction
