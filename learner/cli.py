@@ -257,8 +257,10 @@ def personalize(
     observations: Annotated[
         Path | None,
         typer.Option(
-            help=".npz (instead of --store): sites (K,) node ids, obs (K, T, N) potentials, observed (N,) 0/1, "
-            "times (T,) and the mesh's points (N, 3) mm and cells (docs/your-heart.md)."
+            help=".npz (instead of --store): sites (K,) int node ids; obs (K, T, N) float u = (V + 80) / 100, "
+            "V in mV; observed (N,) bool; times (T,) float in time units of 12.9 ms (the shipped model: T = 55, "
+            "0.6, 1.2, ..., 33.0); the mesh's points (N, 3) float mm and cells (M, 4|3) int "
+            "(docs/formats.md, examples/observations.npz)."
         ),
     ] = None,
     mesh: Annotated[

@@ -36,6 +36,11 @@ NodesOpt = Annotated[
     int, typer.Option("--nodes", min=1, help="Target node count: a procedural mesh's, or a mesh file resampled to it.")
 ]
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
+TISSUE_HELP = (
+    "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; scars, each with region "
+    "('segments' + segments 1-17, or 'sphere' + node or centre and radius in mm), border_width in mm, core and "
+    "border {a, D} (docs/formats.md, examples/scar.toml)."
+)
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler.")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]
 ThreadsOpt = Annotated[int, typer.Option(min=1, help="Solver threads.")]
@@ -100,9 +105,7 @@ def simulate(
     source: MeshOpt = "lv",
     nodes: NodesOpt = 2000,
     kind: KindOpt = "tetra",
-    tissue: Annotated[
-        str, typer.Option(help="Default setting name (see `simgen tissues`) or a TOML file.")
-    ] = "healthy",
+    tissue: Annotated[str, typer.Option(help=TISSUE_HELP)] = "healthy",
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the mesh.")] = "0",
     threads: ThreadsOpt = 2,
     dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
@@ -308,7 +311,7 @@ def add_subject(
     store: StoreArg,
     mesh_file: Annotated[str, typer.Option("--mesh", help="Mesh file of the new subject, or 'lv' / 'biv'.")],
     mesh_id: Annotated[str, typer.Option("--id", help="Mesh id in the store; subjects are '<id>-<tissue>'.")],
-    tissue: Annotated[list[str], typer.Option(help="Tissue setting name or .toml file; repeat for several.")],
+    tissue: Annotated[list[str], typer.Option(help=f"{TISSUE_HELP} Repeat for several.")],
     nodes: NodesOpt = 2000,
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,

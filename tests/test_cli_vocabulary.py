@@ -1,9 +1,12 @@
-"""One vocabulary across the simgen and learner commands: ``--sites`` takes node ids, ``--site-index`` site indices."""
+"""One vocabulary across the simgen and learner commands (``--sites`` node ids, ``--site-index`` site indices),
+and the file formats described in ``--help``."""
 
 from __future__ import annotations
 
 import click
+import pytest
 import typer
+from typer.testing import CliRunner
 
 from learner.cli import app as learner_app
 from simgen.cli import app as simgen_app
@@ -44,3 +47,17 @@ def test_site_options_say_what_they_take():
     """Node ids (``--sites``) and site indices (``--site-index``, ``SITE_INDEX``) never share a name."""
     problems = [f"{command} {p.name}: {_problem(p)}" for command, p in _params() if "site" in p.name and _problem(p)]
     assert not problems
+
+
+@pytest.mark.parametrize(
+    ("app", "command", "words"),
+    [
+        (simgen_app, "simulate", ("TOML", "scars", "border_width", "docs/formats.md", "examples/scar.toml")),
+        (simgen_app, "add-subject", ("TOML", "scars", "docs/formats.md")),
+        (learner_app, "personalize", ("(K, T, N)", "V in mV", "T = 55", "docs/formats.md", "observations.npz")),
+    ],
+)
+def test_help_documents_the_file_formats(app: typer.Typer, command: str, words: tuple[str, ...]):
+    """The tissue TOML and the observation file are described in ``--help``, with the page and example."""
+    text = " ".join(CliRunner().invoke(app, [command, "--help"], terminal_width=400).output.split())
+    assert all(word in text for word in words), [word for word in words if word not in text]

@@ -1,4 +1,4 @@
-"""The examples run on the tiny store and do what their docstrings say."""
+"""The examples run, are valid and do what their docstrings say."""
 
 from __future__ import annotations
 
@@ -21,3 +21,29 @@ def test_simple_operator_learns_activation_times(tiny_store, capsys):
     # standardised targets: predicting the training mean scores about 1
     assert history[-1]["train_mse"] < 0.5 * history[0]["train_mse"] and history[-1]["validation_mse"] < 0.5
     assert "epoch 5" in capsys.readouterr().out
+
+
+def test_tissue_example_is_a_valid_setting_with_its_scars():
+    from shared.config import load_toml
+    from simgen.meshes import get_mesh
+    from simgen.tissue import tissue_fields, tissue_spec_from_mapping
+
+    spec = tissue_spec_from_mapping(load_toml(EXAMPLES / "scar.toml"))
+    assert spec.name == "scar-lateral-and-sphere" and [s.region for s in spec.scars] == ["segments", "sphere"]
+    label = tissue_fields(get_mesh("lv", 2000), spec).label
+    assert (label == 2).any() and (label == 1).any() and (label == 0).any()
+
+
+def test_observation_example_is_valid_and_what_its_script_writes(tmp_path, capsys):
+    import numpy as np
+
+    from learner.personalize import observations_from_file
+
+    shipped = observations_from_file(EXAMPLES / "observations.npz")
+    k, frames, n = shipped.obs.shape
+    assert (k, frames) == (3, 55) and shipped.observed.sum() == 64 and len(shipped.mesh.points) == n
+    assert np.allclose(shipped.times, 0.6 * np.arange(1, 56))
+    assert 0.9 < shipped.obs[:, -20:, shipped.observed].max() < 1.2  # u: about 1 where excited, noise 0.02
+    written = _load("write_observations").main([str(tmp_path / "observations.npz")])
+    with np.load(EXAMPLES / "observations.npz") as a, np.load(written) as b:
+        assert sorted(a) == sorted(b) and all(np.array_equal(a[key], b[key]) for key in a)
