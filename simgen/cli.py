@@ -313,6 +313,7 @@ def add_subject(
     mesh_id: Annotated[str, typer.Option("--id", help="Mesh id in the store; subjects are '<id>-<tissue>'.")],
     tissue: Annotated[list[str], typer.Option(help=f"{TISSUE_HELP} Repeat for several.")],
     nodes: NodesOpt = 2000,
+    kind: KindOpt = "tetra",
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
 ) -> None:
@@ -324,7 +325,7 @@ def add_subject(
         specs = [_tissue_spec(t) for t in tissue]
         return run_add(
             store,
-            MeshEntry(mesh_id, mesh_file, nodes),
+            MeshEntry(mesh_id, mesh_file, nodes, kind),  # type: ignore[arg-type]
             specs,
             scheduler=scheduler,
             workers=workers,

@@ -131,6 +131,7 @@ def test_verify_and_export_commands(tmp_path):
 
 
 def test_add_subject_and_regenerate_commands(tmp_path):
+    from shared.reader import read_mesh
     from simgen.meshes import lv_ellipsoid, save_mesh
 
     _, store, built = tiny_build(tmp_path)
@@ -160,6 +161,10 @@ def test_add_subject_and_regenerate_commands(tmp_path):
         app, ["regenerate", str(store), "--subjects", "patient-healthy", "--site-index", "3", "--workers", "1"]
     )
     assert regen.exit_code == 0 and "1/" in text(regen)
+    surface = ["add-subject", str(store), "--mesh", "lv", "--id", "surface", "--kind", "triangle", "--nodes", "300"]
+    added = runner.invoke(app, [*surface, "--tissue", "healthy", "--workers", "1"])
+    assert added.exit_code == 0, added.output
+    assert read_mesh(store, "surface").cells.shape[1] == 3
     unknown = runner.invoke(app, ["regenerate", str(store), "--subjects", "nobody"])
     assert unknown.exit_code == 2 and "nobody" in text(unknown)
     assert runner.invoke(app, ["verify", str(store), "--sample", "6"]).exit_code == 0
