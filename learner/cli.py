@@ -77,6 +77,7 @@ def train(
     import os
 
     from learner.config import load_config
+    from shared.reader import check_store
 
     try:
         cfg = _overridden(
@@ -89,6 +90,7 @@ def train(
             kind=kind,
             device=device,
         )
+        check_store(cfg.data.store)  # a missing store fails before the run directory is made
         Path(cfg.out).mkdir(parents=True, exist_ok=True)  # an unusable run directory fails before torch loads
     except (InputError, OSError) as exc:
         _fail(exc, config)

@@ -458,9 +458,11 @@ CASES: dict[str, dict[str, Case]] = {
         "card out in a missing folder": Case(
             ("simgen", "card", "{s}", "--out", "{d}/nofolder/card.md"), ("nofolder/card.md: folder", "does not exist")
         ),
-        "train out is a file": Case(("learner", "train", "{d}/train.toml", "--out", "{d}/afile"), A_FILE),
+        "train out is a file": Case(
+            ("learner", "train", "{d}/train.toml", "--store", "{s}", "--out", "{d}/afile"), A_FILE
+        ),
         "train out in a read-only folder": Case(
-            ("learner", "train", "{d}/train.toml", "--out", "{d}/readonly/run"), READ_ONLY
+            ("learner", "train", "{d}/train.toml", "--store", "{s}", "--out", "{d}/readonly/run"), READ_ONLY
         ),
         "personalize out in a read-only folder": Case(
             ("learner", "personalize", "{d}/model.pt", "--out", "{d}/readonly/p.pt", "--observations", "{d}/obs.npz"),

@@ -27,6 +27,14 @@ def trained(tiny_store, tiny_toml, tmp_path_factory):
     return folder
 
 
+def test_train_on_a_missing_store_fails_before_making_the_run_folder(tiny_toml, tmp_path):
+    cfg = tmp_path / "train.toml"
+    cfg.write_text(tiny_toml(tmp_path / "missing.zarr"))
+    result = runner.invoke(app, ["train", str(cfg)])
+    assert result.exit_code == 2 and "missing.zarr is not a Zarr store" in " ".join(result.output.split())
+    assert not (tmp_path / "run").exists()
+
+
 def test_train_takes_a_seed_and_curves_plot_the_runs(trained):
     result = runner.invoke(
         app, ["train", str(trained / "train.toml"), "--seed", "3", "--epochs", "1", "--out", str(trained / "seed3")]
