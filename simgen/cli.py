@@ -234,9 +234,21 @@ def build(
     store: Annotated[str, typer.Option(help="Output Zarr store: a folder or an fsspec URL (s3://bucket/name.zarr).")],
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
-    force: Annotated[bool, typer.Option(help="Replace a store built from a different spec.")] = False,
+    force: Annotated[
+        bool,
+        typer.Option(
+            help="Replace a store that cannot be resumed: built from another spec or an older schema version, "
+            "or damaged (`simgen repair` keeps its finished chunks)."
+        ),
+    ] = False,
     retries: Annotated[int, typer.Option(min=0, help="Retries per failing task.")] = 2,
-    dry_run: Annotated[bool, typer.Option(help="Print the plan (disk, memory, time) and write nothing.")] = False,
+    dry_run: Annotated[
+        bool,
+        typer.Option(
+            help="Print the plan (disk, memory, time) and run every check of the build (spec, meshes, tissue, "
+            "resources, the store's lock, spec and structure); write nothing, exit 2 where the build would refuse."
+        ),
+    ] = False,
     gpus: GpusOpt = 0,
 ) -> None:
     """Build (or resume) the dataset of SPEC into STORE on a Dask cluster, after printing its plan.
@@ -247,14 +259,14 @@ def build(
     """
     from simgen.build import load_spec
     from simgen.build.runner import build as run_build
-    from simgen.build.runner import plan_build
+    from simgen.build.runner import dry_run as run_dry
 
     if dry_run:
         try:
-            plan_build(load_spec(spec), store, scheduler, workers, _show_plan, gpus)
+            state = run_dry(load_spec(spec), store, scheduler, workers, force, _show_plan, gpus)
         except (InputError, OSError) as exc:
             _fail(exc, store)
-        console.print("dry run: nothing written")
+        console.print(f"dry run: nothing written; the build would {_WOULD[state]}")
         return
     _run_with_progress(
         store,
@@ -262,6 +274,10 @@ def build(
             load_spec(spec), store, scheduler, workers, force, retries, on_start, on_done, _show_plan, gpus
         ),
     )
+
+
+#: What a build does with its store, by :func:`simgen.build.runner.store_state`.
+_WOULD = {"new": "lay out a new store", "resume": "resume the store", "replace": "replace the store (--force)"}
 
 
 def _show_plan(estimate: BuildEstimate) -> None:

@@ -205,6 +205,15 @@ CASES: dict[str, dict[str, Case]] = {
             build("out-of-memory", "--workers", "1"), ("a task needs ~", "TiB but a worker may use", "GiB")
         ),
         "dry run of a bad spec": Case(build("unstable-dt", "--dry-run"), ("dt=10 is unstable",)),
+        "dry run of another spec on a store": Case(
+            ("simgen", "build", "{d}/other.toml", "--store", "{s}", "--dry-run"),
+            ("was built from a different spec", "--force"),
+        ),
+        "dry run on a damaged store": Case(
+            ("simgen", "build", "{d}/good.toml", "--store", "{s}", "--dry-run"),
+            ("is damaged", "group missing (subjects/lv-healthy)", "Run `simgen repair {s}`"),
+            delete("subjects/lv-healthy/zarr.json"),
+        ),
         "another spec on a store": Case(
             ("simgen", "build", "{d}/other.toml", "--store", "{s}"), ("was built from a different spec", "--force")
         ),
@@ -316,6 +325,9 @@ CASES: dict[str, dict[str, Case]] = {
         ),
         "build a store another build holds": Case(
             ("simgen", "build", "{d}/good.toml", "--store", "{held}"), ("held.zarr", "pid {pid}")
+        ),
+        "dry run of a store another build holds": Case(
+            ("simgen", "build", "{d}/good.toml", "--store", "{held}", "--dry-run"), ("held.zarr", "pid {pid}")
         ),
         "build store is a file": Case(("simgen", "build", "{d}/good.toml", "--store", "{d}/afile"), A_FILE),
         "build in a read-only folder": Case(

@@ -38,7 +38,7 @@ from typing import Literal
 from shared.errors import InputError
 from simgen.build.location import StoreURLError, filesystem, is_local, store_location
 
-__all__ = ["LOCK_NAME", "StoreLocked", "StoreLock", "unlock"]
+__all__ = ["LOCK_NAME", "StoreLocked", "StoreLock", "check_unlocked", "unlock"]
 
 LOCK_NAME = ".lock"
 
@@ -134,6 +134,23 @@ def _remove(store: str) -> None:
         pass
 
 
+def _locked(store: str, holder: dict) -> StoreLocked:
+    """The refusal of a store whose lock ``holder`` is not known to be gone."""
+    return StoreLocked(
+        f"store {store} is locked by another build ({_describe(holder)}); "
+        f"wait for it to finish, or if that build is gone run `simgen unlock {store}` "
+        f"(it deletes {_lock_name(store)})"
+    )
+
+
+def check_unlocked(store: str | Path) -> None:
+    """Refuse, as :class:`StoreLock` would, a store whose lock a build that is not gone holds; reads only."""
+    store = store_location(store)
+    holder = _read(store)
+    if holder is not None and _owner_state(store, holder) != "gone":
+        raise _locked(store, holder)
+
+
 class StoreLock:
     """Context manager holding ``<store>/.lock`` for the duration of a build (not re-entrant)."""
 
@@ -186,11 +203,7 @@ class StoreLock:
         if _owner_state(self.store, holder) == "gone":
             _remove(self.store)  # left by a killed build on this host (or an earlier life of this container)
             return
-        raise StoreLocked(
-            f"store {self.store} is locked by another build ({_describe(holder)}); "
-            f"wait for it to finish, or if that build is gone run `simgen unlock {self.store}` "
-            f"(it deletes {self.path})"
-        )
+        raise _locked(self.store, holder)
 
     def __exit__(self, *exc: object) -> None:
         _HELD.discard(self.store)

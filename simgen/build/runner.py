@@ -24,14 +24,23 @@ from pathlib import Path
 from distributed import Client, LocalCluster, as_completed
 
 from shared.errors import ConfigError, InputError
+from simgen.build import location
 from simgen.build.card import short_card, store_facts
 from simgen.build.estimate import BuildEstimate, check_resources, estimate_build
 from simgen.build.location import store_location
-from simgen.build.lock import StoreLock
+from simgen.build.lock import LOCK_NAME, StoreLock, check_unlocked
 from simgen.build.manifest import Plan, SubjectSetup, Task, make_plan, validate_plan
 from simgen.build.spec import BuildSpec, spec_hash, spec_to_dict
-from simgen.build.store import chunk_tasks, consolidate, create_layout, pending_tasks, write_statistics
-from simgen.build.structure import refuse_damaged
+from simgen.build.store import (
+    LayoutState,
+    chunk_tasks,
+    consolidate,
+    create_layout,
+    layout_state,
+    pending_tasks,
+    write_statistics,
+)
+from simgen.build.structure import refuse_damaged, structure_damage
 from simgen.build.worker import flush_writes, run_task
 from simgen.solver.simulate import SolverConfig
 
@@ -44,6 +53,8 @@ __all__ = [
     "check_gpus",
     "build",
     "plan_build",
+    "store_state",
+    "dry_run",
     "run_pending",
     "dask_client",
     "single_thread_env",
@@ -220,6 +231,38 @@ def plan_build(
     return plan, setups, store
 
 
+def store_state(store: str, spec: BuildSpec, force: bool = False) -> LayoutState:
+    """What a build of ``spec`` does with ``store``, after every check of the store it runs before writing.
+
+    Reads only. A store of ``spec`` is resumed when its structure is sound
+    (:func:`~simgen.build.structure.refuse_damaged` refuses it otherwise), or
+    replaced when damaged and ``force``; another spec or schema version is
+    refused unless ``force`` (:func:`~simgen.build.store.layout_state`).
+    """
+    state = layout_state(store, spec_hash(spec), force)
+    if state == "resume" and force and structure_damage(store):
+        return "replace"
+    if state == "resume":
+        refuse_damaged(store)
+    return state
+
+
+def dry_run(
+    spec: BuildSpec,
+    store: str | Path,
+    scheduler: str | None = None,
+    workers: int = 2,
+    force: bool = False,
+    on_plan: Callable[[BuildEstimate], None] | None = None,
+    gpus: int = 0,
+) -> LayoutState:
+    """Every check :func:`build` runs before it writes, writing nothing: the plan (:func:`plan_build`), the
+    store's lock (:func:`~simgen.build.lock.check_unlocked`) and the store (:func:`store_state`, returned)."""
+    _, _, store = plan_build(spec, store, scheduler, workers, on_plan, gpus)
+    check_unlocked(store)
+    return store_state(store, spec, force)
+
+
 def build(
     spec: BuildSpec,
     store: str | Path,
@@ -247,8 +290,9 @@ def build(
     start = time.perf_counter()
     plan, setups, store = plan_build(spec, store, scheduler, workers, on_plan, gpus)
     with StoreLock(store):
-        if not create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), force=force, setups=setups):
-            refuse_damaged(store)  # a store is resumed only when it holds what its spec implies
+        if store_state(store, spec, force) == "replace":
+            location.clear(store, keep={LOCK_NAME})  # the lock stays: this build holds the store
+        create_layout(store, plan, spec_to_dict(spec), spec_hash(spec), setups=setups)
         report = run_pending(store, spec.solver, scheduler, workers, retries, on_start, on_done, gpus=gpus)
     report.seconds = time.perf_counter() - start
     return report

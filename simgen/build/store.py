@@ -17,7 +17,7 @@ import warnings
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import zarr
@@ -60,6 +60,8 @@ from simgen.build.stats import chunk_moments, statistics
 from simgen.solver.simulate import SolverConfig
 
 __all__ = [
+    "LayoutState",
+    "layout_state",
     "create_layout",
     "write_mesh_group",
     "write_subject_groups",
@@ -119,6 +121,37 @@ def _array(group: zarr.Group, name: str, spec_table: dict, shape: tuple[int, ...
     )
 
 
+LayoutState = Literal["new", "resume", "replace"]
+
+
+def layout_state(path: str, spec_hash: str, force: bool = False) -> LayoutState:
+    """What a build of the spec hashed ``spec_hash`` does with the store ``path`` (reads only).
+
+    ``"new"``: nothing there but perhaps the lock; ``"resume"``: a store of this
+    spec hash and schema version; ``"replace"`` (only with ``force``): a store
+    of another spec or an older schema version. Otherwise raises
+    :class:`StoreMismatch`, and always for a folder that is no simgen store.
+    """
+    if not location.exists(path, "zarr.json"):
+        if any(name != LOCK_NAME for name in location.entries(path)):
+            raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
+        return "new"
+    attrs = dict(zarr.open_group(path, mode="r").attrs)
+    with warnings.catch_warnings():  # an older version is refused or replaced below, not read
+        warnings.simplefilter("ignore", SchemaWarning)
+        version = check_schema_version(attrs, path)
+    if attrs.get("spec_hash") == spec_hash and version == SCHEMA_VERSION:
+        return "resume"
+    if force:
+        return "replace"
+    why = (
+        f"was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., this spec {spec_hash[:12]}...)"
+        if attrs.get("spec_hash") != spec_hash
+        else f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}"
+    )
+    raise StoreMismatch(f"store {path} {why}; use a new store path or --force to replace it")
+
+
 def create_layout(
     path: str | Path,
     plan,
@@ -134,31 +167,18 @@ def create_layout(
     store of the same spec and schema version is reused (resume). A store
     from another spec or an older schema version is refused with
     :class:`StoreMismatch` unless ``force`` (then everything in it but the
-    lock is deleted and the store written anew). ``setups``: the subjects'
+    lock is deleted and the store written anew; :func:`layout_state`). ``setups``: the subjects'
     fields and solver settings by id, as :func:`~simgen.build.manifest.validate_plan`
     returns them (else computed here). The root attributes written here
     (provenance, simulation, split rule) are never rewritten by a resume.
     """
     path = location.store_location(path)
-    if location.exists(path, "zarr.json"):
-        attrs = dict(zarr.open_group(path, mode="r").attrs)
-        with warnings.catch_warnings():  # an older version is refused or replaced below, not read
-            warnings.simplefilter("ignore", SchemaWarning)
-            version = check_schema_version(attrs, path)
-        if attrs.get("spec_hash") == spec_hash and version == SCHEMA_VERSION:
-            remove_partials(path)
-            return False
-        if not force:
-            why = (
-                f"was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., "
-                f"this spec {spec_hash[:12]}...)"
-                if attrs.get("spec_hash") != spec_hash
-                else f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}"
-            )
-            raise StoreMismatch(f"store {path} {why}; use a new store path or --force to replace it")
+    state = layout_state(path, spec_hash, force)
+    if state == "resume":
+        remove_partials(path)
+        return False
+    if state == "replace":
         location.clear(path, keep={LOCK_NAME})  # the lock stays: this build still holds the store
-    elif any(name != LOCK_NAME for name in location.entries(path)):
-        raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
     root = zarr.open_group(path, mode="a", zarr_format=3)
     root.attrs.update(
         {

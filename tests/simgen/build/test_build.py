@@ -15,9 +15,10 @@ from shared.schema import SCHEMA_VERSION
 from simgen.build import make_plan, spec_hash
 from simgen.build.inspect import store_status
 from simgen.build.lock import StoreLock, StoreLocked
-from simgen.build.runner import BuildFailed, build
+from simgen.build.runner import BuildFailed, build, dry_run
 from simgen.build.spec import spec_from_mapping, spec_to_dict
 from simgen.build.store import StoreMismatch, check_store, create_layout, read_mesh, read_tissue
+from simgen.build.structure import StoreDamaged
 from simgen.solver.simulate import Simulator
 
 
@@ -77,6 +78,36 @@ def test_different_spec_is_refused_unless_forced(reference_store, tmp_path, tiny
     assert store_bytes(store) == store_bytes(reference_store)  # untouched
     build(other, store, force=True, workers=1)
     assert zarr.open_group(str(store), mode="r")["subjects/lv-healthy/u"].shape[1] == 9
+
+
+def test_dry_run_refuses_what_the_build_refuses_and_writes_nothing(reference_store, tmp_path, tiny_spec, store_bytes):
+    store = tmp_path / "s.zarr"
+    shutil.copytree(reference_store, store)
+    assert dry_run(tiny_spec(), tmp_path / "new.zarr") == "new" and not (tmp_path / "new.zarr").exists()
+    assert dry_run(tiny_spec(), store) == "resume"
+    with pytest.raises(StoreMismatch, match="different spec"):
+        dry_run(tiny_spec(solver={"frames": 9}), store)
+    assert dry_run(tiny_spec(solver={"frames": 9}), store, force=True) == "replace"
+    with StoreLock(store):
+        with pytest.raises(StoreLocked, match="locked by another build"):
+            dry_run(tiny_spec(), store)
+    assert store_bytes(store) == store_bytes(reference_store)
+    (store / "subjects/lv-healthy/zarr.json").unlink()
+    damaged = store_bytes(store)
+    with pytest.raises(StoreDamaged, match=r"group missing \(subjects/lv-healthy\)"):
+        dry_run(tiny_spec(), store)
+    assert dry_run(tiny_spec(), store, force=True) == "replace"
+    assert store_bytes(store) == damaged
+
+
+def test_force_rebuilds_a_damaged_store_of_the_same_spec(reference_store, tmp_path, tiny_spec, store_bytes):
+    store = tmp_path / "s.zarr"
+    shutil.copytree(reference_store, store)
+    (store / "subjects/lv-healthy/zarr.json").unlink()
+    with pytest.raises(StoreDamaged, match="simgen repair"):
+        build(tiny_spec(), store, workers=1)
+    build(tiny_spec(), store, force=True, workers=1)
+    assert store_bytes(store) == store_bytes(reference_store)
 
 
 def test_second_writer_is_refused(tmp_path, tiny_spec):
