@@ -5,8 +5,9 @@
 #   bash bench/gpu_checks.sh OUT_DIR [WHEEL_DIR]
 #
 # WHEEL_DIR: wheels of the project's dependencies the machine lacks (zarr, dask, trimesh, ...),
-# installed with --no-deps into a private folder first. Each step has its own time limit and
-# writes its output to OUT_DIR, so one failure does not lose the others. At most 9 minutes.
+# installed with --no-deps into a private folder first. Each step has its own time limit, so one
+# failure does not lose the others. At most 9 minutes. OUT_DIR gets five files: log.txt (every
+# step's output and exit status), solver/solver.md and solver.json, eval_cuda.md, eval_cpu.md.
 set -uo pipefail
 out=${1:?usage: bench/gpu_checks.sh OUT_DIR [WHEEL_DIR]}
 wheels=${2:-}
@@ -18,18 +19,18 @@ if [[ -n "$wheels" ]]; then
 fi
 export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
 
-step() {  # step NAME SECONDS COMMAND...: run COMMAND with a limit, its output in OUT_DIR/NAME.log
+log="$out/log.txt"
+step() {  # step NAME SECONDS COMMAND...: run COMMAND with a limit, its output appended to log.txt
     local name=$1 limit=$2
     shift 2
     local start=$SECONDS
-    timeout "$limit" "$@" >"$out/$name.log" 2>&1
-    echo "$name: exit $? in $((SECONDS - start)) s" | tee -a "$out/summary.txt"
+    echo "== $name" >>"$log"
+    timeout "$limit" "$@" 2>&1 | tr '\r' '\n' >>"$log"
+    echo "== $name: exit ${PIPESTATUS[0]} in $((SECONDS - start)) s" | tee -a "$log"
 }
 
-{ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader; nproc
-  $python -c "import torch, numba, numpy; print(torch.__version__, torch.cuda.get_device_name(), numba.__version__, numpy.__version__)"
-} >"$out/machine.txt" 2>&1
-cat "$out/machine.txt"
+step machine 60 bash -c "nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader; nproc; \
+    $python -c 'import torch, numba, numpy; print(torch.__version__, torch.cuda.get_device_name(), numba.__version__, numpy.__version__)'"
 
 # 1. The CUDA tests: torch on CUDA against numba, the GPU-worker build.
 step tests 100 $python -m pytest -q -p no:cacheprovider tests/simgen/solver/test_torch_backend.py \
