@@ -14,6 +14,7 @@ import csv
 import json
 import math
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
@@ -46,6 +47,22 @@ StepHook = Callable[[Episode, LossTerms, float], None]
 
 #: Validation episodes use their own seed stream, disjoint from training epochs.
 VALIDATION_EPOCH = 1_000_000
+
+
+@dataclass
+class StepCost:
+    """The longest training epoch and validation pass measured so far, in seconds, for a time budget."""
+
+    epoch_s: float = 0.0
+    validation_s: float | None = None  # None: no validation measured yet, taken to cost an epoch
+
+    def overruns(self, budget_s: float, elapsed_s: float, validating: bool) -> bool:
+        """Whether the validation due now, one more epoch and the validation that ends the run pass ``budget_s``.
+
+        A budget of 0 is none.
+        """
+        validation = self.epoch_s if self.validation_s is None else self.validation_s
+        return budget_s > 0 and elapsed_s + validation * validating + self.epoch_s + validation > budget_s
 
 
 class TrainingDiverged(RuntimeError):
@@ -225,7 +242,7 @@ class Trainer:
         bar = tqdm(
             self._episodes(self.splits["train"], self.epoch, world),
             total=world.steps(episodes),
-            disable=not self.progress,
+            disable=not (self.progress and sys.stderr.isatty()),  # in a log, the per-epoch lines show progress
             leave=False,
             desc=f"epoch {self.epoch + 1}/{cfg.epochs}",
         )
@@ -291,17 +308,21 @@ class Trainer:
                 self.model.set_output_mean(self.training_mean())
         if self.world.size > 1 and not isinstance(self.objective, DistributedDataParallel):
             self.objective = DistributedDataParallel(self.objective)
-        start, stopped = time.perf_counter(), False
+        start, stopped, cost = time.perf_counter(), False, StepCost()
         while self.epoch < cfg.epochs:
             t0 = time.perf_counter()
             row = {"epoch": self.epoch + 1, "lr": self.optimizer.param_groups[0]["lr"], **self.train_epoch(on_step)}
             self.scheduler.step()
             self.epoch += 1
             row["seconds"] = time.perf_counter() - t0
-            over = cfg.max_minutes > 0 and time.perf_counter() - start > 60 * cfg.max_minutes
+            cost.epoch_s = max(cost.epoch_s, row["seconds"])
+            due = self.epoch % cfg.validate_every == 0 or self.epoch == cfg.epochs
+            over = self.epoch < cfg.epochs and cost.overruns(60 * cfg.max_minutes, time.perf_counter() - start, due)
             stopped = self.world.all_sum([float(over)], self.device)[0] > 0  # every rank stops together
-            if self.epoch % cfg.validate_every == 0 or self.epoch == cfg.epochs or stopped:
+            if due or stopped:
+                t1 = time.perf_counter()
                 row["val_target_mse"] = self.validate()
+                cost.validation_s = max(cost.validation_s or 0.0, time.perf_counter() - t1)
                 if row["val_target_mse"] < self.best:
                     self.best = row["val_target_mse"]
                     if main:

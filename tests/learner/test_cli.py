@@ -41,6 +41,7 @@ def test_train_takes_a_seed_and_curves_plot_the_runs(trained):
     )
     assert result.exit_code == 0, result.output
     assert json.loads((trained / "seed3" / "config.json").read_text())["train"]["seed"] == 3
+    assert "\r" not in result.output and "epoch    1" in result.output  # not a terminal: plain lines, no bar
     png = trained / "curves.png"
     result = runner.invoke(app, ["curves", str(trained / "run"), str(trained / "seed3"), "--out", str(png)])
     assert result.exit_code == 0, result.output

@@ -11,7 +11,7 @@ import torch
 
 from learner.data.episodes import EpisodeDataset, load_episode
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
-from learner.train.trainer import VALIDATION_EPOCH, Trainer, TrainingDiverged, load_model, train
+from learner.train.trainer import VALIDATION_EPOCH, StepCost, Trainer, TrainingDiverged, load_model, train
 from shared.errors import ConfigError, InputError
 
 
@@ -137,6 +137,21 @@ def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_store, tiny_conf
     assert all(torch.equal(kept["model"][k], good["model"][k]) for k in good["model"])
     with pytest.raises(TrainingDiverged, match=f"non-finite.*no checkpoint was written yet in {tmp_path / 'fresh'}"):
         train(tiny_config(tiny_store, tmp_path / "fresh", epochs=1), progress=False)
+
+
+def test_a_time_budget_counts_the_next_epoch_and_the_closing_validation():
+    cost = StepCost(epoch_s=10.0)  # no validation measured yet: taken as long as an epoch
+    assert not cost.overruns(0.0, 1e9, validating=True)  # no budget
+    assert not cost.overruns(60.0, 40.0, validating=False)  # 40 + 10 + 10 = 60
+    assert cost.overruns(60.0, 40.0, validating=True)  # a validation due now: 70
+    cost.validation_s = 2.0
+    assert not cost.overruns(60.0, 40.0, validating=True) and cost.overruns(60.0, 47.0, validating=True)
+
+
+def test_a_budget_shorter_than_an_epoch_stops_after_one_validated_epoch(tiny_store, tiny_config, tmp_path):
+    result = train(tiny_config(tiny_store, tmp_path / "run", epochs=5, validate_every=5, max_minutes=1e-6))
+    assert result.stopped_early and result.epochs_done == 1 and "val_target_mse" in result.history[-1]
+    assert not train(tiny_config(tiny_store, tmp_path / "all", epochs=1, max_minutes=1e-6)).stopped_early
 
 
 def test_checkpoint_loads_with_weights_only_and_rebuilds_the_model(tiny_store, tiny_config, tmp_path):
