@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, NoReturn
 
@@ -285,11 +287,36 @@ def _show_plan(estimate: BuildEstimate) -> None:
     console.print("[bold]plan[/bold]\n  " + escape("\n  ".join(estimate.lines())), soft_wrap=True)
 
 
-def _run_with_progress(store: str, job) -> None:
-    """Run ``job(on_start, on_done)`` behind a progress bar and print what it did."""
+class _LogLines:
+    """A progress bar's interface for a log: a plain line at most every ``every_s`` seconds, and the last."""
+
+    def __init__(self, every_s: float = 30.0) -> None:
+        self.every_s, self.done, self.total, self.printed = every_s, 0, 0, -math.inf
+
+    def add_task(self, description: str, total: int) -> int:
+        self.total = total
+        return 0
+
+    def update(self, task: int, advance: int, description: str) -> None:
+        self.done += advance
+        if self.done == self.total or time.monotonic() - self.printed >= self.every_s:
+            self.printed = time.monotonic()
+            console.print(f"simulated {self.done}/{self.total} chunks ({description})", soft_wrap=True)
+
+    def start(self) -> None:
+        """Nothing to draw."""
+
+    def stop(self) -> None:
+        """Nothing to clear."""
+
+
+def _progress_bar():
+    """A rich progress bar on a terminal, plain periodic lines elsewhere."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    bar = Progress(
+    if not console.is_terminal:
+        return _LogLines()
+    return Progress(
         TextColumn("[bold]simulating"),
         BarColumn(),
         MofNCompleteColumn(),
@@ -297,6 +324,11 @@ def _run_with_progress(store: str, job) -> None:
         TextColumn("{task.description}"),
         console=console,
     )
+
+
+def _run_with_progress(store: str, job) -> None:
+    """Run ``job(on_start, on_done)`` behind a progress bar (plain lines in a log) and print what it did."""
+    bar = _progress_bar()
     state: dict = {}
 
     def on_start(n: int, dashboard: str | None) -> None:

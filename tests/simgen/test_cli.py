@@ -92,6 +92,7 @@ def test_build_and_status_commands(tmp_path):
     spec, store, result = tiny_build(tmp_path)
     assert result.exit_code == 0, result.output
     assert "Dask dashboard: http" in text(result) and "2/2 chunks" in text(result)
+    assert "simulated 2/2 chunks (lv-healthy/" in text(result) and "━" not in result.output  # a log: plain lines
     again = runner.invoke(app, ["build", str(spec), "--store", str(store)])
     assert "nothing to do, all 2 chunks done" in text(again)
     status = runner.invoke(app, ["status", str(store)])
