@@ -207,7 +207,7 @@ def evaluate(
         js, md = report.write(out)
     except OSError as exc:
         _fail(exc, out)
-    console.print(report.to_markdown().split("### per subject")[0])
+    console.print(report.to_markdown().split("### per subject")[0], soft_wrap=True, markup=False, highlight=False)
     console.print(f"wrote {js} and {md}")
 
 

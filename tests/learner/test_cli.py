@@ -71,6 +71,9 @@ def test_evaluate_writes_json_and_markdown(trained, tiny_store):
     assert set(report["overall"]) == {"context", "target"}
     assert {"mse", "cc_spatial", "cc_temporal", "dc", "act_error_ms"} <= set(report["overall"]["target"])
     assert len(report["rows"]) > 0 and report["timing"]["predict_s_per_sim"] > 0
+    table = [line for line in result.output.splitlines() if line.startswith("|")]  # not wrapped at 80 columns
+    assert max(map(len, table)) > 80 and all(line.endswith("|") for line in table)
+    assert all(line in (out / "evaluation.md").read_text() for line in table)
     assert "| target |" in (out / "evaluation.md").read_text()
 
 
