@@ -17,7 +17,6 @@ on a subset of them with the same context sets, and writes ``<out>/``:
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -26,16 +25,13 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import Tensor
 
-from learner.baselines import FSBO, VAEBO, PersonalisationBaseline
+from learner.benchmark_report import write_report
 from learner.data.episodes import Episode, load_episode
-from learner.evaluate import EvalReport, EvalSpec, Method, NeuralMethod, evaluate_methods
-from learner.graph.hierarchy import MeshHierarchy
-from learner.metrics import METRIC_NAMES, activation_times, mse, spatial_cc, temporal_cc
+from learner.evaluate import EvalReport, EvalSetting, EvalSpec, Method, NeuralMethod, evaluate_methods
+from learner.methods import BASELINES, NEURAL, BaselineMethod, MethodContext, build_methods
+from learner.metrics import mse, spatial_cc, temporal_cc
 from learner.models.site_evidence import SiteEvidence
-from learner.personalize import Observations
-from learner.plot import plot_activation_panels, plot_context_curves
 from learner.pretrained import resolve_reference
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
@@ -43,11 +39,9 @@ from learner.train.trainer import load_model
 from shared.config import from_mapping, load_toml, to_mapping
 from shared.errors import ConfigError, InputError
 from shared.location import resolve_location
-from shared.mesh import Mesh
 from shared.observation import Observation, gaussian_noise
 from shared.reader import read_solver_settings, read_tissue
 from shared.simulator import load_simulator
-from shared.units import MS_PER_TIME_UNIT
 
 __all__ = [
     "BaselineSpec",
@@ -56,6 +50,9 @@ __all__ = [
     "load_benchmark_config",
     "BaselineMethod",
     "baseline_methods",
+    "calibration",
+    "real_data_setting",
+    "real_data",
     "observe_fold",
     "run_benchmark",
 ]
@@ -124,75 +121,26 @@ def load_benchmark_config(path: str | Path) -> BenchmarkConfig:
     )
 
 
-class BaselineMethod(Method):
-    """A BO baseline behind the :class:`~learner.evaluate.Method` interface (simulates its predictions)."""
-
-    def __init__(self, baseline: PersonalisationBaseline, solver: dict, times: np.ndarray) -> None:
-        self.baseline, self.solver, self.times, self.name = baseline, solver, times, baseline.name
-
-    def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
-        obs = Observations(
-            mesh,
-            episode.context_sites.numpy(),
-            episode.context_obs.numpy(),
-            episode.observed.numpy(),
-            self.times,
-            episode.subject_id,
-        )
-        result = self.baseline.fit(obs, self.solver)
-        return {"fit_s": result.seconds, "calls": float(result.calls)}
-
-    def predict(self, sites: Tensor) -> np.ndarray:
-        return self.baseline.predict(sites.numpy())
-
-
 def baseline_methods(
     cfg: BenchmarkConfig, solver: dict, times: np.ndarray, names: tuple[str, ...] | None = None
-) -> list[BaselineMethod]:
+) -> list[Method]:
     """Fresh BO baselines ``names`` (default ``cfg.baselines.methods``) with the config's budget, regions and seed.
 
     ``solver`` and ``times`` are those of the store they will be fitted on.
     """
     b = cfg.baselines
-    make = {
-        "fs-bo": lambda: FSBO(regions=b.regions, budget=b.budget, seed=cfg.seed),
-        "vae-bo": lambda: VAEBO(budget=b.budget, seed=cfg.seed),
-    }
-    names = b.methods if names is None else names
-    unknown = sorted(set(names) - set(make))
-    if unknown:
-        raise ConfigError(f"unknown baseline(s) {unknown}; choose from {sorted(make)}")
-    return [BaselineMethod(make[name](), solver, times) for name in names]
+    context = MethodContext(solver=solver, times=times, budget=b.budget, regions=b.regions, seed=cfg.seed)
+    return build_methods(b.methods if names is None else names, context, among=BASELINES)
 
 
 def _stats(report: EvalReport) -> dict:
     return {"overall": report.overall, "by_context_size": report.by_context_size, "timing": report.timing}
 
 
-def table1(results: dict[str, dict], title: str) -> str:
-    """Markdown Table 1: context | target, mean ± std of each metric per method."""
-    cols = [m for m in METRIC_NAMES if m != "act_mismatch"]
-    head = "| method | " + " | ".join(f"context {m}" for m in cols) + " | " + " | ".join(f"target {m}" for m in cols)
-    lines = [f"### {title}\n", head + " |\n", "|---|" + "---|" * (2 * len(cols)) + "\n"]
-    for name, res in results.items():
-        cells = [_cell(res["overall"].get(role, {}).get(m)) for role in ("context", "target") for m in cols]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |\n")
-    return "".join(lines)
-
-
-def _cell(stat: dict | None) -> str:
-    if not stat or not np.isfinite(stat["mean"]):
-        return "-"
-    m, s = stat["mean"], stat["std"]
-    return f"{m:.2e} ± {s:.1e}" if abs(m) < 1e-2 else f"{m:.3f} ± {s:.3f}"
-
-
 NOISE_DRAWS = 10  # Gaussian model-error draws per sample of c in the calibration band
 
 
-def calibration(
-    model, view: StoreView, subjects: list[str], cfg: BenchmarkConfig, observe: str, levels: int, coarsest: int
-) -> dict:
+def calibration(model, view: StoreView, subjects: list[str], cfg: BenchmarkConfig, setting: EvalSetting) -> dict:
     """How often target values fall inside the 5-95% band of two predictive distributions.
 
     * ``c`` only: samples of ``c ~ p(c | Y)`` through the generator (the
@@ -201,16 +149,18 @@ def calibration(
       with ``s`` the root-mean-square residual of the draws on the context's
       observed values: the subject's own misfit, known without the targets.
       ``NOISE_DRAWS`` noise draws per ``c``.
+
+    The context is observed on ``setting``'s node set without observation noise.
     """
     tally = {"noise": np.zeros(2), "c": np.zeros(2)}  # values inside the band, summed band width
     n, device = 0, next(model.parameters()).device
     g = torch.Generator().manual_seed(cfg.seed)
     for si, subject in enumerate(subjects):
         mesh_id = view.mesh_of[subject]
-        hier = on_device(view.hierarchy(mesh_id, levels, coarsest), device)
+        hier = on_device(setting.hierarchy(view, mesh_id), device)
         rng = np.random.default_rng([cfg.seed, si, 99])
         perm = rng.permutation(len(view.sites(mesh_id)))
-        ep = load_episode(view.store, subject, perm[:3], np.sort(perm[3:8]), observe)
+        ep = load_episode(view.store, subject, perm[:3], np.sort(perm[3:8]), setting.observation.nodes)
         k = len(ep.context_sites)
         sites = torch.cat([ep.context_sites, ep.target_sites])
         with torch.no_grad():
@@ -253,7 +203,12 @@ def observe_fold(
     return ep, recording
 
 
-def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkConfig, folds: int = 0) -> dict:
+def real_data_setting(cfg: BenchmarkConfig, setting: EvalSetting) -> EvalSetting:
+    """``setting`` (the models' hierarchy) with the real-data observation: ``real_data.observe`` and its noise."""
+    return replace(setting, observation=Observation(cfg.real_data.observe, cfg.real_data.noise_std))
+
+
+def real_data(methods: list[Method], setting: EvalSetting, cfg: BenchmarkConfig, folds: int = 0) -> dict:
     """Leave one pacing site out on an unseen geometry observed by the sock (+ noise), for every method.
 
     Each of the store's subjects has ``real_data.sites`` pacing sites; each fold
@@ -266,10 +221,11 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
     a perfect method would get (below 1: frames where the heart is at rest or
     fully excited hold only noise, so their spatial CC is near 0 whatever the
     prediction). ``folds`` holds the target row of every fold, per method and
-    for the ``ceiling``: where the error is.
+    for the ``ceiling``: where the error is. ``setting``: the models' hierarchy and the observation
+    (:func:`real_data_setting`).
     """
     spec = cfg.real_data
-    view, observation = StoreView(spec.store), Observation(spec.observe, spec.noise_std)
+    view, observation = StoreView(spec.store), setting.observation
     for m in methods:
         if isinstance(m, NeuralMethod) and view.frames != m.model.frames:
             raise InputError(f"{spec.store} has {view.frames} frames per simulation, {m.name} expects {m.model.frames}")
@@ -277,7 +233,7 @@ def real_data(methods: list[Method], levels: int, coarsest: int, cfg: BenchmarkC
     ceiling: list[dict] = []
     for si, subject in enumerate(view.subjects):
         mesh_id = view.mesh_of[subject]
-        mesh, hier = view.mesh(mesh_id), view.hierarchy(mesh_id, levels, coarsest)
+        mesh, hier = view.mesh(mesh_id), setting.hierarchy(view, mesh_id)
         n_sites = min(spec.sites, len(view.sites(mesh_id)))
         for left in range(n_sites if folds <= 0 else min(folds, n_sites)):
             ctx = [r for r in range(n_sites) if r != left]
@@ -335,22 +291,6 @@ def _role_summary(rows: list[dict]) -> dict:
     }
 
 
-def real_data_table(result: dict) -> str:
-    """Markdown: one row per method of a :func:`real_data` result."""
-    lines = [
-        "| method | target mse | target cc_spatial | target cc_temporal | context cc_spatial |",
-        "|---|---|---|---|---|",
-    ]
-    named = {**result["methods"], "noise-free truth (ceiling)": result["ceiling"]}
-    for name, r in named.items():
-        t, c = r["target"], r["context"]
-        lines.append(
-            f"| {name} | {_cell(t['mse'])} | {_cell(t['cc_spatial'])} | {_cell(t['cc_temporal'])} "
-            f"| {_cell(c['cc_spatial'])} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
 def _timing(view: StoreView, meta_report: EvalReport, pns_report: EvalReport, base_reports: dict) -> dict:
     subject = view.subjects[0]
     mesh = view.mesh(view.mesh_of[subject])
@@ -373,16 +313,6 @@ def _timing(view: StoreView, meta_report: EvalReport, pns_report: EvalReport, ba
     return rows
 
 
-def _maps_per_mesh(view: StoreView, rows: list, subjects: list[str], path: Path) -> list[Path]:
-    """One figure per subject (``<stem>-<subject>.png``), drawn on that subject's own mesh."""
-    paths = []
-    for (title, cols), subject in zip(rows, subjects):
-        p = path.with_name(f"{path.stem}-{subject}{path.suffix}")
-        plot_activation_panels(view.mesh(view.mesh_of[subject]).points, [(title, cols)], p)
-        paths.append(p)
-    return paths
-
-
 def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> dict[str, Any]:
     """Run everything of the module docstring, the neural models on ``device``; returns the benchmark.json numbers."""
     out = Path(cfg.out)
@@ -395,10 +325,9 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> 
     view = StoreView(cfg.store, cache_dir=out / "hierarchies")
     if view.frames != meta.frames:
         raise InputError(f"{cfg.store} has {view.frames} frames per simulation, the models expect {meta.frames}")
-    levels, coarsest = meta_cfg.model.levels, meta_cfg.model.coarsest
-    observe, noise = meta_cfg.data.episodes.primary_observe, meta_cfg.data.episodes.noise_std
+    setting = EvalSetting.of(meta_cfg)
     test = list(meta_ckpt["splits"]["test"])
-    neural = [NeuralMethod(meta, "metaPNS"), NeuralMethod(pns, "PNS")]
+    neural = build_methods(NEURAL, MethodContext(models={"metaPNS": meta, "PNS": pns}))
     spec = EvalSpec(
         subjects=tuple(test),
         context=cfg.context,
@@ -409,7 +338,7 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> 
     step = lambda what: lambda i, n, s: progress(f"{what}: [{i}/{n}] {s}")  # noqa: E731
     results: dict[str, Any] = {"config": to_mapping(cfg), "test_subjects": test}
 
-    reports = evaluate_methods(neural, view, test, spec, observe, noise, levels, coarsest, step("Table 1"))
+    reports = evaluate_methods(neural, view, test, spec, setting, step("Table 1"))
     results["table1_all_test"] = {name: _stats(r) for name, r in reports.items()}
 
     b = cfg.baselines
@@ -417,95 +346,30 @@ def run_benchmark(cfg: BenchmarkConfig, progress=print, device: str = "cpu") -> 
     subset = test[: b.subjects]
     bspec = replace(spec, subjects=tuple(subset), context_sets=b.context_sets, max_targets=b.max_targets)
     examples: dict[str, dict] = {}
-    base_reports = evaluate_methods(
-        neural + base_methods, view, subset, bspec, observe, noise, levels, coarsest, step("baselines"), examples
-    )
+    base_reports = evaluate_methods(neural + base_methods, view, subset, bspec, setting, step("baselines"), examples)
     results["table1_baseline_subset"] = {name: _stats(r) for name, r in base_reports.items()}
 
     curves: dict[str, dict] = {m.name: {} for m in neural}
     for k in cfg.context_sizes:
         kspec = replace(spec, context=(k, k), context_sets=cfg.curve_sets, max_targets=cfg.curve_targets)
-        for name, r in evaluate_methods(neural, view, test, kspec, observe, noise, levels, coarsest).items():
+        for name, r in evaluate_methods(neural, view, test, kspec, setting).items():
             curves[name][str(k)] = r.overall["target"]
         progress(f"context size {k}: done")
     results["fig3"] = curves
-    plot_context_curves(curves, out / "fig3_context.png")
 
     results["timing"] = _timing(view, reports["metaPNS"], reports["PNS"], {n: base_reports[n] for n in b.methods})
-    results["calibration"] = calibration(meta, view, test[: cfg.calibration_subjects], cfg, observe, levels, coarsest)
+    results["calibration"] = calibration(meta, view, test[: cfg.calibration_subjects], cfg, setting)
     results["maps"] = subset[: cfg.maps]
-    _maps_per_mesh(
-        view,
-        [_map_row(view, examples[s], [m.name for m in neural + base_methods], s) for s in results["maps"]],
-        results["maps"],
-        out / "activation_maps.png",
-    )
     if cfg.real_data.store:
-        results["real_data"] = real_data(neural, levels, coarsest, cfg)
+        real_setting = real_data_setting(cfg, setting)
+        results["real_data"] = real_data(neural, real_setting, cfg)
         real_view = StoreView(cfg.real_data.store)
         real_solver = read_solver_settings(real_view.store)
         real_base = baseline_methods(cfg, real_solver, real_view.times)
         if real_base and cfg.real_data.baseline_folds:
             progress("real data: baselines")
             results["real_data_baseline_subset"] = real_data(
-                neural + real_base, levels, coarsest, cfg, cfg.real_data.baseline_folds
+                neural + real_base, real_setting, cfg, cfg.real_data.baseline_folds
             )
-    _write(results, out)
+    write_report(results, out, view, examples, NOISE_DRAWS)
     return results
-
-
-def _map_row(view: StoreView, example: dict, methods: list[str], subject: str) -> tuple[str, list]:
-    """Activation-time maps (ms) of the truth and each method on one target, from the baseline table's run."""
-    to_ms = lambda u: activation_times(u, view.times) * MS_PER_TIME_UNIT  # noqa: E731
-    cols = [("truth", to_ms(example["truth"]))] + [(name, to_ms(example[name])) for name in methods]
-    return (f"{subject}, site {example['site']}", cols)
-
-
-def _write(results: dict, out: Path) -> None:
-    maps = "".join(f"![activation maps](activation_maps-{s}.png)\n" for s in results["maps"])
-    md = [
-        "# Benchmark\n\n",
-        table1(
-            results["table1_all_test"], f"Table 1: all {len(results['test_subjects'])} test subjects (metaPNS, PNS)"
-        ),
-        "\n",
-        table1(results["table1_baseline_subset"], "Table 1: the baseline subset, same context sets for every method"),
-        "\n![accuracy vs context size](fig3_context.png)\n\n### Timing (CPU)\n\n| step | seconds | simulator calls |\n"
-        "|---|---|---|\n",
-    ]
-    timing = [
-        f"| {name} | {row['seconds']:.4g} | {row.get('simulator calls', '')} |\n"
-        for name, row in results["timing"].items()
-    ]
-    md += timing
-    (out / "timing.md").write_text("| step | seconds | simulator calls |\n|---|---|---|\n" + "".join(timing))
-    c = results["calibration"]
-    md.append(
-        f"\n### Uncertainty\n\n{c['samples']} draws of c ~ p(c | Y), each with {NOISE_DRAWS} draws of the "
-        f"subject's context misfit N(0, s^2): the truth lies inside the 5-95% band for "
-        f"{100 * c['coverage_90']:.1f}% of target values (ideal 90%; mean band width "
-        f"{c['mean_band_width']:.3f}). From c alone: {100 * c['coverage_90_c_only']:.1f}% (width "
-        f"{c['mean_band_width_c_only']:.3f}).\n"
-    )
-    md.append(f"\n### Activation maps (truth vs predictions, one target site)\n\n{maps}")
-    if "real_data" in results:
-        r = results["real_data"]
-        sites = results["config"]["real_data"]["sites"]
-        md.append(
-            f"\n### Real-data emulation\n\nUnseen geometry {', '.join(r['subjects'])}, {r['electrodes']} sock "
-            f"electrodes, noise {r['noise_std']}, each of {sites} pacing sites left out in turn:\n\n"
-            + real_data_table(r)
-        )
-    if "real_data_baseline_subset" in results:
-        folds = results["config"]["real_data"]["baseline_folds"]
-        md.append(
-            f"\nThe BO baselines on the first {folds} left-out site(s) of each subject, every method on the same "
-            f"folds:\n\n" + real_data_table(results["real_data_baseline_subset"])
-        )
-    (out / "benchmark.md").write_text("".join(md))
-    (out / "table1.md").write_text(
-        table1(results["table1_all_test"], "all test subjects")
-        + "\n"
-        + table1(results["table1_baseline_subset"], "baseline subset")
-    )
-    (out / "benchmark.json").write_text(json.dumps(results, indent=1, default=float))

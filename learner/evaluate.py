@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 from torch import Tensor
 
 from learner.config import LearnerConfig
@@ -34,11 +35,12 @@ from learner.store_view import StoreView
 from learner.train.trainer import load_model
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.observation import check_noise_std, check_observation_set
+from shared.observation import Observation, check_noise_std, check_observation_set
 from shared.units import MS_PER_TIME_UNIT
 
 __all__ = [
     "EvalSpec",
+    "EvalSetting",
     "EvalReport",
     "Method",
     "NeuralMethod",
@@ -75,6 +77,35 @@ class EvalSpec:
             check_observation_set(self.observe)
         if self.noise_std is not None:
             check_noise_std(self.noise_std)
+
+
+@dataclass(frozen=True)
+class EvalSetting:
+    """How every method sees a subject: the observation (node set, noise) and the mesh hierarchy of the model."""
+
+    observation: Observation
+    levels: int
+    coarsest: int
+
+    @classmethod
+    def of(cls, config: LearnerConfig, observe: str | None = None, noise_std: float | None = None) -> EvalSetting:
+        """The setting of a model trained with ``config``: its first observation set and noise unless given."""
+        episodes = config.data.episodes
+        observation = Observation(
+            observe or episodes.primary_observe, episodes.noise_std if noise_std is None else noise_std
+        )
+        return cls(observation, config.model.levels, config.model.coarsest)
+
+    def hierarchy(self, view: StoreView, mesh_id: str) -> MeshHierarchy:
+        """The mesh hierarchy of ``mesh_id`` that the model works on."""
+        return view.hierarchy(mesh_id, self.levels, self.coarsest)
+
+    def episode(
+        self, view: StoreView, subject: str, context: ArrayLike, targets: ArrayLike, rng: np.random.Generator | None
+    ) -> Episode:
+        """The episode of ``subject`` with these context and target rows, observed in this setting."""
+        obs = self.observation
+        return load_episode(view.store, subject, context, targets, obs.nodes, obs.noise_std, rng)
 
 
 @dataclass
@@ -276,14 +307,11 @@ def evaluate_methods(
     view: StoreView,
     subjects: list[str],
     spec: EvalSpec,
-    observe: str,
-    noise: float,
-    levels: int,
-    coarsest: int,
+    setting: EvalSetting,
     progress=None,
     examples: dict[str, dict] | None = None,
 ) -> dict[str, EvalReport]:
-    """Every method on the same context sets and targets; one :class:`EvalReport` per method.
+    """Every method on the same context sets and targets, observed in ``setting``; one :class:`EvalReport` per method.
 
     ``examples``, when given, receives per subject the first target of the
     first context set: ``{"site", "truth", <method name>: prediction}`` (T, N)
@@ -300,7 +328,7 @@ def evaluate_methods(
     for si, subject in enumerate(subjects):
         mesh_id = view.mesh_of[subject]
         n_sites = len(view.sites(mesh_id))
-        mesh, hier = view.mesh(mesh_id), view.hierarchy(mesh_id, levels, coarsest)
+        mesh, hier = view.mesh(mesh_id), setting.hierarchy(view, mesh_id)
         for r in range(spec.context_sets):
             rng = np.random.default_rng([spec.seed, si, r])
             k = int(rng.integers(lo, hi + 1))
@@ -308,7 +336,7 @@ def evaluate_methods(
                 raise InputError(f"subject {subject!r} has {n_sites} simulations: too few for a context of {k}")
             perm = rng.permutation(n_sites)
             rest = perm[k:] if spec.max_targets <= 0 else perm[k : k + spec.max_targets]
-            ep = load_episode(view.store, subject, perm[:k], np.sort(rest), observe, noise, rng)
+            ep = setting.episode(view, subject, perm[:k], np.sort(rest), rng)
             sites = torch.cat([ep.context_sites, ep.target_sites])
             truth = torch.cat([ep.context_u, ep.target_u]).numpy()
             # the truth's activation from its own frames, like the prediction's: no frame-rate bias
@@ -369,22 +397,11 @@ def evaluate(
     view = StoreView(store, cache_dir=first.parent / "hierarchies" if first.is_file() else None)
     if view.frames != ckpts[0]["frames"]:
         raise InputError(f"{store} has {view.frames} frames per simulation, the model expects {ckpts[0]['frames']}")
-    observe = spec.observe or config.data.episodes.primary_observe
-    noise = config.data.episodes.noise_std if spec.noise_std is None else spec.noise_std
+    setting = EvalSetting.of(config, spec.observe, spec.noise_std)
     splits = ckpts[0].get("splits", {})
     if len(paths) > 1 and isinstance(spec.subjects, str):
         splits = _ensemble_splits(paths, ckpts, spec.subjects)
-    reports = evaluate_methods(
-        [method],
-        view,
-        _subjects(spec, splits, view),
-        spec,
-        observe,
-        noise,
-        config.model.levels,
-        config.model.coarsest,
-        progress,
-    )
+    reports = evaluate_methods([method], view, _subjects(spec, splits, view), spec, setting, progress)
     return reports[method.name]
 
 
