@@ -1,0 +1,66 @@
+"""README and docs/: a short README, links that resolve, a layout naming every module folder, reference wording."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower().replace("`", ""))
+    return text.replace(" ", "-")
+
+
+def _anchors(page: Path) -> set[str]:
+    return {_slug(line.lstrip("#")) for line in page.read_text().splitlines() if line.startswith("#")}
+
+
+def _broken_links(page: Path) -> list[str]:
+    """The relative links of ``page`` whose file, or heading in a Markdown file, does not exist."""
+    broken = []
+    for target in LINK.findall(page.read_text()):
+        if "://" in target or target.startswith("mailto:"):
+            continue
+        path, _, anchor = target.partition("#")
+        file = (page.parent / path).resolve() if path else page
+        if not file.exists() or (anchor and file.suffix == ".md" and anchor not in _anchors(file)):
+            broken.append(target)
+    return broken
+
+
+def test_the_readme_is_short():
+    assert len(README.read_text().splitlines()) <= 200
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_relative_links_resolve(page: Path):
+    assert not _broken_links(page)
+
+
+def test_the_layout_names_every_module_folder_and_top_level_folder():
+    layout = README.read_text().split("## Repository layout", 1)[1].split("\n## ", 1)[0]
+    named = set(re.findall(r"([\w-]+)/", layout))
+    modules = {p.parent.name for pkg in ("shared", "simgen", "learner") for p in (ROOT / pkg).rglob("*.py")}
+    tracked = subprocess.run(
+        ["git", "ls-tree", "-d", "--name-only", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
+    missing = (modules | {name for name in tracked if not name.startswith(".")}) - named
+    assert not missing
+
+
+def test_user_docs_read_as_reference():
+    """No goal verdicts, no development history, no paths outside the project."""
+    words = re.compile(
+        r"goals? (?:is |are )?(?:met|not met)|\bnot met\b|this session|now fixed|/work/shared|\.\./shared"
+    )
+    found = [f"{page.name}: {m.group(0)}" for page in PAGES for m in words.finditer(page.read_text())]
+    assert not found
