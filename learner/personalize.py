@@ -28,7 +28,7 @@ from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.units import MS_PER_TIME_UNIT
+from shared.units import MS_PER_TIME_UNIT, U_RANGE
 
 __all__ = [
     "Observations",
@@ -65,8 +65,16 @@ class Observations:
             )
         if not self.observed.any():
             raise InputError("no observed node: observed is false everywhere, so no sequence is observed anywhere")
-        if not np.isfinite(self.obs[:, :, self.observed]).all():
+        seen = self.obs[:, :, self.observed]
+        if not np.isfinite(seen).all():
             raise InputError("observations contain NaN or inf at observed nodes")
+        lo, hi = float(seen.min()), float(seen.max())
+        if lo < U_RANGE[0] or hi > U_RANGE[1]:
+            raise InputError(
+                f"observations range from {lo:.4g} to {hi:.4g} at observed nodes, outside [{U_RANGE[0]:g}, "
+                f"{U_RANGE[1]:g}]: the model's values are the dimensionless potential u (rest 0, peak about 1; "
+                "V = 100 u - 80 mV), so give u, not millivolts or scaled values"
+            )
         bad = [int(s) for s in self.sites if not 0 <= s < n]
         if bad:
             raise InputError(f"stimulation nodes {bad} are not nodes of the {n}-node mesh")

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
-__all__ = ["MS_PER_TIME_UNIT", "TIME_UNITS", "to_millivolts"]
+__all__ = ["MS_PER_TIME_UNIT", "TIME_UNITS", "U_RANGE", "to_millivolts"]
 
 #: Milliseconds per dimensionless time unit.
 MS_PER_TIME_UNIT = 12.9
 
 #: The model time unit as a UDUNITS string (a scaled millisecond), for CF ``units`` attributes.
 TIME_UNITS = f"{MS_PER_TIME_UNIT:g} ms"
+
+#: Admissible range of the dimensionless potential ``u`` (rest 0, peak ~1, with margin).
+U_RANGE = (-0.5, 1.5)
 
 
 def to_millivolts(u):

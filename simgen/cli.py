@@ -38,6 +38,13 @@ NodesOpt = Annotated[
     int, typer.Option("--nodes", min=1, help="Target node count: a procedural mesh's, or a mesh file resampled to it.")
 ]
 KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
+HeartOpt = Annotated[
+    bool,
+    typer.Option(
+        "--heart/--no-heart",
+        help="A mesh file must be a heart (its node sets are detected); --no-heart accepts one that is not (a slab).",
+    ),
+]
 TISSUE_HELP = (
     "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; scars, each with region "
     "('segments' + segments 1-17, or 'sphere' + node or centre and radius in mm), border_width in mm, core and "
@@ -69,10 +76,11 @@ def mesh(
     source: MeshOpt = "lv",
     nodes: NodesOpt = 2000,
     kind: KindOpt = "tetra",
+    heart: HeartOpt = True,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT."""
     try:
-        m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
         save_mesh(m, out)
     except (InputError, OSError) as exc:
         _fail(exc, out)
@@ -107,6 +115,7 @@ def simulate(
     source: MeshOpt = "lv",
     nodes: NodesOpt = 2000,
     kind: KindOpt = "tetra",
+    heart: HeartOpt = True,
     tissue: Annotated[str, typer.Option(help=TISSUE_HELP)] = "healthy",
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the mesh.")] = "0",
     threads: ThreadsOpt = 2,
@@ -141,7 +150,7 @@ def simulate(
 
     try:
         site_ids = np.array(parse_ids(sites, "--sites"))
-        m = get_mesh(source, nodes, kind)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
         config = SolverConfig(dt=dt, integrator=integrator)  # type: ignore[arg-type]

@@ -99,6 +99,9 @@ SPECS = {
     "random-count0": spec("nodes = 300", 'nodes = 300\nshape = "random"\ncount = 0'),
     "missing-mesh-file": spec("nodes = 300", 'source = "missing.vtu"'),
     "bad-cells-mesh-file": spec("nodes = 300", 'source = "badcells.vtu"'),
+    "cube-hexahedra": spec("nodes = 300", 'source = "cube-hex.vtu"'),
+    "cube-tetrahedra": spec("nodes = 300", 'source = "cube-tet.vtu"'),
+    "slab-with-sock": spec("nodes = 300", 'source = "cube-tet.vtu"\nheart = false'),
     "garbage-mesh-file": spec("nodes = 300", 'source = "garbage.vtu"'),
     "nan-mesh-file": spec("nodes = 300", 'source = "nan.vtu"'),
     "out-of-memory": spec("frames = 6", "frames = 1000000000"),
@@ -223,6 +226,11 @@ CASES: dict[str, dict[str, Case]] = {
         "mesh file with a cell index out of range": Case(
             build("bad-cells-mesh-file"),
             ("badcells.vtu: cell node index out of range [0, 316): 1 cell(s), first cell 3",),
+        ),
+        "a 50 mm cube of hexahedra": Case(build("cube-hexahedra"), ("cube-hex.vtu: not a heart", "heart = false")),
+        "a 50 mm cube of tetrahedra": Case(build("cube-tetrahedra"), ("cube-tet.vtu: not a heart", "heart = false")),
+        "a cube as a slab with a sock": Case(
+            build("slab-with-sock"), ("[output] sock_electrodes = 20: mesh 'lv' has no epicardium",)
         ),
         "no conduction anywhere": Case(
             ("simgen", "simulate", "{d}/o", "--nodes", "300", "--tissue", "{d}/blocked.toml"),
@@ -440,6 +448,12 @@ CASES: dict[str, dict[str, Case]] = {
         "sites do not fit obs": Case((*PERSONALIZE, "{d}/obs-extra-site.npz"), ("observations do not fit together",)),
         "site out of range": Case((*PERSONALIZE, "{d}/obs-far-site.npz"), ("are not nodes of the 316-node mesh",)),
         "cell index out of range": Case((*PERSONALIZE, "{d}/obs-bad-cells.npz"), ("cell node index out of range",)),
+        "obs scaled x1000": Case(
+            (*PERSONALIZE, "{d}/obs-x1000.npz"), ("observations range from 0.", "to 99", "outside [-0.5, 1.5]")
+        ),
+        "obs in millivolts": Case(
+            (*PERSONALIZE, "{d}/obs-millivolts.npz"), ("observations range from -79.9", "give u, not millivolts")
+        ),
         "neither file nor store": Case(PERSONALIZE[:-1], ("give either --observations FILE or --store",)),
         "unknown subject in a store": Case(
             (
@@ -540,6 +554,8 @@ def write_observations(d: Path, mesh) -> None:
         "obs-extra-site": {"sites": np.array([0, 5, 9])},
         "obs-far-site": {"sites": np.array([0, n + 50])},
         "obs-bad-cells": {"cells": np.where(good["cells"] == 0, n + 7, good["cells"])},
+        "obs-x1000": {"obs": good["obs"] * 1000},
+        "obs-millivolts": {"obs": 100 * good["obs"] - 80},
     }
     for name, patch in variants.items():
         arrays = {k: v for k, v in {**good, **patch}.items() if v is not None}
@@ -580,8 +596,10 @@ def write_checkpoints(d: Path, mesh) -> None:
 
 def write_meshes(d: Path, mesh) -> None:
     """Mesh files: ``garbage.vtu`` (not a mesh), ``nan.vtu`` (a NaN coordinate), ``badcells.vtu`` (a cell refers
-    to a node past the last)."""
+    to a node past the last), ``cube-hex.vtu`` and ``cube-tet.vtu`` (50 mm cubes: no heart)."""
     import meshio
+
+    from simgen.meshes.slab import slab
 
     (d / "garbage.vtu").write_text("<VTKFile>not really</VTKFile>\n")
     points = mesh.points.copy()
@@ -590,6 +608,13 @@ def write_meshes(d: Path, mesh) -> None:
     cells = mesh.cells.copy()
     cells[3, 1] = mesh.n_nodes + 7
     meshio.write(d / "badcells.vtu", meshio.Mesh(mesh.points, [("tetra", cells)]))
+    cube = slab(50.0, 50.0, 50.0, 10.0)
+    meshio.write(d / "cube-tet.vtu", meshio.Mesh(cube.points, [("tetra", cube.cells)]))
+    x = np.linspace(0.0, 50.0, 6)
+    grid = np.stack(np.meshgrid(x, x, x, indexing="ij"), axis=-1).reshape(-1, 3)
+    corner = np.arange(6**3).reshape(6, 6, 6)[:-1, :-1, :-1].ravel()
+    offsets = np.array([0, 36, 42, 6, 1, 37, 43, 7])  # the 8 corners of each grid cube
+    meshio.write(d / "cube-hex.vtu", meshio.Mesh(grid, [("hexahedron", corner[:, None] + offsets)]))
 
 
 @pytest.fixture(scope="module")

@@ -79,7 +79,7 @@ class Plan:
     """Everything a build does, in a fixed order.
 
     ``sites[mesh_id]`` (S,) int64 and ``electrodes[mesh_id]`` (sorted, int64,
-    empty without an epicardium or with ``sock_electrodes = 0``) are node ids
+    empty with ``sock_electrodes = 0``) are node ids
     of ``meshes[mesh_id]``. ``subjects`` run over meshes in spec order, then
     tissue settings in spec order; ``tasks`` over subjects, then chunks.
     """
@@ -144,9 +144,19 @@ def select_sites(mesh: Mesh, selection: SiteSelection, seed: int, mesh_id: str) 
 
 
 def sock_electrodes(mesh: Mesh, n_electrodes: int) -> NDArray[np.int64]:
-    """Sock electrode node ids (sorted); empty without an epicardium or for ``n_electrodes = 0``."""
-    if n_electrodes == 0 or "epicardium" not in mesh.node_sets:
+    """Sock electrode node ids (sorted); empty for ``n_electrodes = 0``.
+
+    Raises :class:`InputError` naming ``[output] sock_electrodes`` when the
+    mesh cannot hold them: no epicardium (a mesh that is no heart), or fewer
+    epicardial nodes than electrodes.
+    """
+    if n_electrodes == 0:
         return np.zeros(0, dtype=np.int64)
+    if "epicardium" not in mesh.node_sets:
+        raise InputError(
+            f"[output] sock_electrodes = {n_electrodes}: mesh {mesh.name!r} has no epicardium to place them on "
+            "(a mesh that is no heart); set [output] sock_electrodes = 0"
+        )
     return Sock(n_electrodes=n_electrodes).indices(mesh).astype(np.int64)
 
 
@@ -161,6 +171,7 @@ def entry_mesh(entry: MeshEntry) -> Mesh:
         units=entry.units,
         landmarks=entry.axis,
         node_set_arrays=entry.node_set_arrays,
+        heart=entry.heart is not False,
     )
 
 

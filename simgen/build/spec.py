@@ -117,7 +117,9 @@ class MeshEntry:
     (``None``: the file's, else inferred), ``axis`` landmark points in mm
     (``apex``, ``base``, optional ``septum``) replacing the detected long axis,
     and ``node_set_arrays`` (node set -> the file's 0/1 point-data array)
-    replacing detected sets. Unset keys stay out of the spec's hash.
+    replacing detected sets; ``heart = false`` accepts a mesh that is no heart
+    (a slab: no node sets detected, no sock, so ``[output] sock_electrodes = 0``),
+    which is refused otherwise. Unset keys stay out of the spec's hash.
     """
 
     id: str
@@ -128,6 +130,7 @@ class MeshEntry:
     units: Literal["mm", "cm", "m"] | None = None
     axis: dict[str, tuple[float, float, float]] | None = field(default=None, hash=False)
     node_set_arrays: dict[str, str] | None = field(default=None, hash=False)
+    heart: bool | None = None
 
     def __post_init__(self) -> None:
         _check_id(self.id, "[[meshes]] id")
@@ -147,8 +150,8 @@ class MeshEntry:
             object.__setattr__(self, "shape_params", shape.params())
 
     def _check_file_keys(self) -> None:
-        """``units``, ``axis`` and ``node_set_arrays``: real meshes and files only, with known names."""
-        given = [k for k in ("units", "axis", "node_set_arrays") if getattr(self, k) is not None]
+        """``units``, ``axis``, ``node_set_arrays`` and ``heart``: real meshes and files only, with known names."""
+        given = [k for k in ("units", "axis", "node_set_arrays", "heart") if getattr(self, k) is not None]
         if given and self.source in GENERATORS:
             raise ConfigError(f"mesh {self.id!r}: {given} apply to mesh files and real meshes, not to {self.source!r}")
         if is_real(self.source):

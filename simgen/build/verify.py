@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from shared.reader import read_integrator
 from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
+from shared.units import U_RANGE
 from simgen.build.fingerprint import chunk_fingerprint
 from simgen.build.location import store_location
 from simgen.build.stats import chunk_moments, statistics
@@ -35,9 +36,6 @@ from simgen.solver.backends import BACKEND_TOLERANCE
 from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig
 
 __all__ = ["U_RANGE", "ChunkRef", "VerifyReport", "verify_store"]
-
-#: Admissible range of the dimensionless potential ``u`` (rest 0, peak ~1, with margin).
-U_RANGE = (-0.5, 1.5)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ def get_mesh(
     units: str | None = None,
     landmarks: Mapping[str, Sequence[float]] | None = None,
     node_set_arrays: Mapping[str, str] | None = None,
+    heart: bool = True,
 ) -> Mesh:
     """A procedural geometry (``"lv"``, ``"biv"``), a shipped real mesh (``"real:<name>"``) or a mesh file.
 
@@ -37,11 +38,14 @@ def get_mesh(
     ``None``: the default geometry) apply to them only. Real meshes and files
     go through :func:`~simgen.meshes.heart.load_heart` (units, repair,
     resampling to ``n_nodes`` and ``kind``, node sets and axis), which
-    ``units``, ``landmarks`` and ``node_set_arrays`` steer.
+    ``units``, ``landmarks`` and ``node_set_arrays`` steer; a file that is no
+    heart is refused unless ``heart=False``.
     """
     if source in GENERATORS:
-        if units is not None or landmarks or node_set_arrays:
-            raise MeshError(f"procedural mesh {source!r} takes no units, landmarks or node_set_arrays (files do)")
+        if units is not None or landmarks or node_set_arrays or not heart:
+            raise MeshError(
+                f"procedural mesh {source!r} takes no units, landmarks, node_set_arrays or heart = false (files do)"
+            )
         geometry = None if shape_params is None else shape_from_params(source, shape_params).geometry()
         return GENERATORS[source](n_nodes, kind, geometry=geometry, name=name or f"{source}-{kind}-{n_nodes}")
     if shape_params is not None:
@@ -52,7 +56,7 @@ def get_mesh(
             f"unknown mesh {source!r}: use one of {sorted(GENERATORS)}, a shipped mesh "
             f"{[REAL_PREFIX + n for n in REAL_MESHES]} or the path of an existing mesh file"
         )
-    return load_heart(source, n_nodes, kind, name or Path(source).stem, units, landmarks, node_set_arrays)
+    return load_heart(source, n_nodes, kind, name or Path(source).stem, units, landmarks, node_set_arrays, heart)
 
 
 def source_file(source: str) -> Path | None:

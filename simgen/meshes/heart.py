@@ -9,14 +9,14 @@ file or a shipped real mesh (``"real:<name>"``):
    names) are kept; when it lacks ``epicardium`` or ``endocardium``, all heart
    sets and the long axis are detected (:func:`~simgen.meshes.nodesets.detect_heart`),
    the file's sets taking precedence. A mesh in which no cavity is found (a
-   slab, a solid) keeps only its own sets, with a logged warning;
+   slab, a solid) is no heart and refused, unless ``heart=False`` accepts it
+   as it is: its own sets only, nothing detected;
 4. ``landmarks`` (``apex``, ``base`` and optionally ``septum`` points in mm)
    replace the detected long axis.
 """
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
@@ -33,8 +33,6 @@ from simgen.meshes.validate import validate_mesh
 
 __all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
 
-log = logging.getLogger("simgen.meshes")
-
 #: Landmark points a spec may give (mm); ``apex`` and ``base`` (base centre) are required together.
 LANDMARKS = ("apex", "base", "septum")
 
@@ -47,8 +45,14 @@ def load_heart(
     units: str | None = None,
     landmarks: Mapping[str, Sequence[float]] | None = None,
     node_set_arrays: Mapping[str, str] | None = None,
+    heart: bool = True,
 ) -> Mesh:
-    """A mesh file or ``"real:<name>"`` as a validated heart mesh of about ``nodes`` nodes (module docstring)."""
+    """A mesh file or ``"real:<name>"`` as a validated heart mesh of about ``nodes`` nodes (module docstring).
+
+    Raises :class:`MeshError` naming the mesh when its heart node sets cannot
+    be detected; ``heart=False`` accepts a mesh that is no heart (a slab for
+    tests and verification) without detecting anything.
+    """
     if is_real(str(source)):
         with unpacked(str(source)) as path:
             mesh = load_mesh(
@@ -61,12 +65,16 @@ def load_heart(
         mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays)
     mesh = resample(mesh, nodes, kind)
     sets, axis = dict(mesh.node_sets), mesh.axis
-    if "epicardium" not in sets or "endocardium" not in sets:
+    if heart and ("epicardium" not in sets or "endocardium" not in sets):
         try:
             detected, axis = detect_heart(mesh)
-            sets = {**detected, **sets}
         except MeshError as exc:
-            log.warning("mesh %r: heart node sets not detected: %s", mesh.name, exc)
+            raise MeshError(
+                f"{source}: not a heart, its heart node sets (epicardium, endocardium, base) cannot be detected: "
+                f"{exc}; to simulate a mesh that is no heart (a slab), accept it with `heart = false` in its "
+                "[[meshes]] entry (`--no-heart` on the command line)"
+            ) from None
+        sets = {**detected, **sets}
     if landmarks:
         axis = axis_from_landmarks(landmarks, axis)
     return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name))

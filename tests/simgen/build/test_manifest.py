@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shared.errors import InputError, MeshError, StimulusError, TimeStepError, TissueError
+from shared.errors import ConfigError, InputError, MeshError, StimulusError, TimeStepError, TissueError
 from simgen.build import BuildSpec, Task, load_spec, make_plan, spec_from_mapping, spec_to_dict, validate_plan
 from simgen.meshes import save_mesh, slab
 
@@ -114,17 +114,37 @@ def test_unknown_mesh(source: str) -> None:
         make_plan(_spec(meshes=[{"id": "x", "source": source}]))
 
 
-def test_mesh_file_without_epicardium(tmp_path: Path) -> None:
+def _slab_spec(tmp_path: Path, mesh_keys: str = "", output: str = "") -> Path:
+    """A spec of the mesh file ``slab.vtu`` (a 20 x 10 x 4 mm slab), ``mesh_keys`` and ``output`` added."""
     save_mesh(slab(20.0, 10.0, 4.0, 2.0), tmp_path / "slab.vtu")
     spec_file = tmp_path / "spec.toml"
     spec_file.write_text(
-        'tissue = ["healthy"]\n[[meshes]]\nid = "slab"\nsource = "slab.vtu"\n'
-        '[sites]\ncount = 4\nnode_set = "all"\n[output]\nchunk_sites = 3\n'
+        f'tissue = ["healthy"]\n[[meshes]]\nid = "slab"\nsource = "slab.vtu"\n{mesh_keys}'
+        f'[sites]\ncount = 4\nnode_set = "all"\n[output]\nchunk_sites = 3\n{output}'
     )
-    plan = make_plan(load_spec(spec_file))
+    return spec_file
+
+
+def test_a_slab_is_accepted_as_no_heart_without_a_sock(tmp_path: Path) -> None:
+    plan = make_plan(load_spec(_slab_spec(tmp_path, "heart = false\n", "sock_electrodes = 0\n")))
     assert plan.meshes["slab"].name == "slab" and plan.electrodes["slab"].shape == (0,)
+    assert sorted(plan.meshes["slab"].node_sets) == ["surface"]  # nothing detected
     assert [(t.start, t.stop) for t in plan.tasks] == [(0, 3), (3, 4)]
     validate_plan(plan)
+
+
+def test_a_mesh_that_is_no_heart_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(MeshError, match=r"slab\.vtu: not a heart.*no ventricular cavity.*`heart = false`"):
+        make_plan(load_spec(_slab_spec(tmp_path)))
+    with pytest.raises(InputError, match=r"\[output\] sock_electrodes = 247: mesh 'slab' has no epicardium"):
+        make_plan(load_spec(_slab_spec(tmp_path, "heart = false\n")))
+    with pytest.raises(ConfigError, match=r"\['heart'\] apply to mesh files and real meshes, not to 'lv'"):
+        spec_from_mapping({"meshes": [{"id": "lv", "heart": False}]})
+
+
+def test_a_sock_larger_than_the_epicardium_is_refused() -> None:
+    with pytest.raises(InputError, match=r"fewer than n_electrodes=5000.*\[output\] sock_electrodes"):
+        make_plan(_spec(output={"sock_electrodes": 5000}, meshes=[{"id": "lv", "nodes": 500}]))
 
 
 def test_no_sock() -> None:
