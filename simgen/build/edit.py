@@ -277,7 +277,7 @@ def regenerate(
     if sites is not None:
         sites = list(sites)
         if not sites:
-            raise InputError("regenerate: --sites is empty; leave it out to regenerate whole subjects")
+            raise InputError("regenerate: --site-index is empty; leave it out to regenerate whole subjects")
     check_store(store, write=True)
     with StoreLock(store):
         spec = store_spec(store)
