@@ -34,13 +34,13 @@ test: $(STAMP)
 	$(BIN)/pytest -q
 
 bench: $(STAMP)
-	$(BIN)/python bench/solver.py --out report/bench
-	$(BIN)/python bench/conduction.py --out report/bench
-	$(BIN)/python bench/real_hearts.py --out report/bench
-	$(BIN)/python bench/build.py --out report/bench
-	$(BIN)/python bench/store_read.py --out report/bench
-	$(BIN)/python bench/surrogate.py --out report/bench
-	$(BIN)/python bench/scaling.py --out report/bench
+	$(BIN)/python -m bench.solver --out report/bench
+	$(BIN)/python -m bench.conduction --out report/bench
+	$(BIN)/python -m bench.real_hearts --out report/bench
+	$(BIN)/python -m bench.build --out report/bench
+	$(BIN)/python -m bench.store_read --out report/bench
+	$(BIN)/python -m bench.surrogate --out report/bench
+	$(BIN)/python -m bench.scaling --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -10,16 +10,16 @@ is published as docs/anatomies.png ([docs/anatomies.md](../docs/anatomies.md)).
 
 Run::
 
-    .venv/bin/python bench/anatomies.py                       # about 20 s
-    .venv/bin/python bench/anatomies.py --figure out.png --count 4 --nodes 800 [--out DIR]
+    .venv/bin/python -m bench.anatomies                       # about 20 s
+    .venv/bin/python -m bench.anatomies --figure out.png --count 4 --nodes 800 [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from bench.common import add_out_argument, write_out
 from shared.mesh import Mesh
 from simgen.meshes.anatomy import Anatomy, sample_anatomies
 from simgen.meshes.catalog import get_mesh
@@ -51,7 +51,7 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=6, help="anatomies per family")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--nodes", type=int, default=1500, help="nodes per mesh")
-    parser.add_argument("--out", type=Path, help="folder for anatomies.md / anatomies.json")
+    add_out_argument(parser, "anatomies")
     args = parser.parse_args()
     samples = [a for family in FAMILIES for a in sample_anatomies(family, args.count, args.seed, nodes=args.nodes)]
     titles = [
@@ -63,10 +63,7 @@ def main() -> None:
     default_dt = {family: time_step(get_mesh(family, args.nodes)) for family in FAMILIES}
     text = table(samples, default_dt)
     print(f"{text}\n\nfigure: {args.figure}")
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "anatomies.md").write_text(text + "\n")
-        (args.out / "anatomies.json").write_text(json.dumps({a.mesh.name: a.params for a in samples}, indent=2))
+    write_out(args.out, "anatomies", text + "\n", {a.mesh.name: a.params for a in samples}, indent=2)
 
 
 if __name__ == "__main__":

@@ -8,14 +8,14 @@ learning rate halved at 40 % and 80 % of them, validation five times), then eval
 * the unseen sampled hearts (the test split: every tissue setting of each), and
 * the real heart of ``--real`` through the 247-electrode sock with noise 0.02 (leave one site out),
 
-as ``bench/unseen_anatomies.py`` does. ``--pns N`` also trains PNS (no context) on ``N`` anatomies
+as :mod:`bench.unseen_anatomies` does. ``--pns N`` also trains PNS (no context) on ``N`` anatomies
 with the same budget, the baseline the curve's metaPNS points are compared with. A run resumes from
 its ``last.pt``, so the command can be repeated after an interruption; ``--only train`` with one count
 lets two models train side by side, ``--only report`` evaluates what is there.
 
 Run::
 
-    .venv/bin/python bench/anatomy_curve.py --config specs/train-anatomies.toml --real data/realdata.zarr \\
+    .venv/bin/python -m bench.anatomy_curve --config specs/train-anatomies.toml --real data/realdata.zarr \\
         --counts 2 8 32 --pns 32 --steps 1280 --runs runs/anatomy-curve --out report/anatomy-curve
 
 Writes ``anatomy_curve.json``, ``anatomy_curve.md`` and ``anatomy_curve.png`` to ``--out``; the table
@@ -28,18 +28,16 @@ import argparse
 import dataclasses
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from unseen_anatomies import real_heart, unseen_procedural  # noqa: E402
-
-from learner.config import LearnerConfig, load_config  # noqa: E402
-from learner.data.split import SplitSpec, split_subjects  # noqa: E402
-from learner.store_view import StoreView  # noqa: E402
-from learner.train.checkpoint import load_checkpoint  # noqa: E402
-from learner.train.trainer import train  # noqa: E402
+from bench.common import write_out
+from bench.unseen_anatomies import real_heart, unseen_procedural
+from learner.config import LearnerConfig, load_config
+from learner.data.split import SplitSpec, split_subjects
+from learner.store_view import StoreView
+from learner.train.checkpoint import load_checkpoint
+from learner.train.trainer import train
 
 
 def run_config(base: LearnerConfig, runs: Path, count: int, kind: str, steps: int) -> LearnerConfig:
@@ -158,10 +156,8 @@ def main() -> None:
         row["seconds"] = time.perf_counter() - start
         rows.append(row)
         print(kind, count, json.dumps({k: row["unseen"]["target"][k]["mean"] for k in ("mse", "cc_spatial", "dc")}))
-    args.out.mkdir(parents=True, exist_ok=True)
     n_test = len(ckpt["splits"]["test"])
-    (args.out / "anatomy_curve.json").write_text(json.dumps({"steps": args.steps, "models": rows}, indent=1))
-    (args.out / "anatomy_curve.md").write_text(markdown(rows, args.steps, n_test))
+    write_out(args.out, "anatomy_curve", markdown(rows, args.steps, n_test), {"steps": args.steps, "models": rows})
     curve_figure(rows, args.out / "anatomy_curve.png")
     print(markdown(rows, args.steps, n_test))
 

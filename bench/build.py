@@ -37,7 +37,7 @@ tree) and warns above 0.1.
    alternating, fastest kept); wall time, sims/s and store size on disk
    (goal <= 15 min on 2 cores).
 
-Run: ``.venv/bin/python bench/build.py [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]``
+Run: ``.venv/bin/python -m bench.build [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]``
 (DIR gets build.md and build.json).
 The tables are published in docs/performance.md ("Build speed") with their machine and command.
 """
@@ -45,9 +45,7 @@ The tables are published in docs/performance.md ("Build speed") with their machi
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import shutil
 import sys
 import tempfile
@@ -58,6 +56,7 @@ import distributed
 import numpy as np
 import zarr
 
+from bench.common import add_out_argument, machine, machine_line, write_out
 from simgen.build.manifest import make_plan
 from simgen.build.runner import build, dask_client
 from simgen.build.spec import BuildSpec, load_spec, spec_from_mapping, spec_hash, spec_to_dict
@@ -598,7 +597,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     p.add_argument("--paper-store", type=Path, help="keep the last --paper store at this new path (default: temporary)")
     p.add_argument("--tmp", type=Path, help="parent folder of the temporary stores (default: system temp)")
-    p.add_argument("--out", type=Path, help="folder for build.md (the tables) and build.json (raw numbers)")
+    add_out_argument(p, "build")
     args = p.parse_args(argv)
 
     load_before = os.getloadavg()[0]
@@ -625,7 +624,7 @@ def main(argv: list[str] | None = None) -> None:
     paper = results.get("paper", [])
     total = time.perf_counter() - t_start
     header = (
-        f"Build bench: {platform.machine()}, {os.cpu_count()} CPUs, dask.distributed "
+        f"Build bench: {machine_line()}, dask.distributed "
         f"{distributed.__version__}, zarr {zarr.__version__}; total {total:.0f} s; "
         f"1-min load average before the run {load_before:.1f}\n"
     )
@@ -645,24 +644,20 @@ def main(argv: list[str] | None = None) -> None:
         )
     table = header + "\n" + markdown(scaling, ceiling, write, paper, args) + "\n"
     print(table)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "build.md").write_text(table)
-        meta = {
-            "machine": platform.machine(),
-            "cpus": os.cpu_count(),
-            "distributed": distributed.__version__,
-            "zarr": zarr.__version__,
-            "total_s": total,
-            "load_average_before": load_before,
-            "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-            "others_cores": others,
-            "scaling": scaling,
-            "ceiling": ceiling,
-            "write": write,
-            "paper": paper,
-        }
-        (args.out / "build.json").write_text(json.dumps(meta, indent=2))
+    meta = {
+        **machine(),
+        "distributed": distributed.__version__,
+        "zarr": zarr.__version__,
+        "total_s": total,
+        "load_average_before": load_before,
+        "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "others_cores": others,
+        "scaling": scaling,
+        "ceiling": ceiling,
+        "write": write,
+        "paper": paper,
+    }
+    write_out(args.out, "build", table, meta, indent=2)
 
 
 if __name__ == "__main__":

@@ -18,21 +18,21 @@ deviation (below ``--flat``, default 0.01: a nearly uniform frame). It writes
 
 Run::
 
-    .venv/bin/python bench/cc_by_frame.py --store data/anatomies.zarr \\
+    .venv/bin/python -m bench.cc_by_frame --store data/anatomies.zarr \\
         --model anatomies=runs/anatomies-metapns/best.pt --out report/cc-by-frame
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 from torch import Tensor
 
+from bench.common import add_out_argument, write_out
 from learner.data.episodes import Episode
-from learner.evaluate import EvalSpec, Method, NeuralMethod, evaluate_methods, load_model
+from learner.evaluate import EvalSetting, EvalSpec, Method, NeuralMethod, evaluate_methods, load_model
 from learner.metrics import frame_cc
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
@@ -67,11 +67,7 @@ def record(checkpoint: str, store: str, targets: int) -> dict[str, list[tuple[np
     view = StoreView(store, cache_dir=Path(checkpoint).parent / "hierarchies")
     method = Recording(NeuralMethod(model, config.model.kind))
     spec = EvalSpec(context_sets=1, max_targets=targets)
-    episodes = config.data.episodes
-    evaluate_methods(
-        [method], view, test, spec, episodes.primary_observe, episodes.noise_std, config.model.levels,
-        config.model.coarsest,
-    )  # fmt: skip
+    evaluate_methods([method], view, test, spec, EvalSetting.of(config))
     return method.frames
 
 
@@ -118,7 +114,7 @@ def main() -> None:
     parser.add_argument("--model", action="append", required=True, help="NAME=CHECKPOINT (repeatable)")
     parser.add_argument("--targets", type=int, default=10, help="targets per context set")
     parser.add_argument("--flat", type=float, default=0.01, help="truth spatial std below which a frame is flat")
-    parser.add_argument("--out", type=Path, default=Path("report/cc-by-frame"))
+    add_out_argument(parser, "cc_by_frame", Path("report/cc-by-frame"))
     args = parser.parse_args()
 
     results: dict[str, dict] = {}
@@ -143,9 +139,7 @@ def main() -> None:
                 f"| {s['cc_flat']:.3f} | {s['cc_other']:.3f} |"
             )
     table = "\n".join(lines) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "cc_by_frame.json").write_text(json.dumps(results, indent=1))
-    (args.out / "cc_by_frame.md").write_text(table)
+    write_out(args.out, "cc_by_frame", table, results)
     figure({n: {g: s for g, s in gs.items() if g != "all"} for n, gs in results.items()}, args.out / "cc_by_frame.png")
     print(table)
 

@@ -5,19 +5,18 @@ slabs (tetrahedra) under refinement, at the default resolution of the default
 LV mesh (D = 100 mm^2/tu, h = its mean edge), and the default LV's activation
 times against a 4x finer LV mesh.
 
-    python bench/conduction.py [--out DIR]
+    python -m bench.conduction [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from bench.common import add_out_argument, write_out
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.slab import slab, strip
 from simgen.solver.simulate import Simulator, SolverConfig
@@ -71,7 +70,7 @@ def lv_refinement(n_sites: int = 8) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, help="folder for conduction.md / conduction.json")
+    add_out_argument(parser, "conduction")
     args = parser.parse_args()
     rows = planar_rows()
     apd = action_potential_duration(strip(10.0, 0.5, 0.25), x=5.0)
@@ -89,10 +88,7 @@ def main() -> None:
     ]
     table = "\n".join(lines)
     print(table)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "conduction.md").write_text(table + "\n")
-        (args.out / "conduction.json").write_text(json.dumps({"planar": rows, "apd50": apd, "lv": lv}, indent=2))
+    write_out(args.out, "conduction", table + "\n", {"planar": rows, "apd50": apd, "lv": lv}, indent=2)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ against fp32 (mean and largest over the episodes), and the time per episode. fp1
 as training does (``torch.amp.GradScaler``). The block-sparse graph convolutions stay in float32
 under autocast (their CPU kernels have no half-precision version).
 
-Run: ``.venv/bin/python bench/precision.py [--epochs 1] [--episodes 8] [--device cpu] [--out DIR]``.
+Run: ``.venv/bin/python -m bench.precision [--epochs 1] [--episodes 8] [--device cpu] [--out DIR]``.
 The table is published in docs/training.md ("Mixed precision") with its machine and command.
 """
 
@@ -17,9 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -27,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.common import add_out_argument, machine_line, write_out
 from learner.config import LearnerConfig, load_config
 from learner.data.episodes import EpisodeDataset
 from learner.train.trainer import Trainer
@@ -65,7 +63,7 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=1)
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--out", type=Path, help="also write precision.md and .json here")
+    add_out_argument(parser, "precision")
     args = parser.parse_args()
 
     base = load_config(args.config)
@@ -87,7 +85,7 @@ def main() -> None:
     reference = results["fp32"]
     lines = [
         f"{args.episodes} training episodes of epoch {args.epochs + 1} after {args.epochs} fp32 epoch(s), "
-        f"device {args.device}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs.\n",
+        f"device {args.device}, {machine_line()}.\n",
         "| precision | total loss, relative difference: mean / max | target MSE | gradient norm | s per episode |",
         "|---|---:|---:|---:|---:|",
     ]
@@ -100,10 +98,7 @@ def main() -> None:
         lines.append(f"| {p} | {' | '.join(cells)} | {seconds:.2f} |")
     table = "\n".join(lines)
     print(table)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "precision.md").write_text(table + "\n")
-        (args.out / "precision.json").write_text(json.dumps(results))
+    write_out(args.out, "precision", table + "\n", results, indent=None)
 
 
 if __name__ == "__main__":

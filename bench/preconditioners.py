@@ -16,19 +16,19 @@ right-hand side, one thread).
 
 Run::
 
-    .venv/bin/pip install pyamg && OMP_NUM_THREADS=1 .venv/bin/python bench/preconditioners.py
+    .venv/bin/pip install pyamg && OMP_NUM_THREADS=1 .venv/bin/python -m bench.preconditioners
 """
 
 from __future__ import annotations
 
 import argparse
-import platform
 import time
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import cg
 
+from bench.common import best_of, machine_line
 from simgen.meshes import get_mesh
 from simgen.solver.simulate import SolverConfig, assemble, healthy_fields
 
@@ -53,15 +53,17 @@ def smooth_rhs(matrix: sp.csr_matrix, seed: int = 0) -> np.ndarray:
 
 def timed_solve(matrix: sp.csr_matrix, rhs: np.ndarray, preconditioner, repeat: int) -> tuple[int, float]:
     """``(iterations, best wall seconds)`` of CG to :data:`TOLERANCE` from a zero guess."""
-    best, iterations = np.inf, 0
-    for _ in range(repeat):
+
+    def solve() -> int:
         count = [0]
-        start = time.perf_counter()
-        _, info = cg(matrix, rhs, rtol=TOLERANCE, M=preconditioner, callback=lambda _: count.__setitem__(0, count[0] + 1))
-        best = min(best, time.perf_counter() - start)
+        _, info = cg(
+            matrix, rhs, rtol=TOLERANCE, M=preconditioner, callback=lambda _: count.__setitem__(0, count[0] + 1)
+        )
         if info != 0:
             raise RuntimeError(f"CG did not converge (info {info})")
-        iterations = count[0]
+        return count[0]
+
+    best, iterations = best_of(solve, repeat)
     return iterations, best
 
 
@@ -74,9 +76,11 @@ def main() -> None:
         import pyamg
     except ImportError:
         raise SystemExit("this benchmark needs pyamg: .venv/bin/pip install pyamg") from None
-    print(f"{platform.processor() or platform.machine()}, {platform.system()}, pyamg {pyamg.__version__}\n")
-    print("| mesh | nodes | dt | Jacobi-CG iterations | Jacobi-CG solve (ms) | AMG-CG iterations | AMG levels | "
-          "operator complexity | AMG setup (ms) | AMG-CG solve (ms) |")
+    print(f"{machine_line()}, pyamg {pyamg.__version__}\n")
+    print(
+        "| mesh | nodes | dt | Jacobi-CG iterations | Jacobi-CG solve (ms) | AMG-CG iterations | AMG levels | "
+        "operator complexity | AMG setup (ms) | AMG-CG solve (ms) |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for nodes in args.nodes:
         matrix, dt, n_nodes = sbdf2_matrix(nodes)
@@ -88,7 +92,8 @@ def main() -> None:
         amg = timed_solve(matrix, rhs, hierarchy.aspreconditioner(cycle="V"), args.repeat)
         print(
             f"| lv {nodes} | {n_nodes} | {dt:.3g} | {jacobi[0]} | {1e3 * jacobi[1]:.2f} | {amg[0]} | "
-            f"{len(hierarchy.levels)} | {hierarchy.operator_complexity():.2f} | {1e3 * setup:.1f} | {1e3 * amg[1]:.2f} |"
+            f"{len(hierarchy.levels)} | {hierarchy.operator_complexity():.2f} | {1e3 * setup:.1f} | "
+            f"{1e3 * amg[1]:.2f} |"
         )
 
 

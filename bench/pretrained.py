@@ -18,22 +18,20 @@ Run::
 
     simgen build specs/anatomies.toml --store data/anatomies.zarr --workers 2
     simgen build specs/realdata.toml --store data/realdata.zarr
-    .venv/bin/python bench/pretrained.py --store data/anatomies.zarr --real data/realdata.zarr
+    .venv/bin/python -m bench.pretrained --store data/anatomies.zarr --real data/realdata.zarr
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
-from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data
-from learner.evaluate import EvalSpec, evaluate, load_method
+from bench.common import add_out_argument, machine_line, write_out
+from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
+from learner.evaluate import EvalSetting, EvalSpec, evaluate, load_method
 from learner.metrics import mse
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
@@ -84,7 +82,7 @@ def main() -> None:
     parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
     parser.add_argument("--targets", type=int, default=10, help="targets per context set on the unseen hearts")
     parser.add_argument("--sites", type=int, default=8, help="pacing sites of the real heart (leave one out)")
-    parser.add_argument("--out", type=Path, default=Path("report/pretrained"))
+    add_out_argument(parser, "pretrained", Path("report/pretrained"))
     args = parser.parse_args()
 
     splits = load_checkpoint(args.model, kind="model")["splits"]
@@ -94,12 +92,8 @@ def main() -> None:
     unseen_s = time.perf_counter() - start
     method, config, _ = load_method(args.model)
     start = time.perf_counter()
-    real = real_data(
-        [method],
-        config.model.levels,
-        config.model.coarsest,
-        BenchmarkConfig(real_data=RealDataSpec(store=args.real, sites=args.sites)),
-    )
+    real_cfg = BenchmarkConfig(real_data=RealDataSpec(store=args.real, sites=args.sites))
+    real = real_data([method], real_data_setting(real_cfg, EvalSetting.of(config)), real_cfg)
     real_s = time.perf_counter() - start
     view = StoreView(args.store)
     result = {
@@ -118,12 +112,10 @@ def main() -> None:
         },
         "real_sites": args.sites,
         "seconds": {"unseen": unseen_s, "real": real_s},
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+        "machine": machine_line(),
     }
     table = markdown(result)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "pretrained.json").write_text(json.dumps(result, indent=1, default=float))
-    (args.out / "pretrained.md").write_text(table)
+    write_out(args.out, "pretrained", table, result)
     print(table)
     print(f"unseen hearts {unseen_s:.0f} s, real heart {real_s:.0f} s on {result['machine']}")
 

@@ -4,7 +4,7 @@ Every read of ``u`` or ``activation`` through :mod:`shared.reader`, the
 learner's episodes, ``SimulationDataset`` and ``export-vtk`` checks each chunk
 it touches once per reader (done flag, shard indices, content fingerprint from
 the inner chunks' CRC32C) and the rows it decodes (finite ``u``). This bench
-builds the store of ``bench/store_read.py`` (one ~2000-node LV x 4 tissue
+builds the store of :mod:`bench.store_read` (one ~2000-node LV x 4 tissue
 settings x 200 sites, 64 sites per build task, sharded) and measures each
 read path with the check and with it switched off (``SubjectReader.check_chunk``
 replaced by a no-op, in this process only):
@@ -13,25 +13,21 @@ replaced by a no-op, in this process only):
   ``--reads`` of them, median, store in the page cache), the chunk checked
   again on every read (the worst case: a fresh reader per read);
 - **episodes/s** of :class:`learner.data.episodes.EpisodeDataset` (1-5
-  context + 10 target sites on the surface, as ``bench/store_read.py``);
+  context + 10 target sites on the surface, as :mod:`bench.store_read`);
 - **a training epoch** (``learner.train.trainer.train``, a small model
   (channels 4-8, latent 8: reading is a larger share of its epoch than of the
   default model's), 1-5 context + 8 targets, loss on 20 frames, one episode
   per subject and epoch; median of ``--epochs`` epochs, in which the readers
   check their chunks anew).
 
-Run: ``.venv/bin/python bench/read_verification.py [--out DIR]`` (DIR gets read_verification.md and .json).
+Run: ``.venv/bin/python -m bench.read_verification [--out DIR]`` (DIR gets read_verification.md and .json).
 The table is published in docs/performance.md ("Reading the store") with its machine and command.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
-import sys
 import tempfile
 import time
 from contextlib import contextmanager
@@ -39,16 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from store_read import bench_spec, warm  # noqa: E402
-
-from learner.config import config_from_mapping  # noqa: E402
-from learner.data.episodes import EpisodeDataset, EpisodeSpec  # noqa: E402
-from learner.train.trainer import train  # noqa: E402
-from shared.integrity import SubjectReader  # noqa: E402
-from shared.reader import subject_ids  # noqa: E402
-from simgen.build.runner import build  # noqa: E402
+from bench.common import add_out_argument, machine_line, write_out
+from bench.store_read import bench_spec, warm
+from learner.config import config_from_mapping
+from learner.data.episodes import EpisodeDataset, EpisodeSpec
+from learner.train.trainer import train
+from shared.integrity import SubjectReader
+from shared.reader import subject_ids
+from simgen.build.runner import build
 
 
 @contextmanager
@@ -133,12 +127,11 @@ def run(args) -> dict:
 
 
 def markdown(results: dict, args, seconds: float) -> str:
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
     off, on = results["unchecked"], results["verified"]
     lines = [
-        f"Machine: {cpu}, {os.cpu_count()} CPU(s), {platform.system()} {platform.release()}; "
+        f"Machine: {machine_line()}; "
         f"store: 1 LV of ~{args.nodes} nodes x 4 settings x {args.sites} sites, {args.chunk} sites per shard.",
-        f"Command: `.venv/bin/python bench/read_verification.py` ({seconds:.0f} s); best of two passes each.",
+        f"Command: `.venv/bin/python -m bench.read_verification` ({seconds:.0f} s); best of two passes each.",
         "",
         "| reads | one simulation (ms) | episodes/s | training epoch (s) |",
         "|---|---:|---:|---:|",
@@ -161,17 +154,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=200, help="episodes per episodes/s pass")
     p.add_argument("--epochs", type=int, default=5, help="training epochs per pass (median kept)")
     p.add_argument("--tmp", type=Path, default=None, help="folder for the store (default: the system's temp)")
-    p.add_argument("--out", type=Path, default=None, help="also write read_verification.md and .json here")
+    add_out_argument(p, "read_verification")
     args = p.parse_args(argv)
     start = time.perf_counter()
     results = run(args)
     text = markdown(results, args, time.perf_counter() - start)
     print(text)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "read_verification.md").write_text(text)
-        payload = {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, **results}
-        (args.out / "read_verification.json").write_text(json.dumps(payload))
+    payload = {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, **results}
+    write_out(args.out, "read_verification", text, payload, indent=None)
 
 
 if __name__ == "__main__":

@@ -13,9 +13,9 @@ the mean per fold, and the share spent inside the simulator.
 
 Run (one thread for the simulator and for the GP)::
 
-    OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python bench/real_baselines.py \\
+    OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python -m bench.real_baselines \\
         --store data/realdata.zarr --out report/bench            # every fold, both methods
-    .venv/bin/python bench/real_baselines.py --folds 1 --methods fs-bo   # first fold of each subject
+    .venv/bin/python -m bench.real_baselines --folds 1 --methods fs-bo   # first fold of each subject
 
 ``--out DIR`` writes real_baselines.md (the tables) and real_baselines.json (every fold and fit).
 """
@@ -23,32 +23,25 @@ Run (one thread for the simulator and for the GP)::
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 from torch import Tensor
 
-from learner.benchmark import BaselineMethod, baseline_methods, load_benchmark_config, real_data, real_data_table
+from bench.common import add_out_argument, machine, machine_line, write_out
+from learner.benchmark import baseline_methods, load_benchmark_config, real_data, real_data_setting
+from learner.benchmark_report import real_data_table
 from learner.config import ModelConfig
 from learner.data.episodes import Episode
-from learner.evaluate import Method
+from learner.evaluate import EvalSetting, Method
 from learner.graph.hierarchy import MeshHierarchy
+from learner.methods import BaselineMethod
 from learner.store_view import StoreView
 from shared.mesh import Mesh
+from shared.observation import Observation
 from shared.reader import read_solver_settings
-
-
-def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo (Linux), else the platform's processor string."""
-    info = Path("/proc/cpuinfo")
-    lines = info.read_text().splitlines() if info.exists() else []
-    names = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
-    return names[0] if names else platform.processor() or platform.machine()
 
 
 class TimedFit(Method):
@@ -101,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--config", default="specs/benchmark-default.toml", help="benchmark config: [baselines], seed")
     p.add_argument("--methods", nargs="+", default=["fs-bo", "vae-bo"], help="baselines to run")
     p.add_argument("--folds", type=int, default=0, help="left-out sites per subject (0: all)")
-    p.add_argument("--out", type=Path, help="folder for real_baselines.md and real_baselines.json")
+    add_out_argument(p, "real_baselines")
     args = p.parse_args(argv)
 
     cfg = load_benchmark_config(args.config)
@@ -112,7 +105,8 @@ def main(argv: list[str] | None = None) -> None:
     load_before = os.getloadavg()[0]
     start = time.perf_counter()
     model = ModelConfig()  # the hierarchy real_data builds; the baselines do not use it
-    result = real_data(methods, model.levels, model.coarsest, cfg, args.folds)
+    setting = real_data_setting(cfg, EvalSetting(Observation(), model.levels, model.coarsest))
+    result = real_data(methods, setting, cfg, args.folds)
     total = time.perf_counter() - start
     load_after = os.getloadavg()[0]
 
@@ -120,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
     folds = len(result["folds"]["ceiling"])
     rd, b = cfg.real_data, cfg.baselines
     header = (
-        f"Real-heart baselines: {platform.system()} {platform.machine()}, {cpu_model()}, {os.cpu_count()} CPUs, "
+        f"Real-heart baselines: {machine_line()}, "
         f"one thread; total {total:.0f} s; 1-min load average {load_before:.1f} before, {load_after:.1f} after.\n\n"
         f"{', '.join(result['subjects'])} ({mesh.n_nodes} nodes), {result['electrodes']} sock electrodes, "
         f"noise {rd.noise_std}, leave one of {rd.sites} sites out: {folds} folds "
@@ -129,22 +123,17 @@ def main(argv: list[str] | None = None) -> None:
     )
     text = header + "\n" + real_data_table(result) + "\n" + timing_table(methods)
     print(text)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "real_baselines.md").write_text(text)
-        meta = {
-            "machine": platform.machine(),
-            "processor": cpu_model(),
-            "cpus": os.cpu_count(),
-            "load_before": load_before,
-            "load_after": load_after,
-            "total_s": total,
-            "nodes": mesh.n_nodes,
-            "folds_per_subject": args.folds,
-            "fits": {m.name: m.fits for m in methods},
-            **result,
-        }
-        (args.out / "real_baselines.json").write_text(json.dumps(meta, indent=1, default=float))
+    meta = {
+        **machine(),
+        "load_before": load_before,
+        "load_after": load_after,
+        "total_s": total,
+        "nodes": mesh.n_nodes,
+        "folds_per_subject": args.folds,
+        "fits": {m.name: m.fits for m in methods},
+        **result,
+    }
+    write_out(args.out, "real_baselines", text, meta)
 
 
 if __name__ == "__main__":

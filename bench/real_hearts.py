@@ -26,8 +26,8 @@ activation maps over the sites). Then the issue's goals, measured in this run:
 
 Run::
 
-    .venv/bin/python bench/real_hearts.py --out report/bench            # ~10 min on 2 cores
-    .venv/bin/python bench/real_hearts.py --nodes 1000 2000 --quick     # real meshes and small LVs only
+    .venv/bin/python -m bench.real_hearts --out report/bench            # ~10 min on 2 cores
+    .venv/bin/python -m bench.real_hearts --nodes 1000 2000 --quick     # real meshes and small LVs only
 
 ``--out DIR`` writes real_hearts.md (the tables) and real_hearts.json (raw numbers).
 """
@@ -35,15 +35,13 @@ Run::
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import time
-from pathlib import Path
 
 import numba
 import numpy as np
 
+from bench.common import add_out_argument, machine, machine_line, write_out
 from shared.mesh import Mesh
 from simgen.meshes import get_mesh
 from simgen.meshes.io import load_mesh
@@ -165,7 +163,7 @@ def main(argv: list[str] | None = None) -> None:
         help="stimulus radius in mm on every mesh (default 8, the default 2k LV's), so that each launches a wave",
     )
     p.add_argument("--quick", action="store_true", help="procedural meshes up to 2k nodes only")
-    p.add_argument("--out", type=Path, help="folder for real_hearts.md and real_hearts.json")
+    add_out_argument(p, "real_hearts")
     args = p.parse_args(argv)
     if args.quick:
         args.nodes = [n for n in args.nodes if n <= 2000] or [1000]
@@ -184,18 +182,14 @@ def main(argv: list[str] | None = None) -> None:
             print(markdown([row]).splitlines()[-1], flush=True)
     total = time.perf_counter() - start
     header = (
-        f"Real-heart bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__}, one thread, "
+        f"Real-heart bench: {machine_line()}, numba {numba.__version__}, one thread, "
         f"{args.sites} sites x 55 frames per run, stimulus radius {args.stimulus_radius:g} mm, best of {args.repeat}; "
         f"total {total:.0f} s; "
         f"1-min load average before the run {load_before:.1f}\n"
     )
     text = header + "\n" + markdown(rows) + "\n" + "\n".join(goals(rows, args)) + "\n"
     print(text)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "real_hearts.md").write_text(text)
-        meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "total_s": total, "rows": rows}
-        (args.out / "real_hearts.json").write_text(json.dumps(meta, indent=2))
+    write_out(args.out, "real_hearts", text, {**machine(), "total_s": total, "rows": rows}, indent=2)
 
 
 if __name__ == "__main__":

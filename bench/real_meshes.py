@@ -10,8 +10,8 @@ node-set sizes, seconds to load and resample, the solver's time step.
 
 Run::
 
-    .venv/bin/python bench/real_meshes.py                  # about 1-2 min
-    .venv/bin/python bench/real_meshes.py --nodes 1000 --kind triangle --out /tmp/real
+    .venv/bin/python -m bench.real_meshes                  # about 1-2 min
+    .venv/bin/python -m bench.real_meshes --nodes 1000 --kind triangle --out /tmp/real
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.common import machine_line
 from simgen.meshes import get_mesh
 from simgen.meshes.io import load_mesh
 from simgen.meshes.resample import hausdorff_distance
@@ -38,9 +39,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--nodes", type=int, default=2000)
     parser.add_argument("--kind", choices=("tetra", "triangle"), default="tetra")
-    parser.add_argument("--out", type=Path, default=Path("docs"))
+    parser.add_argument("--out", type=Path, default=Path("docs"), help="folder for the real-<name>.png figures")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    print(f"Machine: {machine_line()}\n")
     print(
         f"| mesh | nodes in file | nodes ({args.kind}) | Hausdorff (mm) | "
         + " | ".join(SETS)

@@ -21,7 +21,7 @@ simulation costs about ``nodes^(5/3)`` on these meshes; a training episode
 grows about linearly in the nodes. Writes ``scaling.md``, ``scaling.json``
 and ``scaling.png`` (log-log).
 
-Run: ``.venv/bin/python bench/scaling.py [--out DIR] [--nodes 1000,5000,20000,50000] [--sites 16,64,256,512]``.
+Run: ``.venv/bin/python -m bench.scaling [--out DIR] [--nodes 1000,5000,20000,50000] [--sites 16,64,256,512]``.
 The tables are published in docs/performance.md ("Scaling with mesh size and sites"), the plot
 as docs/scaling.png.
 """
@@ -30,14 +30,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import resource
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from bench.common import add_out_argument, machine_line, write_out
 
 BUILD_SITES = 8
 SITES_MESH = 2000
@@ -163,7 +163,7 @@ def child_train(nodes: int, device: str = "cpu") -> dict:
 
 def run_child(*args: str) -> dict:
     """One measurement in a fresh interpreter (so peak RSS is its own); its JSON line back."""
-    out = subprocess.run([sys.executable, __file__, "--child", *args], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "bench.scaling", "--child", *args], capture_output=True, text=True)
     if out.returncode:
         raise RuntimeError(f"scaling child {args} failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -215,7 +215,7 @@ def plot(nodes: list[dict], sites: list[dict], train: list[dict], path: Path) ->
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=Path)
+    add_out_argument(p, "scaling")
     p.add_argument("--nodes", default="1000,5000,20000,50000")
     p.add_argument("--sites", default="16,64,256,512")
     p.add_argument("--train-only", action="store_true", help="only the training-step rows")
@@ -235,9 +235,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"train {train[-1]['nodes']} nodes: {train[-1]['step_s']:.2f} s", file=sys.stderr, flush=True)
     if args.train_only:
         print(json.dumps(train, indent=1))
-        if args.out:
-            args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / f"scaling-train-{args.device.split(':')[0]}.json").write_text(json.dumps(train, indent=2))
+        write_out(args.out, f"scaling-train-{args.device.split(':')[0]}", json.dumps(train, indent=1), train, indent=2)
         return
     for n in node_list:
         nodes.append(run_child("build", str(n), str(BUILD_SITES)))
@@ -265,7 +263,7 @@ def main(argv: list[str] | None = None) -> None:
         ("peak_rss_mb", "peak RSS (MB)", ".0f"),
     ]
     md = (
-        f"Scaling bench: {platform.machine()}, {os.cpu_count()} CPUs, one thread per measurement; "
+        f"Scaling bench: {machine_line()}, one thread per measurement; "
         f"total {time.perf_counter() - t0:.0f} s\n\n"
         f"### Build vs mesh nodes ({BUILD_SITES} sites, one chunk)\n\n{table(nodes, build_cols)}\n"
         f"Time per simulation grows as nodes^{slope(nodes, 'nodes', 's_per_sim'):.2f} "
@@ -277,12 +275,7 @@ def main(argv: list[str] | None = None) -> None:
         f"Episode time grows as nodes^{slope(train, 'nodes', 'step_s'):.2f}.\n"
     )
     print(md)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "scaling.md").write_text(md)
-        (args.out / "scaling.json").write_text(
-            json.dumps({"build_nodes": nodes, "build_sites": sites, "train": train}, indent=2)
-        )
+    if write_out(args.out, "scaling", md, {"build_nodes": nodes, "build_sites": sites, "train": train}, indent=2):
         plot(nodes, sites, train, args.out / "scaling.png")
 
 

@@ -10,7 +10,7 @@ Run (after training one model per seed)::
 
     for s in 0 1 2; do learner evaluate runs/seed$s/best.pt data/default.zarr --sets 1 --max-targets 20 \\
         --out report/eval-seed$s; done
-    .venv/bin/python bench/seed_spread.py report/eval-seed0 report/eval-seed1 report/eval-seed2 [--out DIR]
+    .venv/bin/python -m bench.seed_spread report/eval-seed0 report/eval-seed1 report/eval-seed2 [--out DIR]
 """
 
 from __future__ import annotations
@@ -19,6 +19,8 @@ import argparse
 import json
 import statistics
 from pathlib import Path
+
+from bench.common import add_out_argument, write_out
 
 COLUMNS = (
     ("target", "mse"),
@@ -50,7 +52,7 @@ def spread_table(reports: dict[str, dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("evaluations", type=Path, nargs="+", help="folders holding evaluation.json")
-    parser.add_argument("--out", type=Path, default=None, help="also write seed_spread.md here")
+    add_out_argument(parser, "seed_spread")
     args = parser.parse_args()
     reports = {}
     for folder in args.evaluations:
@@ -60,9 +62,7 @@ def main() -> None:
         reports[folder.name] = json.loads(path.read_text())
     table = spread_table(reports)
     print(table)
-    if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "seed_spread.md").write_text(table + "\n")
+    write_out(args.out, "seed_spread", table + "\n")
 
 
 if __name__ == "__main__":

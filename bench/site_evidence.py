@@ -16,19 +16,19 @@ what ``model.capture_evidence`` adds to the capture gate (docs/method.md).
 
 Run::
 
-    .venv/bin/python bench/site_evidence.py data/default.zarr [--contexts 1 3 5] [--out DIR]
+    .venv/bin/python -m bench.site_evidence data/default.zarr [--contexts 1 3 5] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 import torch
 from numpy.typing import NDArray
 from scipy.stats import rankdata
 
+from bench.common import add_out_argument, write_out
 from learner.metrics import wave_started
 from learner.models.site_evidence import SiteEvidence
 from shared.reader import read_index_set, read_sites, read_tissue, read_u, subject_attrs, subject_ids
@@ -98,13 +98,11 @@ def main() -> None:
     parser.add_argument("store", help="a dataset store (simgen build)")
     parser.add_argument("--contexts", nargs="+", type=int, default=[1, 3, 5], help="context set sizes")
     parser.add_argument("--seed", type=int, default=0, help="seed of the context draws")
-    parser.add_argument("--out", type=Path, help="write site_evidence.md there")
+    add_out_argument(parser, "site_evidence")
     args = parser.parse_args()
     table = evidence_table(scar_sites(args.store, args.contexts, args.seed))
     print(table)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "site_evidence.md").write_text(table + "\n")
+    write_out(args.out, "site_evidence", table + "\n")
 
 
 if __name__ == "__main__":

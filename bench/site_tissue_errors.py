@@ -17,7 +17,7 @@ docs/training.md ("Where the error is") publishes the table.
 Run::
 
     learner evaluate runs/seed0/best.pt data/default.zarr --sets 1 --max-targets 20 --out report/eval-seed0
-    .venv/bin/python bench/site_tissue_errors.py data/default.zarr report/eval-seed0 [more reports] \
+    .venv/bin/python -m bench.site_tissue_errors data/default.zarr report/eval-seed0 [more reports] \
         [--checkpoints runs/seed0/best.pt ...] [--out DIR]
 """
 
@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.common import add_out_argument, write_out
 from learner.data.episodes import load_episode
 from learner.metrics import wave_started
 from learner.models.site_evidence import SiteEvidence
@@ -127,7 +128,7 @@ def main() -> None:
     parser.add_argument("store", help="the store the reports evaluated")
     parser.add_argument("reports", nargs="+", type=Path, help="directories holding evaluation.json")
     parser.add_argument("--checkpoints", nargs="*", default=[], help="the evaluated models, one per report")
-    parser.add_argument("--out", type=Path, help="write site_tissue_errors.md there")
+    add_out_argument(parser, "site_tissue_errors")
     args = parser.parse_args()
     if args.checkpoints and len(args.checkpoints) != len(args.reports):
         parser.error(f"give one checkpoint per report ({len(args.reports)}), got {len(args.checkpoints)}")
@@ -135,9 +136,7 @@ def main() -> None:
     checkpoints = dict(zip(reports, args.checkpoints, strict=False)) if args.checkpoints else None
     table = tissue_table(args.store, reports, checkpoints)
     print(table)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "site_tissue_errors.md").write_text(table + "\n")
+    write_out(args.out, "site_tissue_errors", table + "\n")
 
 
 if __name__ == "__main__":

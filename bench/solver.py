@@ -29,7 +29,7 @@ for torch the bytes a step moves at least (:func:`torch_step_bytes`) per second,
 on CUDA as a share of the GPU's peak memory bandwidth (:func:`peak_bandwidth`),
 and its largest differences from numba (u, activation times in steps).
 
-Run: ``.venv/bin/python bench/solver.py [--quick] [--out DIR]`` (DIR gets solver.md and solver.json);
+Run: ``.venv/bin/python -m bench.solver [--quick] [--out DIR]`` (DIR gets solver.md and solver.json);
 ``--backend numba torch --device cuda --nodes 2000 10000 50000 --naive-sites 0`` on a GPU machine;
 ``--integrator euler rkc --real real:tof-biv --nodes 1000 --batch 8 --threads 1 --naive-sites 0``.
 The numba table is published in docs/performance.md ("Solver speed"), the torch one and the
@@ -39,16 +39,14 @@ integrators' in docs/solver-backends.md, each with its machine and command.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import time
-from pathlib import Path
 
 import numba
 import numpy as np
 import scipy.sparse as sp
 
+from bench.common import add_out_argument, best_of, machine, machine_line, write_out
 from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.heart import load_heart
@@ -150,13 +148,8 @@ def bench_mesh(
         row["variants"].append(entry)
         return entry
 
-    def best_of(simulator: Simulator, threads: int) -> tuple[float, object]:
-        walls = []
-        for _ in range(args.repeat):  # best of `repeat` runs, as for the naive loop
-            t0 = time.perf_counter()
-            res = simulator.run(sites[:n_batch], threads=threads, block_size=args.block_size)
-            walls.append(time.perf_counter() - t0)
-        return min(walls), res
+    def best_run(simulator: Simulator, threads: int) -> tuple[float, object]:  # best of `repeat`, as the naive loop
+        return best_of(lambda: simulator.run(sites[:n_batch], threads=threads, block_size=args.block_size), args.repeat)
 
     naive_u, naive_s = [], []
     if n_naive:
@@ -172,10 +165,10 @@ def bench_mesh(
     if "numba" in args.backend:
         sim.run(sites[:2], threads=max(args.threads))  # JIT compile (or load the cache) and warm up
         for t in args.threads:
-            wall, results["numba"] = best_of(sim, t)
+            wall, results["numba"] = best_run(sim, t)
             record(f"batched f32, {t} thread{'s' * (t > 1)}", n_batch, wall)
     if "torch" in args.backend:
-        bench_torch(mesh, config, args, row, record, best_of, results)
+        bench_torch(mesh, config, args, row, record, best_run, results)
     if "numba" in results and "torch" in results:
         a, b = results["numba"], results["torch"]
         row["torch_vs_numba"] = {
@@ -215,7 +208,7 @@ def fastest(row: dict) -> float:
 
 
 def bench_torch(
-    mesh, config: SolverConfig, args: argparse.Namespace, row: dict, record, best_of, results: dict
+    mesh, config: SolverConfig, args: argparse.Namespace, row: dict, record, best_run, results: dict
 ) -> None:
     """The torch backend's variants on ``args.device``: each thread count on the CPU, one run on CUDA."""
     compile_ = {"auto": None, "on": True, "off": False}[args.compile]
@@ -227,7 +220,7 @@ def bench_torch(
     how = "compiled" if kernel.compiled else "eager"
     on_cuda = kernel.device.type == "cuda"
     for t in [1] if on_cuda else args.threads:
-        wall, results["torch"] = best_of(sim, t)
+        wall, results["torch"] = best_run(sim, t)
         name = f"torch f32 {kernel.device}, {how}" + ("" if on_cuda else f", {t} thread{'s' * (t > 1)}")
         entry = record(name, args.batch, wall)
         if row["integrator"] != "euler":  # the byte count is an Euler step's
@@ -331,7 +324,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--real", nargs="+", metavar="NAME", help="shipped real meshes (real:tof-biv) at each --nodes size (1000)"
     )
-    p.add_argument("--out", type=Path, help="folder for solver.md (the table) and solver.json (raw numbers)")
+    add_out_argument(p, "solver")
     args = p.parse_args(argv)
 
     if args.real:
@@ -358,7 +351,7 @@ def main(argv: list[str] | None = None) -> None:
 
         torch_note = f" (torch {torch.__version__} on {args.device}, compile {args.compile})"
     header = (
-        f"Solver bench: {platform.machine()}, {os.cpu_count()} CPUs, numba {numba.__version__} "
+        f"Solver bench: {machine_line()}, numba {numba.__version__} "
         f"({numba.config.NUMBA_NUM_THREADS} threads), block size {args.block_size}; backends "
         f"{' '.join(args.backend)}{torch_note}; integrators {' '.join(args.integrator)}; total {total:.0f} s; "
         f"1-min load average before the run {load_before:.1f}\n"
@@ -368,11 +361,8 @@ def main(argv: list[str] | None = None) -> None:
     table = header + "\n" + markdown(rows) + "\n"
     print(table)
     if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "solver.md").write_text(table)
         meta = {
-            "machine": platform.machine(),
-            "cpus": os.cpu_count(),
+            **machine(),
             "numba": numba.__version__,
             "block_size": args.block_size,
             "backends": args.backend,
@@ -383,7 +373,7 @@ def main(argv: list[str] | None = None) -> None:
             "load_average_before": load_before,
             "meshes": rows,
         }
-        (args.out / "solver.json").write_text(json.dumps(meta, indent=2))
+        write_out(args.out, "solver", table, meta, indent=2)
 
 
 if __name__ == "__main__":

@@ -19,14 +19,13 @@ it) and with the store in the page cache; and learner episodes/s
 observed on the surface, as ``specs/train-default.toml``; sites drawn from the
 whole subject and from 2 build chunks) with the store in the page cache.
 
-Run: ``.venv/bin/python bench/store_read.py [--out DIR]`` (DIR gets store_read.md and store_read.json).
+Run: ``.venv/bin/python -m bench.store_read [--out DIR]`` (DIR gets store_read.md and store_read.json).
 The table is published in docs/performance.md ("Reading the store") with its machine and command.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shutil
@@ -40,6 +39,7 @@ import numpy as np
 import zarr
 
 import simgen.build.store as store_module
+from bench.common import add_out_argument, machine_line, write_out
 from learner.data.episodes import EpisodeDataset, EpisodeSpec
 from shared.reader import subject_ids
 from simgen.build.runner import build
@@ -147,7 +147,7 @@ def run(args) -> dict:
 def markdown(results: dict, args, seconds: float, load: float) -> str:
     base = results["unsharded"]
     lines = [
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+        f"Machine: {machine_line()}, Python {platform.python_version()}, "
         f"zarr {zarr.__version__}; 1-minute load average {load:.1f} before the run; {seconds:.0f} s in all.",
         "",
         f"### Sharded vs unsharded: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x "
@@ -185,16 +185,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--reads", type=int, default=200, help="single-simulation reads per layout and cache state")
     p.add_argument("--episodes", type=int, default=64, help="episodes per layout and draw")
     p.add_argument("--tmp", default=None, help="parent folder of the temporary stores")
-    p.add_argument("--out", type=Path, default=None, help="also write store_read.md and store_read.json here")
+    add_out_argument(p, "store_read")
     args = p.parse_args(argv)
     load, start = os.getloadavg()[0], time.perf_counter()
     results = run(args)
     text = markdown(results, args, time.perf_counter() - start, load)
     print(text)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "store_read.md").write_text(text)
-        (args.out / "store_read.json").write_text(json.dumps({"args": vars(args) | {"out": str(args.out)}, **results}))
+    write_out(args.out, "store_read", text, {"args": vars(args) | {"out": str(args.out)}, **results}, indent=None)
     if load > 0.5:
         print(f"warning: load average {load:.1f} at the start: other processes slow these figures", file=sys.stderr)
 

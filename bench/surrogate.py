@@ -19,7 +19,7 @@ context stride and the training-episode settings come from ``--config`` (default
 sequences come from a store built by ``simgen build`` (default: a 2k-node LV,
 55 frames, built here in a temporary folder when ``--store`` is not given).
 
-Run: ``.venv/bin/python bench/surrogate.py [--store PATH] [--config TOML] [--mesh lv] [--out DIR]``.
+Run: ``.venv/bin/python -m bench.surrogate [--store PATH] [--config TOML] [--mesh lv] [--out DIR]``.
 The tables are published in docs/performance.md ("Surrogate speed") with their machine and command.
 """
 
@@ -28,8 +28,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -40,6 +38,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
+from bench import common
 from learner.config import LearnerConfig, load_config
 from learner.data.episodes import EpisodeDataset, load_episode
 from learner.models.surrogate import PNS, MetaPNS
@@ -62,16 +61,8 @@ def goal_text(key: str) -> str:
 
 def best_of(fn, repeat: int) -> float:
     """Fastest wall time of ``repeat`` calls (after one warm-up call), waiting for a GPU to finish."""
-    sync = torch.cuda.synchronize if torch.cuda.is_available() else (lambda: None)
-    fn()
-    times = []
-    for _ in range(repeat):
-        sync()
-        t0 = time.perf_counter()
-        fn()
-        sync()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    sync = torch.cuda.synchronize if torch.cuda.is_available() else None
+    return common.best_of(fn, repeat, warmup=True, sync=sync)[0]
 
 
 def measure_inference(meta: MetaPNS, hier, ep, repeat: int, device: str) -> dict[str, float]:
@@ -203,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
         help="training config whose model and episode settings are timed (default: %(default)s)",
     )
     p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--out", type=Path)
+    common.add_out_argument(p, "surrogate")
     p.add_argument(
         "--device", default="cpu", help="another torch device (cuda): generation, embedding and training there"
     )
@@ -254,7 +245,8 @@ def main(argv: list[str] | None = None) -> None:
         child = subprocess.run(
             [
                 sys.executable,
-                __file__,
+                "-m",
+                "bench.surrogate",
                 "--store",
                 str(args.store),
                 "--subject",
@@ -278,8 +270,7 @@ def main(argv: list[str] | None = None) -> None:
         rows["speedup_generate_vs_simulate"] = rows["simulate_ms"] / rows["generate_ms"]
 
     if on_cpu:
-        cpu = platform.processor() or platform.machine()
-        where = f"CPU: {cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} threads"
+        where = f"CPU: {common.machine_line()}, {torch.get_num_threads()} threads"
     else:
         device = torch.cuda.get_device_name(args.device) if args.device.startswith("cuda") else args.device
         where = f"{device}; the loader on the host CPU"
@@ -294,8 +285,6 @@ def main(argv: list[str] | None = None) -> None:
     print(head + table)
     if args.out:
         name = "surrogate" if on_cpu else f"surrogate-{args.device.split(':')[0]}"
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / f"{name}.md").write_text(head + table)
         summary = {
             "rows": rows,
             "nodes": n_nodes,
@@ -304,7 +293,7 @@ def main(argv: list[str] | None = None) -> None:
             "config": str(args.config),
             "model": config.to_dict()["model"],
         }
-        (args.out / f"{name}.json").write_text(json.dumps(summary, indent=2))
+        common.write_out(args.out, name, head + table, summary, indent=2)
     if tmp is not None:
         tmp.cleanup()
 

@@ -9,7 +9,7 @@ time (``seconds`` in ``log.jsonl``, rank 0; validation excluded); the first epoc
 loader start-up and the geodesic distance rows of new sites, so later epochs are reported apart.
 The ratio it exists to show: 2 processes over 1 process x 1 thread (goal >= 1.7x on 2 cores).
 
-Run: ``.venv/bin/python bench/training_parallel.py [--epochs 2] [--store PATH] [--config TOML] [--out DIR]``.
+Run: ``.venv/bin/python -m bench.training_parallel [--epochs 2] [--store PATH] [--config TOML] [--out DIR]``.
 The table is published in docs/performance.md ("Training across processes") with its machine and command.
 """
 
@@ -19,12 +19,13 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from bench.common import add_out_argument, machine_line, write_out
 
 ROOT = Path(__file__).resolve().parent.parent
 #: (name, processes, threads per process)
@@ -35,7 +36,7 @@ GOAL = 1.7
 def run_setup(store: str, config: Path, out: Path, epochs: int, nproc: int, threads: int) -> None:
     """One set-up, in this (child) process: train from scratch and leave ``out/log.jsonl``."""
     from learner.config import load_config
-    from learner.train.distributed import launch
+    from learner.train.launcher import launch
     from learner.train.trainer import train
 
     cfg = load_config(config)
@@ -63,7 +64,7 @@ def main() -> None:
     parser.add_argument("--store", default=str(ROOT / "data" / "default.zarr"))
     parser.add_argument("--config", type=Path, default=ROOT / "specs" / "train-default.toml")
     parser.add_argument("--epochs", type=int, default=2)
-    parser.add_argument("--out", type=Path, help="also write training_parallel.md and .json here")
+    add_out_argument(parser, "training_parallel")
     parser.add_argument("--setup", type=int, nargs=3, help=argparse.SUPPRESS)  # a child's run: nproc threads index
     parser.add_argument("--run-dir", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -84,7 +85,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for index, (name, nproc, threads) in enumerate(SETUPS):
             run_dir = Path(tmp) / f"setup{index}"
-            command = [sys.executable, __file__, "--store", args.store, "--config", str(args.config)]
+            command = [
+                sys.executable,
+                "-m",
+                "bench.training_parallel",
+                "--store",
+                args.store,
+                "--config",
+                str(args.config),
+            ]
             command += ["--epochs", str(args.epochs), "--setup", str(nproc), str(threads), str(index)]
             subprocess.run(
                 [*command, "--run-dir", str(run_dir)], check=True, env={**os.environ, "OMP_NUM_THREADS": "1"}
@@ -94,7 +103,7 @@ def main() -> None:
     base = results[0]["later"] or results[0]["first"]
     lines = [
         f"Training episodes per second, {episodes} episodes per epoch, {args.epochs} epoch(s) per set-up; "
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"{machine_line()}, "
         f"load average {load:.1f} at the start.\n",
         "| set-up | episodes/s, epoch 1 | episodes/s, epochs 2+ | over 1 process x 1 thread |",
         "|---|---:|---:|---:|",
@@ -107,10 +116,7 @@ def main() -> None:
     lines.append(f"\n2 processes over 1 process x 1 thread: {ratio:.2f}x (goal >= {GOAL}x)")
     table = "\n".join(lines)
     print(table)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "training_parallel.md").write_text(table + "\n")
-        (args.out / "training_parallel.json").write_text(json.dumps({"episodes": episodes, "results": results}))
+    write_out(args.out, "training_parallel", table + "\n", {"episodes": episodes, "results": results}, indent=None)
 
 
 if __name__ == "__main__":

@@ -26,10 +26,10 @@ p(c | Y) (the context alone, as at test time) and of q(c | Y u X) (the context
 and ``train.posterior_targets`` targets, as training draws it with
 ``train.c_from = "posterior"``).
 
-Run: ``.venv/bin/python bench/training_stability.py --store data/default.zarr --seeds 0 1 --epochs 12
+Run: ``.venv/bin/python -m bench.training_stability --store data/default.zarr --seeds 0 1 --epochs 12
 [--config specs/train-default.toml] [--set SECTION.KEY=VALUE ...] [--out DIR]``; each seed trains
 on one thread, in its own process when several seeds are given. Probe:
-``.venv/bin/python bench/training_stability.py --store data/default.zarr --probe runs/seed0/last.pt``.
+``.venv/bin/python -m bench.training_stability --store data/default.zarr --probe runs/seed0/last.pt``.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from pathlib import Path
 
 import torch
 
+from bench.common import add_out_argument, write_out
 from learner.config import LearnerConfig, config_from_mapping, load_config
 from learner.data.episodes import Episode, EpisodeDataset
 from learner.models.site_evidence import SiteEvidence
@@ -217,7 +218,7 @@ def main() -> None:
         metavar="SECTION.KEY=VALUE",
         help="override a config key (TOML value), e.g. model.latent_norm=false",
     )
-    parser.add_argument("--out", type=Path, default=Path("report/training-stability"))
+    add_out_argument(parser, "training_stability", Path("report/training-stability"))
     parser.add_argument("--probe", type=Path, nargs="+", metavar="CHECKPOINT", help="probe trained models instead")
     parser.add_argument("--one-seed", action="store_true", help=argparse.SUPPRESS)  # a child process's run
     args = parser.parse_args()
@@ -232,7 +233,8 @@ def main() -> None:
     else:
         base = [
             sys.executable,
-            __file__,
+            "-m",
+            "bench.training_stability",
             "--one-seed",
             "--store",
             args.store,
@@ -248,7 +250,7 @@ def main() -> None:
             sys.exit("a seed's run failed (its error is above)")
     if not args.one_seed:
         tables = "\n\n".join(summary(args.out, seed) for seed in args.seeds)
-        (args.out / "training_stability.md").write_text(tables + "\n")
+        write_out(args.out, "training_stability", tables + "\n")
         print(tables)
 
 

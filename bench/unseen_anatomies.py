@@ -22,7 +22,7 @@ the same subjects, so the table compares them side by side. Writes ``unseen_anat
 
 Run::
 
-    .venv/bin/python bench/unseen_anatomies.py --store data/anatomies.zarr --real data/realdata.zarr \\
+    .venv/bin/python -m bench.unseen_anatomies --store data/anatomies.zarr --real data/realdata.zarr \\
         --split-from runs/anatomies-metapns/best.pt \\
         --model anatomies=runs/anatomies-metapns/best.pt --model fixed-meshes=runs/seed1/best.pt
 """
@@ -34,8 +34,9 @@ import json
 import time
 from pathlib import Path
 
-from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data
-from learner.evaluate import EvalSpec, evaluate, load_method
+from bench.common import add_out_argument, write_out
+from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
+from learner.evaluate import EvalSetting, EvalSpec, evaluate, load_method
 from learner.refine import Refinement
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
@@ -56,7 +57,7 @@ def real_heart(
     """Leave-one-site-out metrics at the sock's electrodes (noise 0.02); ``folds > 0``: the first of each subject."""
     method, config, _ = load_method(checkpoints, refine=refine)
     cfg = BenchmarkConfig(real_data=RealDataSpec(store=store, sites=sites))
-    result = real_data([method], config.model.levels, config.model.coarsest, cfg, folds)
+    result = real_data([method], real_data_setting(cfg, EvalSetting.of(config)), cfg, folds)
     result["folds"]["model"] = result["folds"].pop(method.name)
     return {**result, **result.pop("methods")[method.name]}
 
@@ -157,7 +158,7 @@ def main() -> None:
         help="score refined runs on the real heart only (refining on the 40 unseen subjects takes about 17 "
         "minutes per model on one core of the 2-core VM)",
     )
-    parser.add_argument("--out", type=Path, default=Path("report/unseen-anatomies"))
+    add_out_argument(parser, "unseen_anatomies", Path("report/unseen-anatomies"))
     args = parser.parse_args()
 
     splits = load_checkpoint(args.split_from, kind="model")["splits"]
@@ -187,12 +188,10 @@ def main() -> None:
             )
             results[name]["real_subset"] = real_heart(checkpoints, args.real, args.sites, folds=1, refine=refine)
         print(name, json.dumps({k: real["target"][k]["mean"] for k in ("mse", "cc_spatial")}), flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "unseen_anatomies.json").write_text(json.dumps({"test": test, **results}, indent=1, default=float))
     table = markdown(results, len(test), n_meshes, real) + fold_markdown(results)
     if args.baseline_subjects:
         table += subset_markdown(results, args.baseline_subjects)
-    (args.out / "unseen_anatomies.md").write_text(table)
+    write_out(args.out, "unseen_anatomies", table, {"test": test, **results})
     print(table)
 
 
