@@ -64,7 +64,10 @@ def check_store(path: str | Path, write: bool = False) -> dict:
     ``write``: the store is to be written (resumed or edited), which needs the current schema version.
     """
     if not _has_root_metadata(path):
-        raise SchemaError(f"{path} is not a Zarr store (no zarr.json)")
+        raise SchemaError(
+            f"{path} is not a Zarr store (no zarr.json); a simgen store that lost it is restored with "
+            f"`simgen repair {path} --spec SPEC`"
+        )
     attrs = dict(zarr.open_group(str(path), mode="r").attrs)
     check_schema_version(attrs, str(path), write=write)
     return attrs

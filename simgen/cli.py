@@ -335,8 +335,9 @@ def _progress_bar():
     )
 
 
-def _run_with_progress(store: str, job) -> None:
-    """Run ``job(on_start, on_done)`` behind a progress bar (plain lines in a log) and print what it did."""
+def _run_with_progress(store: str, job, idle: str = "nothing to do") -> None:
+    """Run ``job(on_start, on_done)`` behind a progress bar (plain lines in a log) and print what it did
+    (``idle``: what to say when it computed no chunk)."""
     bar = _progress_bar()
     state: dict = {}
 
@@ -355,7 +356,7 @@ def _run_with_progress(store: str, job) -> None:
         _fail(exc, store)
     bar.stop()
     if report.tasks_run == 0:
-        console.print(f"{store}: nothing to do, all {report.tasks_total} chunks done")
+        console.print(f"{store}: {idle}, all {report.tasks_total} chunks done")
     else:
         console.print(
             f"{store}: {report.tasks_run}/{report.tasks_total} chunks, {report.simulations} simulations in "
@@ -423,25 +424,37 @@ def regenerate(
 
 
 @app.command()
-def repair(store: StoreArg, scheduler: SchedulerOpt = None, workers: WorkersOpt = 2) -> None:
-    """Restore a damaged STORE from its recorded spec: missing or damaged groups, arrays and chunks.
+def repair(
+    store: StoreArg,
+    spec: Annotated[
+        Path | None,
+        typer.Option(
+            help="The spec STORE was built from; needed only when its root metadata or recorded spec is gone."
+        ),
+    ] = None,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = 2,
+) -> None:
+    """Restore a damaged STORE from its recorded spec: missing or damaged metadata, groups, arrays and chunks.
 
-    Removes what the spec does not imply, writes damaged meshes and subjects
-    anew, recomputes damaged chunks and finishes the build; the store ends as
-    a clean build of its spec.
+    Restores missing root attributes (the provenance as this repair's), removes
+    what the spec does not imply, writes damaged meshes and subjects anew,
+    recomputes damaged chunks and finishes the build (a build cut short, by a
+    full disk say, included); the store ends as a clean build of its spec.
+    Nothing is written before the repair is planned.
     """
     from simgen.build.repair import repair_store
 
     reports = []
 
     def job(on_start, on_done):
-        reports.append(repair_store(store, scheduler, workers, on_start=on_start, on_done=on_done))
+        reports.append(repair_store(store, spec, scheduler, workers, on_start=on_start, on_done=on_done))
         return reports[0].build
 
-    _run_with_progress(store, job)
+    _run_with_progress(store, job, idle="no chunk to compute")
     for line in reports[0].lines():
         console.print(f"repaired: {line}", soft_wrap=True)
-    if not reports[0].lines():
+    if not reports[0].lines() and not reports[0].build.tasks_run:
         console.print(f"{store}: nothing was damaged")
 
 

@@ -249,6 +249,16 @@ CASES: dict[str, dict[str, Case]] = {
         ),
     },
     "store": {
+        "repair without its root metadata": Case(
+            ("simgen", "repair", "{s}", "--workers", "1"),
+            ("root metadata (zarr.json) is missing", "`simgen repair {s} --spec SPEC`"),
+            delete("zarr.json"),
+        ),
+        "repair with the spec of another store": Case(
+            ("simgen", "repair", "{s}", "--spec", "{d}/other.toml", "--workers", "1"),
+            ("other.toml is not the spec of store", "stim_nodes has shape (4,), the spec implies (3,)"),
+            delete("zarr.json"),
+        ),
         "card of a store whose subjects group is gone": Case(
             ("simgen", "card", "{s}"),
             ("is damaged (1 problem(s)): store: group missing (subjects)", "Run `simgen repair {s}`"),

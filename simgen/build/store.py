@@ -62,6 +62,7 @@ from simgen.solver.simulate import SolverConfig
 __all__ = [
     "LayoutState",
     "layout_state",
+    "layout_attrs",
     "create_layout",
     "write_mesh_group",
     "write_subject_groups",
@@ -134,7 +135,10 @@ def layout_state(path: str, spec_hash: str, force: bool = False) -> LayoutState:
     """
     if not location.exists(path, "zarr.json"):
         if any(name != LOCK_NAME for name in location.entries(path)):
-            raise StoreMismatch(f"{path} exists and is not a simgen store; refusing to write into it")
+            raise StoreMismatch(
+                f"{path} exists and is not a simgen store (no zarr.json); refusing to write into it (a simgen store "
+                f"that lost its zarr.json is restored with `simgen repair {path} --spec SPEC`)"
+            )
         return "new"
     attrs = dict(zarr.open_group(path, mode="r").attrs)
     with warnings.catch_warnings():  # an older version is refused or replaced below, not read
@@ -150,6 +154,20 @@ def layout_state(path: str, spec_hash: str, force: bool = False) -> LayoutState:
         else f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}"
     )
     raise StoreMismatch(f"store {path} {why}; use a new store path or --force to replace it")
+
+
+def layout_attrs(spec_dict: dict, spec_hash: str, solver: SolverConfig) -> dict[str, Any]:
+    """The root attributes a layout writes: schema version, spec and hash, ``complete``, provenance (now),
+    simulation and split rule."""
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "spec": spec_dict,
+        "spec_hash": spec_hash,
+        "complete": False,
+        "provenance": provenance(),
+        "simulation": simulation_attrs(solver),
+        "split": split_rule(),
+    }
 
 
 def create_layout(
@@ -180,17 +198,7 @@ def create_layout(
     if state == "replace":
         location.clear(path, keep={LOCK_NAME})  # the lock stays: this build still holds the store
     root = zarr.open_group(path, mode="a", zarr_format=3)
-    root.attrs.update(
-        {
-            "schema_version": SCHEMA_VERSION,
-            "spec": spec_dict,
-            "spec_hash": spec_hash,
-            "complete": False,
-            "provenance": provenance(),
-            "simulation": simulation_attrs(plan.spec.solver),
-            "split": split_rule(),
-        }
-    )
+    root.attrs.update(layout_attrs(spec_dict, spec_hash, plan.spec.solver))
     shape_params = {m.id: m.shape_params for m in plan.spec.meshes}
     for mesh_id, mesh in plan.meshes.items():
         group = write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -10,7 +11,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from zarr.storage import LocalStore
 
+from shared.errors import InputError, SchemaError
 from simgen.build.repair import repair_store
 from simgen.build.runner import build
 from simgen.build.structure import StoreDamaged
@@ -152,3 +155,93 @@ def test_repair_of_a_sound_store_changes_nothing(store, reference_store, store_b
     report = repair_store(store, workers=1)
     assert not report.lines() and report.build.tasks_run == 0
     assert store_bytes(store) == store_bytes(reference_store)
+
+
+@pytest.mark.parametrize(
+    "metadata",
+    [
+        "subjects/lv-healthy/zarr.json",
+        "subjects/zarr.json",
+        "subjects/lv-healthy/u/zarr.json",
+        "subjects/lv-scar-apex/done/zarr.json",
+        "meshes/lv/zarr.json",
+        "meshes/zarr.json",
+        "meshes/lv/points/zarr.json",
+    ],
+)
+def test_repair_restores_deleted_metadata_of_any_group_or_array(store, reference_store, store_bytes, metadata):
+    (store / metadata).unlink()
+    report = repair_store(store, workers=1)
+    assert report.meshes or report.subjects
+    assert store_bytes(store) == store_bytes(reference_store)
+
+
+def drop_root_attributes(store: Path, *names: str) -> None:
+    path = store / "zarr.json"
+    meta = json.loads(path.read_text())
+    for name in names:
+        del meta["attributes"][name]
+    path.write_text(json.dumps(meta))
+
+
+def test_repair_restores_a_missing_provenance_from_the_recorded_spec(store, reference_store, store_bytes):
+    drop_root_attributes(store, "provenance", "simulation")
+    report = repair_store(store, workers=1)
+    assert report.lines() == ["root attributes restored: provenance, simulation"]
+    assert store_bytes(store) == store_bytes(reference_store)  # SOURCE_DATE_EPOCH: the same creation date
+
+
+def test_repair_without_root_metadata_needs_the_spec_file(
+    store, reference_store, store_bytes, tiny_spec_toml, tmp_path
+):
+    (store / "zarr.json").unlink()
+    damaged = store_bytes(store)
+    with pytest.raises(SchemaError, match=r"root metadata \(zarr\.json\) is missing.*simgen repair .* --spec SPEC"):
+        repair_store(store, workers=1)
+    other = tmp_path / "other.toml"
+    other.write_text(tiny_spec_toml.replace("count = 6", "count = 5"))
+    with pytest.raises(SchemaError, match=r"other\.toml is not the spec of store .*stim_nodes has shape \(6,\)"):
+        repair_store(store, other, workers=1)
+    assert store_bytes(store) == damaged  # nothing written by a repair that cannot finish
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(tiny_spec_toml)
+    report = repair_store(store, spec, workers=1)
+    assert report.root == ["complete", "provenance", "schema_version", "simulation", "spec", "spec_hash", "split"]
+    assert store_bytes(store) == store_bytes(reference_store)
+
+
+def test_repair_finishes_a_layout_cut_short_by_a_full_disk(
+    tmp_path, reference_store, store_bytes, tiny_spec, monkeypatch
+):
+    spec, store = tiny_spec(), tmp_path / "full.zarr"
+    real = LocalStore.set
+
+    async def full(self, key, value, *args, **kw):
+        if key.startswith("subjects/lv-scar-apex") or key == "subjects/zarr.json":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), key)
+        return await real(self, key, value, *args, **kw)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(LocalStore, "set", full)
+        with pytest.raises(OSError, match="No space left on device"):
+            build(spec, store, workers=1)
+    report = repair_store(store, workers=1)
+    assert report.subjects == ["lv-healthy", "lv-scar-apex"]
+    assert store_bytes(store) == store_bytes(reference_store)
+
+
+def test_a_repair_that_cannot_finish_writes_nothing(store, store_bytes, tmp_path):
+    from simgen.build.edit import add_subject
+    from simgen.build.spec import MeshEntry
+    from simgen.meshes import save_mesh
+    from simgen.meshes.ellipsoid import lv_ellipsoid
+
+    path = save_mesh(lv_ellipsoid(400), tmp_path / "patient.vtu")
+    add_subject(store, MeshEntry(id="patient", source=str(path), nodes=400), ["healthy"], workers=1)
+    path.unlink()  # the added mesh cannot be made again
+    shutil.copytree(store / "subjects/lv-healthy/x", store / "subjects/lv-healthy/w")  # an extra array to remove
+    (store / "meshes/patient/zarr.json").unlink()
+    damaged = store_bytes(store)
+    with pytest.raises(InputError, match="patient.vtu"):
+        repair_store(store, workers=1)
+    assert store_bytes(store) == damaged
