@@ -771,6 +771,29 @@ def test_pickled_code_never_ran(d, outcomes):
     assert not (d / "pwned").exists()
 
 
+#: Metadata of each kind of group and array, deleted, then restored by ``simgen repair``: what it reports.
+DELETED_METADATA = {
+    "subjects/lv-healthy/zarr.json": "subject groups laid out anew: lv-healthy",
+    "subjects/zarr.json": "subject groups laid out anew: lv-healthy, lv-scar-apex",
+    "subjects/lv-scar-apex/activation/zarr.json": "subject groups laid out anew: lv-scar-apex",
+    "meshes/lv/zarr.json": "mesh groups written anew: lv",
+    "meshes/lv/cells/zarr.json": "mesh groups written anew: lv",
+}
+
+
+def test_repair_restores_deleted_metadata_byte_identical(d, store):
+    copies = {}
+    for i, metadata in enumerate(DELETED_METADATA):
+        copies[metadata] = d / "repair" / f"{i}.zarr"
+        shutil.copytree(store, copies[metadata])
+        (copies[metadata] / metadata).unlink()
+    results = run_batch([["simgen", "repair", str(copy), "--workers", "1"] for copy in copies.values()])
+    for (metadata, copy), (code, output) in zip(copies.items(), results):
+        assert code == 0 and "Traceback" not in output, output
+        assert f"repaired: {DELETED_METADATA[metadata]}" in flat(output) and "nothing was damaged" not in output
+        assert digest(copy) == digest(store), metadata
+
+
 def test_unlock_force_removes_another_hosts_lock(d):
     (d / "forced.zarr").mkdir()
     (d / "forced.zarr/.lock").write_text(json.dumps({"host": "elsewhere.example", "pid": 7, "start": 1, "token": "t"}))
