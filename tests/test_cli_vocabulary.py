@@ -3,6 +3,9 @@ and the file formats described in ``--help``."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import click
 import pytest
 import typer
@@ -10,6 +13,8 @@ from typer.testing import CliRunner
 
 from learner.cli import app as learner_app
 from simgen.cli import app as simgen_app
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _params() -> list[tuple[str, click.Parameter]]:
@@ -61,3 +66,37 @@ def test_help_documents_the_file_formats(app: typer.Typer, command: str, words: 
     """The tissue TOML and the observation file are described in ``--help``, with the page and example."""
     text = " ".join(CliRunner().invoke(app, [command, "--help"], terminal_width=400).output.split())
     assert all(word in text for word in words), [word for word in words if word not in text]
+
+
+def _options() -> dict[tuple[str, str], set[str]]:
+    """(tool, command) -> every option spelling it takes."""
+    options = {}
+    for tool, app in (("simgen", simgen_app), ("learner", learner_app)):
+        for name, command in typer.main.get_command(app).commands.items():
+            options[tool, name] = {o for p in command.params for o in [*p.opts, *p.secondary_opts] if o.startswith("-")}
+    return options
+
+
+def _documented_calls(text: str) -> list[list[str]]:
+    """The ``simgen ...`` / ``learner ...`` command lines of the shell blocks in Markdown ``text``."""
+    calls = []
+    for block in re.findall(r"```sh\n(.*?)```", text, re.DOTALL):
+        for line in block.replace("\\\n", " ").splitlines():
+            words = line.split("#")[0].split()
+            if words and words[0] in ("simgen", "learner", "$(BIN)/simgen", "$(BIN)/learner"):
+                calls.append([words[0].rsplit("/", 1)[-1], *words[1:]])
+    return calls
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/your-heart.md", "docs/formats.md", "Makefile"])
+def test_documented_commands_take_the_options_they_are_given(page: str):
+    """Every ``--option`` of a documented command line (and of the Makefile's) is one that command has."""
+    options = _options()
+    text = (ROOT / page).read_text()
+    wrong = [
+        f"{tool} {command} {word}"
+        for tool, command, *args in _documented_calls(text if page.endswith(".md") else f"```sh\n{text}```")
+        for word in args
+        if word.startswith("--") and word.split("=")[0] not in options[tool, command]
+    ]
+    assert not wrong
