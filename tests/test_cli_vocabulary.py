@@ -88,7 +88,17 @@ def _documented_calls(text: str) -> list[list[str]]:
     return calls
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/your-heart.md", "docs/formats.md", "Makefile"])
+#: Files whose shell blocks (the Makefile: its recipes) run simgen and learner commands.
+DOCUMENTED = [
+    "README.md",
+    "Makefile",
+    "deploy/README.md",
+    *(str(p.relative_to(ROOT)) for p in sorted((ROOT / "docs").glob("*.md"))),
+    *(str(p.relative_to(ROOT)) for p in sorted((ROOT / "learner/pretrained").glob("*/README.md"))),
+]
+
+
+@pytest.mark.parametrize("page", DOCUMENTED)
 def test_documented_commands_take_the_options_they_are_given(page: str):
     """Every ``--option`` of a documented command line (and of the Makefile's) is one that command has."""
     options = _options()
