@@ -11,6 +11,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
+#: Every Markdown file with links to check: the pages, the model cards and the folders' READMEs.
+LINKED = [
+    *PAGES,
+    *(p for folder in ("bench", "deploy", "learner", "simgen") for p in sorted((ROOT / folder).rglob("*.md"))),
+]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -41,7 +46,7 @@ def test_the_readme_is_short():
     assert len(README.read_text().splitlines()) <= 200
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+@pytest.mark.parametrize("page", LINKED, ids=lambda p: str(p.relative_to(ROOT)))
 def test_relative_links_resolve(page: Path):
     assert not _broken_links(page)
 
