@@ -58,7 +58,13 @@ def train(
     fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
     epochs: Annotated[int | None, typer.Option(min=1, help="Override train.epochs.")] = None,
     max_minutes: Annotated[
-        float | None, typer.Option(min=0, callback=finite, help="Override train.max_minutes (0: none).")
+        float | None,
+        typer.Option(
+            min=0,
+            callback=finite,
+            help="Override train.max_minutes (0: none): no epoch starts that, with the validation closing the run, "
+            "would end past it (the longest epoch and validation so far are the estimate).",
+        ),
     ] = None,
     seed: Annotated[int | None, typer.Option(min=0, help="Override train.seed.")] = None,
     store: Annotated[Path | None, typer.Option(help="Override data.store.")] = None,

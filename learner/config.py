@@ -102,7 +102,7 @@ class TrainConfig:
     )
     seed: int = 0
     threads: int = 0  # torch intra-op threads (0 = torch's default)
-    max_minutes: float = 0.0  # stop (with a checkpoint) after this much wall time (0 = no limit)
+    max_minutes: float = 0.0  # wall-time budget: no epoch starts that would end past it (0 = no limit)
     validate_every: int = 5  # epochs between validation passes (best checkpoint kept)
     init: str = ""  # warm start: a checkpoint or a shipped model's name; its matching parameters start this run
     device: str = "auto"  # auto (CUDA where available), cpu, cuda or cuda:N
