@@ -63,12 +63,13 @@ def check_store(path: str | Path, write: bool = False) -> dict:
 
     ``write``: the store is to be written (resumed or edited), which needs the current schema version.
     """
+    restore = f"a simgen store is restored with `simgen repair {path} --spec SPEC`"
     if not _has_root_metadata(path):
-        raise SchemaError(
-            f"{path} is not a Zarr store (no zarr.json); a simgen store that lost it is restored with "
-            f"`simgen repair {path} --spec SPEC`"
-        )
-    attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+        raise SchemaError(f"{path} is not a Zarr store (no zarr.json); {restore}")
+    try:
+        attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+    except ValueError as exc:  # not JSON, or not Zarr metadata
+        raise SchemaError(f"{path}: its root metadata (zarr.json) is unreadable ({exc}); {restore}") from None
     check_schema_version(attrs, str(path), write=write)
     return attrs
 

@@ -34,6 +34,7 @@ __all__ = [
     "entries",
     "clear",
     "remove_partials",
+    "remove",
     "size",
 ]
 
@@ -120,6 +121,16 @@ def exists(store: str, key: str = "") -> bool:
         return (Path(store) / key).exists()
     fs, root = _fs_root(store)
     return fs.exists(f"{root}/{key}" if key else root)
+
+
+def remove(store: str, key: str) -> None:
+    """Delete the file ``key`` (e.g. ``"zarr.json"``) of the store, if it is there."""
+    if is_local(store):
+        (Path(store) / key).unlink(missing_ok=True)
+        return
+    fs, root = _fs_root(store)
+    if fs.exists(f"{root}/{key}"):
+        fs.rm_file(f"{root}/{key}")
 
 
 def entries(store: str) -> list[str]:

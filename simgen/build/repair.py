@@ -40,7 +40,7 @@ from shared.config import from_mapping
 from shared.errors import SchemaError
 from shared.schema import check_schema_version, mesh_path, subject_path
 from simgen.build.edit import addition_plan
-from simgen.build.location import store_location
+from simgen.build.location import remove, store_location
 from simgen.build.lock import StoreLock
 from simgen.build.manifest import Plan, make_plan, validate_plan
 from simgen.build.runner import BuildReport, run_pending
@@ -163,6 +163,8 @@ def _restore_root(store: str, spec_file: Path | None, report: RepairReport) -> N
     validate_plan(plan)
     if "spec" in missing:
         _check_fits(store, plan, spec_file)
+    if attrs is None:
+        remove(store, "zarr.json")  # unreadable: written anew
     zarr.open_group(store, mode="a", zarr_format=3, use_consolidated=False).attrs.put(restored)
     report.root += missing
 

@@ -43,7 +43,6 @@ from shared.schema import (
     SUBJECT_ARRAYS,
     SchemaWarning,
     array_attributes,
-    check_schema_version,
     mesh_path,
     subject_path,
 )
@@ -140,10 +139,10 @@ def layout_state(path: str, spec_hash: str, force: bool = False) -> LayoutState:
                 f"that lost its zarr.json is restored with `simgen repair {path} --spec SPEC`)"
             )
         return "new"
-    attrs = dict(zarr.open_group(path, mode="r").attrs)
     with warnings.catch_warnings():  # an older version is refused or replaced below, not read
         warnings.simplefilter("ignore", SchemaWarning)
-        version = check_schema_version(attrs, path)
+        attrs = check_store(path)
+    version = int(attrs["schema_version"])
     if attrs.get("spec_hash") == spec_hash and version == SCHEMA_VERSION:
         return "resume"
     if force:

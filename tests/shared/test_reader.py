@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import zarr
 
-from shared.errors import InputError
+from shared.errors import InputError, SchemaError
 from shared.reader import (
+    check_store,
     read_activation,
     read_rows,
     read_solver_settings,
@@ -52,3 +53,13 @@ def test_times_in_ms_of_a_version_1_store(tiny_store, tmp_path, as_version_1):
     as_version_1(store)
     assert "time_ms" not in zarr.open_group(str(store), path="subjects/lv-healthy", mode="r")
     np.testing.assert_allclose(read_times(store, "lv-healthy", "ms"), read_times(tiny_store, "lv-healthy", "ms"))
+
+
+@pytest.mark.parametrize("root", [None, "{not json"], ids=["missing", "not-json"])
+def test_a_store_without_readable_root_metadata_is_named_with_the_repair(tmp_path, root):
+    store = tmp_path / "s.zarr"
+    (store / "meshes").mkdir(parents=True)
+    if root is not None:
+        (store / "zarr.json").write_text(root)
+    with pytest.raises(SchemaError, match=rf"s\.zarr.*zarr\.json.*`simgen repair {store} --spec SPEC`"):
+        check_store(store)

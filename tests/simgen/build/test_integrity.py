@@ -191,12 +191,16 @@ def test_repair_restores_a_missing_provenance_from_the_recorded_spec(store, refe
     assert store_bytes(store) == store_bytes(reference_store)  # SOURCE_DATE_EPOCH: the same creation date
 
 
+@pytest.mark.parametrize("garbage", [False, True], ids=["deleted", "not-json"])
 def test_repair_without_root_metadata_needs_the_spec_file(
-    store, reference_store, store_bytes, tiny_spec_toml, tmp_path
+    store, reference_store, store_bytes, tiny_spec_toml, tmp_path, garbage
 ):
-    (store / "zarr.json").unlink()
+    if garbage:
+        (store / "zarr.json").write_text("{not json")
+    else:
+        (store / "zarr.json").unlink()
     damaged = store_bytes(store)
-    with pytest.raises(SchemaError, match=r"root metadata \(zarr\.json\) is missing.*simgen repair .* --spec SPEC"):
+    with pytest.raises(SchemaError, match=r"root metadata \(zarr\.json\) is missing or unreadable.*--spec SPEC"):
         repair_store(store, workers=1)
     other = tmp_path / "other.toml"
     other.write_text(tiny_spec_toml.replace("count = 6", "count = 5"))
