@@ -235,7 +235,7 @@ def demo(
         rows = run_demo(out, n_nodes=nodes, n_sites=sites_per_setting, threads=threads)
     except (InputError, OSError) as exc:
         _fail(exc, out)
-    console.print((out / "summary.md").read_text())
+    console.print((out / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
     console.print(f"{sum(len(r.sites) for r in rows)} simulations, figures in {out}/")
 
 

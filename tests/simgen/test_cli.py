@@ -50,6 +50,13 @@ def test_simulate_command_writes_outputs(tmp_path):
     assert (tmp_path / "activation.png").stat().st_size > 10_000
 
 
+def test_demo_prints_its_summary_table_unwrapped(tmp_path):
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path), "--nodes", "600", "--sites-per-setting", "1"])
+    assert result.exit_code == 0, result.output
+    table = [line for line in result.output.splitlines() if line.startswith("|")]
+    assert len(table) == 10 and max(map(len, table)) > 80 and all(line.endswith("|") for line in table)
+
+
 def test_tissue_from_toml(tmp_path):
     spec = tmp_path / "scar.toml"
     spec.write_text('name = "blob"\n[[scars]]\nregion = "sphere"\nnode = 10\nradius = 12.0\n')
