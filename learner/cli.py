@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from shared.cli import fail, finite, parse_ids
+from shared.cli import fail, finite, parse_ids, print_markdown
 from shared.errors import InputError
 
 if TYPE_CHECKING:
@@ -213,7 +213,7 @@ def evaluate(
         js, md = report.write(out)
     except OSError as exc:
         _fail(exc, out)
-    console.print(report.to_markdown().split("### per subject")[0], soft_wrap=True, markup=False, highlight=False)
+    print_markdown(console, report.to_markdown().split("### per subject")[0])
     console.print(f"wrote {js} and {md}")
 
 
@@ -402,5 +402,5 @@ def benchmark(
         run_benchmark(cfg, progress=console.print, device=device)
     except (InputError, OSError) as exc:
         _fail(exc, cfg.out)
-    console.print((Path(cfg.out) / "benchmark.md").read_text())
+    print_markdown(console, (Path(cfg.out) / "benchmark.md").read_text())
     console.print(f"wrote {cfg.out}/benchmark.md, benchmark.json, table1.md, timing.md and figures")

@@ -1,4 +1,4 @@
-"""Helpers of the simgen and learner command lines: one-line errors, lists of ids.
+"""Helpers of the simgen and learner command lines: one-line errors, lists of ids, Markdown output.
 
 Bad input exits with code 2 and one line naming the problem, never a
 traceback: an :class:`~shared.errors.InputError`, or an :class:`OSError` by
@@ -22,7 +22,7 @@ from rich.markup import escape
 
 from shared.errors import InputError
 
-__all__ = ["PATH_ERRNOS", "fail", "finite", "one_line", "path_error", "parse_ids"]
+__all__ = ["PATH_ERRNOS", "fail", "finite", "one_line", "path_error", "parse_ids", "print_markdown"]
 
 #: errno values of a file system refusing a path: bad input, not a bug.
 PATH_ERRNOS = frozenset(
@@ -98,3 +98,8 @@ def parse_ids(text: str, option: str) -> list[int]:
     if repeated := sorted(i for i, n in Counter(ids).items() if n > 1):
         raise InputError(f"{option}: {repeated} given more than once; give each once")
     return ids
+
+
+def print_markdown(console: Console, text: str) -> None:
+    """Print Markdown ``text`` as it is: tables unwrapped at any terminal width, brackets not read as markup."""
+    console.print(text, soft_wrap=True, markup=False, highlight=False)

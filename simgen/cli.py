@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from shared.cli import fail, finite, parse_ids
+from shared.cli import fail, finite, parse_ids, print_markdown
 from shared.config import load_toml
 from shared.errors import InputError
 from simgen.meshes.catalog import get_mesh
@@ -235,7 +235,7 @@ def demo(
         rows = run_demo(out, n_nodes=nodes, n_sites=sites_per_setting, threads=threads)
     except (InputError, OSError) as exc:
         _fail(exc, out)
-    console.print((out / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+    print_markdown(console, (out / "summary.md").read_text())
     console.print(f"{sum(len(r.sites) for r in rows)} simulations, figures in {out}/")
 
 

@@ -45,6 +45,8 @@ baseline_folds = 1
     assert result.exit_code == 0, result.output
     out = tmp_path / "report"
     data = json.loads((out / "benchmark.json").read_text())
+    table = [line for line in result.output.splitlines() if line.startswith("|")]  # printed unwrapped
+    assert table and all(line.endswith("|") and line in (out / "benchmark.md").read_text() for line in table)
     assert set(data["table1_baseline_subset"]) == {"metaPNS", "PNS", "fs-bo", "vae-bo"}
     assert data["table1_baseline_subset"]["fs-bo"]["timing"]["simulator_calls"] == 8
     assert set(data["fig3"]["metaPNS"]) == {"1", "2"}
