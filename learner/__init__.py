@@ -2,5 +2,100 @@
 
 Trains on episodes read from a simgen dataset store, evaluates, personalises from a few observed
 simulations, predicts new stimulation sites, and compares with Bayesian-optimisation baselines
-(docs/surrogate.md).
+(docs/surrogate.md). The names below are the public API; each loads its module on first use, so
+``import learner`` does not import torch::
+
+    import learner
+    from learner.personalize import personalize
+
+    observations = learner.observations_from_file("recordings.npz")
+    personalize("anatomies", observations, "heart.pt")  # a shipped model, or a trained best.pt
+    prediction = learner.predict("heart.pt", sites=[818, 631])
+
+Training, evaluation and personalisation are :func:`learner.train.train`,
+:func:`learner.evaluate.evaluate` and :func:`learner.personalize.personalize` (``learner train``,
+``learner evaluate``, ``learner personalize``): their modules have those names, so the top level
+does not.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from learner.benchmark import BenchmarkConfig, load_benchmark_config, run_benchmark
+    from learner.config import LearnerConfig, load_config
+    from learner.data import EpisodeDataset, EpisodeSpec, load_episode
+    from learner.evaluate import EvalReport, EvalSetting, EvalSpec, evaluate_methods
+    from learner.methods import METHODS, build_methods
+    from learner.models import PNS, MetaPNS, build_model
+    from learner.personalize import (
+        Observations,
+        Prediction,
+        observations_from_file,
+        observations_from_store,
+        predict,
+    )
+    from learner.store_view import StoreView
+    from learner.train import Trainer, load_model
+    from shared.observation import Observation
+
+__all__ = [
+    "LearnerConfig",
+    "load_config",
+    "StoreView",
+    "EpisodeSpec",
+    "EpisodeDataset",
+    "load_episode",
+    "Observation",
+    "PNS",
+    "MetaPNS",
+    "build_model",
+    "Trainer",
+    "load_model",
+    "EvalSpec",
+    "EvalSetting",
+    "EvalReport",
+    "evaluate_methods",
+    "METHODS",
+    "build_methods",
+    "Observations",
+    "Prediction",
+    "observations_from_store",
+    "observations_from_file",
+    "predict",
+    "BenchmarkConfig",
+    "load_benchmark_config",
+    "run_benchmark",
+]
+
+#: Public name -> the module that defines it.
+_EXPORTS = {
+    **dict.fromkeys(["LearnerConfig", "load_config"], "learner.config"),
+    "StoreView": "learner.store_view",
+    **dict.fromkeys(["EpisodeSpec", "EpisodeDataset", "load_episode"], "learner.data"),
+    "Observation": "shared.observation",
+    **dict.fromkeys(["PNS", "MetaPNS", "build_model"], "learner.models"),
+    **dict.fromkeys(["Trainer", "load_model"], "learner.train"),
+    **dict.fromkeys(["EvalSpec", "EvalSetting", "EvalReport", "evaluate_methods"], "learner.evaluate"),
+    **dict.fromkeys(["METHODS", "build_methods"], "learner.methods"),
+    **dict.fromkeys(
+        ["Observations", "Prediction", "observations_from_store", "observations_from_file", "predict"],
+        "learner.personalize",
+    ),
+    **dict.fromkeys(["BenchmarkConfig", "load_benchmark_config", "run_benchmark"], "learner.benchmark"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name's module on first use (PEP 562); later lookups find the name in this module."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'learner' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -1,1 +1,104 @@
-"""simgen: Aliev-Panfilov simulation-data service."""
+"""simgen: Aliev-Panfilov simulation-data service.
+
+Meshes, tissue (scar) settings, the batched solver, observation operators and resumable dataset
+builds into one chunked Zarr store. The names below are the public API; each loads its module on
+first use, so ``import simgen`` stays cheap (the solver's kernels compile with numba, builds use
+Dask and Zarr)::
+
+    import simgen
+
+    mesh = simgen.get_mesh("lv", 2000)
+    fields = simgen.tissue_fields(mesh, simgen.default_settings()[5])
+    result = simgen.Simulator(mesh, fields).run([0, 500, 1200])
+
+A dataset is built from a spec with :func:`simgen.build.runner.build` (``simgen build`` on the command
+line); :mod:`simgen.build` is the package of the store's layout, builds, verification and repair.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from shared.mesh import Mesh
+    from shared.tissue import TissueSpec
+    from simgen.build import BuildSpec, load_spec, make_plan, spec_from_mapping, spec_hash
+    from simgen.build.card import dataset_card
+    from simgen.build.edit import add_subject, regenerate
+    from simgen.build.export import export_vtk
+    from simgen.build.repair import repair_store
+    from simgen.build.verify import verify_store
+    from simgen.demo import run_demo
+    from simgen.meshes import biv_ellipsoid, get_mesh, load_mesh, lv_ellipsoid, sample_anatomies, save_mesh
+    from simgen.observe import AllSurface, Epicardial, Sock, make_observation
+    from simgen.solver import APParams, SimulationResult, Simulator, SolverConfig, simulate
+    from simgen.tissue import aha_segments, default_settings, tissue_fields
+
+#: Public name -> the module that defines it.
+_EXPORTS = {
+    **dict.fromkeys(["Mesh"], "shared.mesh"),
+    **dict.fromkeys(["TissueSpec"], "shared.tissue"),
+    **dict.fromkeys(
+        ["get_mesh", "load_mesh", "save_mesh", "lv_ellipsoid", "biv_ellipsoid", "sample_anatomies"], "simgen.meshes"
+    ),
+    **dict.fromkeys(["default_settings", "tissue_fields", "aha_segments"], "simgen.tissue"),
+    **dict.fromkeys(["Simulator", "SolverConfig", "SimulationResult", "simulate", "APParams"], "simgen.solver"),
+    **dict.fromkeys(["Sock", "AllSurface", "Epicardial", "make_observation"], "simgen.observe"),
+    **dict.fromkeys(["BuildSpec", "load_spec", "spec_from_mapping", "spec_hash", "make_plan"], "simgen.build"),
+    "verify_store": "simgen.build.verify",
+    "repair_store": "simgen.build.repair",
+    "export_vtk": "simgen.build.export",
+    "add_subject": "simgen.build.edit",
+    "regenerate": "simgen.build.edit",
+    "dataset_card": "simgen.build.card",
+    "run_demo": "simgen.demo",
+}
+
+__all__ = [
+    "Mesh",
+    "TissueSpec",
+    "get_mesh",
+    "load_mesh",
+    "save_mesh",
+    "lv_ellipsoid",
+    "biv_ellipsoid",
+    "sample_anatomies",
+    "default_settings",
+    "tissue_fields",
+    "aha_segments",
+    "Simulator",
+    "SolverConfig",
+    "SimulationResult",
+    "simulate",
+    "APParams",
+    "Sock",
+    "AllSurface",
+    "Epicardial",
+    "make_observation",
+    "BuildSpec",
+    "load_spec",
+    "spec_from_mapping",
+    "spec_hash",
+    "make_plan",
+    "verify_store",
+    "repair_store",
+    "export_vtk",
+    "add_subject",
+    "regenerate",
+    "dataset_card",
+    "run_demo",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name's module on first use (PEP 562); later lookups find the name in this module."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'simgen' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
