@@ -136,6 +136,22 @@ def test_no_import_cycle() -> None:
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
+#: Which top-level packages each may import: shared is the contract, simgen and learner never meet.
+LAYERS = {"shared": {"shared"}, "simgen": {"shared", "simgen"}, "learner": {"shared", "learner"}}
+
+
+def test_layers() -> None:
+    graph = import_graph(project_modules())
+    crossing = [
+        f"{module} -> {target}"
+        for module, targets in graph.items()
+        if module.split(".")[0] in LAYERS
+        for target in targets
+        if target.split(".")[0] not in LAYERS[module.split(".")[0]]
+    ]
+    assert not crossing, "imports across the layers:\n" + "\n".join(crossing)
+
+
 def test_graph_sees_every_package() -> None:
     graph = import_graph(project_modules())
     assert {name.split(".")[0] for name in graph} == set(PACKAGES)
