@@ -60,6 +60,16 @@ def reference_store(tmp_path_factory) -> Path:
     return store
 
 
+@pytest.fixture
+def reference_commit(reference_store, monkeypatch) -> None:
+    """New provenance records the git commit the reference store records, so that a store laid out anew
+    compares byte for byte with it even when the checkout's HEAD moved since the reference was built."""
+    import json
+
+    recorded = json.loads((reference_store / "zarr.json").read_text())["attributes"]["provenance"]["git_commit"]
+    monkeypatch.setattr("simgen.build.metadata._git_commit", lambda: recorded)
+
+
 @pytest.fixture(name="tiny_spec", scope="session")
 def tiny_spec_fixture():
     """The :func:`tiny_spec` factory."""

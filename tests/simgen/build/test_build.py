@@ -100,6 +100,7 @@ def test_dry_run_refuses_what_the_build_refuses_and_writes_nothing(reference_sto
     assert store_bytes(store) == damaged
 
 
+@pytest.mark.usefixtures("reference_commit")
 def test_force_rebuilds_a_damaged_store_of_the_same_spec(reference_store, tmp_path, tiny_spec, store_bytes):
     store = tmp_path / "s.zarr"
     shutil.copytree(reference_store, store)

@@ -184,6 +184,7 @@ def drop_root_attributes(store: Path, *names: str) -> None:
     path.write_text(json.dumps(meta))
 
 
+@pytest.mark.usefixtures("reference_commit")
 def test_repair_restores_a_missing_provenance_from_the_recorded_spec(store, reference_store, store_bytes):
     drop_root_attributes(store, "provenance", "simulation")
     report = repair_store(store, workers=1)
@@ -191,6 +192,7 @@ def test_repair_restores_a_missing_provenance_from_the_recorded_spec(store, refe
     assert store_bytes(store) == store_bytes(reference_store)  # SOURCE_DATE_EPOCH: the same creation date
 
 
+@pytest.mark.usefixtures("reference_commit")
 @pytest.mark.parametrize("garbage", [False, True], ids=["deleted", "not-json"])
 def test_repair_without_root_metadata_needs_the_spec_file(
     store, reference_store, store_bytes, tiny_spec_toml, tmp_path, garbage
@@ -214,6 +216,7 @@ def test_repair_without_root_metadata_needs_the_spec_file(
     assert store_bytes(store) == store_bytes(reference_store)
 
 
+@pytest.mark.usefixtures("reference_commit")
 def test_repair_finishes_a_layout_cut_short_by_a_full_disk(
     tmp_path, reference_store, store_bytes, tiny_spec, monkeypatch
 ):
