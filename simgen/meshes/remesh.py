@@ -338,8 +338,7 @@ def _drop_valence_three(P: NDArray[np.float64], T: NDArray[np.int64]) -> NDArray
         a, b = first[np.arange(len(centre)), (turn + 1) % 3], first[np.arange(len(centre)), (turn + 2) % 3]
         c = (T[fan].reshape(len(centre), 9).sum(axis=1) - 3 * centre) // 2 - a - b  # each ring node is in two
         cap = np.stack([a, b, c], axis=1)
-        existing = set(map(tuple, np.sort(T, axis=1).tolist()))
-        ok = (valence[cap] > 3).all(axis=1) & np.array([tuple(t) not in existing for t in np.sort(cap, axis=1).tolist()])
+        ok = (valence[cap] > 3).all(axis=1) & ~np.isin(_triangle_keys(cap, n), _triangle_keys(T, n))
         if not ok.any():
             break
         idx = np.flatnonzero(ok)
@@ -348,6 +347,12 @@ def _drop_valence_three(P: NDArray[np.float64], T: NDArray[np.int64]) -> NDArray
         keep[fan[chosen].ravel()] = False
         T = np.concatenate([T[keep], cap[chosen]])
     return T
+
+
+def _triangle_keys(T: NDArray[np.int64], n: int) -> NDArray[np.int64]:
+    """One integer per triangle of ``n`` nodes, the same for any order of its corners."""
+    s = np.sort(T, axis=1)
+    return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
 
 
 def _sharpness(P: NDArray[np.float64], edges: _Edges) -> NDArray[np.float64]:
