@@ -192,7 +192,8 @@ def check_schema_version(attrs: Mapping[str, Any], where: str = "store", write: 
     """
     version = attrs.get("schema_version")
     if version is None:
-        raise SchemaError(f"{where} has no schema_version attribute: not a simgen dataset store")
+        hint = f"; its root attributes are restored with `simgen repair {where}`" if "spec" in attrs else ""
+        raise SchemaError(f"{where} has no schema_version attribute: not a simgen dataset store{hint}")
     rebuild = f"rebuild it with `simgen build SPEC --store {where} --force` (its spec is the root attribute 'spec')"
     if version not in READABLE_VERSIONS:
         raise SchemaError(

@@ -44,7 +44,14 @@ def test_older_versions_are_read_with_a_warning_and_never_written(version, lacks
         check_schema_version({"schema_version": version}, "s.zarr", write=True)
 
 
-@pytest.mark.parametrize("attrs, match", [({}, "no schema_version"), ({"schema_version": 4}, "reads versions 1, 2, 3")])
+@pytest.mark.parametrize(
+    "attrs, match",
+    [
+        ({}, "no schema_version attribute: not a simgen dataset store$"),
+        ({"spec": {}}, r"no schema_version attribute.*restored with `simgen repair s\.zarr`"),
+        ({"schema_version": 4}, "reads versions 1, 2, 3"),
+    ],
+)
 def test_unknown_or_missing_version_is_refused(attrs, match):
     with pytest.raises(SchemaError, match=match):
         check_schema_version(attrs, "s.zarr")
