@@ -118,27 +118,9 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
 
 
 @njit(cache=True, **_FAST)
-def _run_block(
-    indptr,
-    indices,
-    data,
-    diag,
-    a,
-    u_init,
-    stim,
-    stim_steps,
-    n_steps,
-    out_every,
-    dt,
-    k,
-    eps0,
-    mu1,
-    mu2,
-    thr,
-    perm,
-    frames,
-    act,
-):  # pragma: no cover - compiled
+def _run_block(indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act):  # pragma: no cover
+    stim_steps, n_steps, out_every = counts
+    dt, k, eps0, mu1, mu2, thr = params
     n, b = u_init.shape
     u = u_init.copy()
     un = np.empty_like(u)
@@ -172,27 +154,7 @@ def _run_block(
 
 # nogil: a build worker's writer thread (simgen.build.worker.BackgroundWriter) runs while a chunk simulates
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def run_blocks(
-    indptr,
-    indices,
-    data,
-    diag,
-    a,
-    u_init,
-    stim,
-    stim_steps,
-    n_steps,
-    out_every,
-    dt,
-    k,
-    eps0,
-    mu1,
-    mu2,
-    thr,
-    perm,
-    frames,
-    act,
-):  # pragma: no cover - compiled
+def run_blocks(indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act):  # pragma: no cover
     """Integrate ``n_steps`` steps for every block of sites.
 
     Parameters
@@ -201,33 +163,14 @@ def run_blocks(
         diffusion operator ``-M^{-1}K`` (float32 values).
     a : (N,) float32 excitability.
     u_init : (n_blocks, N, B) float32 initial ``u`` (``v`` starts at 0).
-    stim, stim_steps : (n_blocks, N, B) bool mask of stimulated nodes, held at
-        ``u = 1`` for the first ``stim_steps`` steps.
-    eps0, mu1, mu2 : recovery-rate constants; the constant-eps variant passes
-        ``eps0 = eps``, ``mu1 = 0``.
+    stim : (n_blocks, N, B) bool mask of stimulated nodes, held at ``u = 1``
+        for the first ``stim_steps`` steps.
+    counts : ``(stim_steps, n_steps, out_every)``: steps of stimulus, steps in all, steps per output frame.
+    params : ``(dt, k, eps0, mu1, mu2, thr)`` float32: the time step, the model's constants and the
+        activation threshold ``thr``; the constant-eps variant passes ``eps0 = eps``, ``mu1 = 0``.
     perm : (N,) mesh node of each kernel row (the rows are renumbered for locality).
     frames : (n_blocks, B, F, N) float32 output, written every ``out_every`` steps, nodes in mesh order.
     act : (n_blocks, N, B) float32 activation times, initialised to -1 (never).
     """
     for blk in prange(u_init.shape[0]):
-        _run_block(
-            indptr,
-            indices,
-            data,
-            diag,
-            a,
-            u_init[blk],
-            stim[blk],
-            stim_steps,
-            n_steps,
-            out_every,
-            dt,
-            k,
-            eps0,
-            mu1,
-            mu2,
-            thr,
-            perm,
-            frames[blk],
-            act[blk],
-        )
+        _run_block(indptr, indices, data, diag, a, u_init[blk], stim[blk], counts, params, perm, frames[blk], act[blk])

@@ -197,27 +197,10 @@ def _slot(j):  # pragma: no cover - compiled
 
 @njit(cache=True, **_STRICT)
 def _run_block(
-    indptr,
-    indices,
-    data,
-    diag,
-    a,
-    u_init,
-    stim,
-    stim_steps,
-    n_steps,
-    out_every,
-    dt,
-    k,
-    eps0,
-    mu1,
-    mu2,
-    thr,
-    perm,
-    frames,
-    act,
-    stages,
-):  # pragma: no cover - compiled
+    indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act, stages
+):  # pragma: no cover
+    stim_steps, n_steps, out_every = counts
+    dt, k, eps0, mu1, mu2, thr = params
     n, b = u_init.shape
     s = stages.shape[0]
     yu = np.empty((4, n, b), np.float32)  # Y_0 and three rotating stages, u and v
@@ -258,26 +241,7 @@ def _run_block(
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def run_blocks_rkc(
-    indptr,
-    indices,
-    data,
-    diag,
-    a,
-    u_init,
-    stim,
-    stim_steps,
-    n_steps,
-    out_every,
-    dt,
-    k,
-    eps0,
-    mu1,
-    mu2,
-    thr,
-    perm,
-    frames,
-    act,
-    stages,
+    indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act, stages
 ):  # pragma: no cover - compiled
     """Integrate ``n_steps`` RKC2 steps for every block of sites.
 
@@ -286,25 +250,5 @@ def run_blocks_rkc(
     :func:`coefficients` table.
     """
     for blk in prange(u_init.shape[0]):
-        _run_block(
-            indptr,
-            indices,
-            data,
-            diag,
-            a,
-            u_init[blk],
-            stim[blk],
-            stim_steps,
-            n_steps,
-            out_every,
-            dt,
-            k,
-            eps0,
-            mu1,
-            mu2,
-            thr,
-            perm,
-            frames[blk],
-            act[blk],
-            stages,
-        )
+        u0, stim0, frames0, act0 = u_init[blk], stim[blk], frames[blk], act[blk]
+        _run_block(indptr, indices, data, diag, a, u0, stim0, counts, params, perm, frames0, act0, stages)

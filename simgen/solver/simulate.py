@@ -407,9 +407,9 @@ class Simulator:
         numba.set_num_threads(max(1, min(int(threads), n_blocks, numba.config.NUMBA_NUM_THREADS)))
         args = (self._indptr, self._indices, self._data, self._diag, self._a, stim.astype(np.float32), stim)
         if self._rkc is None:
-            run_blocks(*args, *constants, self.perm, frames, act)
+            run_blocks(*args, constants[:3], constants[3:], self.perm, frames, act)
         else:
-            run_blocks_rkc(*args, *constants, self.perm, frames, act, self._rkc)
+            run_blocks_rkc(*args, constants[:3], constants[3:], self.perm, frames, act, self._rkc)
         u = frames.reshape(n_blocks * width, self.config.frames, n)[:s]  # a view: no copy of the largest array
         return u, act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s]
 

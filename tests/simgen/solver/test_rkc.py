@@ -163,8 +163,8 @@ def test_second_order_convergence_on_smooth_reaction_diffusion(smooth_problem):
         frames, act = np.empty((1, 1, 1, n), f32), np.full((1, n, 1), -1, f32)
         run_blocks_rkc(
             off.indptr.astype(np.int64), off.indices.astype(np.int64), off.data, diag, np.full(n, a, f32),
-            u0.astype(f32).reshape(1, n, 1), np.zeros((1, n, 1), bool), 0, steps, steps,
-            f32(dt), f32(p.k), f32(p.eps0), f32(p.mu1), f32(p.mu2), f32(0.5), np.arange(n), frames, act, table,
+            u0.astype(f32).reshape(1, n, 1), np.zeros((1, n, 1), bool), (0, steps, steps),
+            (f32(dt), f32(p.k), f32(p.eps0), f32(p.mu1), f32(p.mu2), f32(0.5)), np.arange(n), frames, act, table,
         )  # fmt: skip
         return float(np.abs(frames[0, 0, 0] - exact).max())
 
