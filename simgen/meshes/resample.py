@@ -15,8 +15,9 @@
   smoothing towards dihedral angles between 15 and 160 degrees (a bound
   TetGen tries to meet, not a guarantee); ``L`` is corrected from the total
   node count in the same way (a remeshed surface that crosses itself, at
-  a thin wall, is remeshed finer, 5 % at a time, before TetGen sees it; the
-  interior keeps the coarser length). Slivers lying flat
+  a thin wall, is remeshed 15 % finer before TetGen sees it; where the
+  count then misses the target, the surface alone is remeshed finer, 5 %
+  at a time, and the interior keeps the coarser length). Slivers lying flat
   against the surface (two faces on it, a dihedral angle below
   :data:`PEEL_ANGLE`) are removed, which flips the surface diagonal under
   them.
@@ -80,7 +81,9 @@ _TETGEN = {
     "quiet": True,
 }
 _TRIES = 4
-#: A remeshed surface that crosses itself is remeshed with edges this much shorter, up to _UNCROSS_TRIES times.
+#: A remeshed surface that crosses itself is filled with edges this much shorter, up to _TRIES times; where
+#: the count then misses the target, its surface alone is remeshed, _UNCROSS_STEP shorter up to _UNCROSS_TRIES times.
+_REFINE_STEP = 0.85
 _UNCROSS_STEP, _UNCROSS_TRIES = 0.95, 8
 #: Remeshed surfaces keep about 30 % more nodes than an equilateral one of edge ``L``: ``L`` starts longer.
 _LENGTH_FACTOR = 1.1
@@ -190,21 +193,32 @@ def tetrahedralise(
         lo, hi = (length, hi) if estimate > nodes else (lo, length)
     start = decimate_surface(points, tris, 2 * nodes)
 
-    def fill(length: float) -> tuple:
+    def fill(length: float, surface_only: bool = False) -> tuple:
+        """Tetrahedra of edge ``length``; a remeshed surface that crosses itself (a thin wall at a coarse
+        ``length``) is remeshed finer, with the interior (``surface_only``) or without it."""
+        step, tries = (_UNCROSS_STEP, _UNCROSS_TRIES) if surface_only else (_REFINE_STEP, _TRIES)
         surface_length = length
         sp, st = remesh(*start, length, reference=(points, tris))
-        for _ in range(_UNCROSS_TRIES):  # a coarse surface can cross itself at a thin wall: remesh it finer
+        for _ in range(tries):
             if not crossing_edges(sp, st):
                 break
-            surface_length *= _UNCROSS_STEP
+            surface_length *= step
             sp, st = remesh(*start, surface_length, reference=(points, tris))
-        try:  # the interior keeps the asked length
-            tet_points, tets, *_ = _tetrahedralize(tetgen.TetGen(sp, st.astype(np.int32)), length**3 / (6 * np.sqrt(2)))
+        interior = length if surface_only else surface_length
+        try:
+            tet_points, tets, *_ = _tetrahedralize(
+                tetgen.TetGen(sp, st.astype(np.int32)), interior**3 / (6 * np.sqrt(2))
+            )
         except RuntimeError as exc:  # no second try: TetGen can corrupt memory when it fails twice in a process
             raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None
-        return length, (np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
+        return interior, (np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
 
     tet_points, tets = _fit_length(length, nodes, fill)
+    if abs(len(tet_points) / nodes - 1) > NODE_TOLERANCE:  # thin walls refined everywhere: refine the surface alone
+        tet_points, tets = min(
+            ((tet_points, tets), _fit_length(length, nodes, lambda length: fill(length, surface_only=True))),
+            key=lambda mesh: abs(len(mesh[0]) / nodes - 1),
+        )
     negative = signed_volumes(tet_points, tets) < 0
     tets[negative] = tets[negative][:, [1, 0, 2, 3]]
     for _ in range(3):  # peeling one can lay the next flat on the surface
