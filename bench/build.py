@@ -4,7 +4,7 @@ Three measurements, each printed as a Markdown table:
 
 1. **Scaling.** One small spec built in code (default: 1 LV mesh of ~2000
    nodes x 4 tissue settings x 192 sites, 64 sites per chunk = 12 tasks) is
-   built into a fresh temporary store by :func:`simgen.build.runner.build`
+   built into a fresh temporary store by :func:`simgen.store.runner.build`
    (LocalCluster of single-threaded worker processes) with 1 and with 2
    workers. Reported: build wall time and sims/s, the LocalCluster start-up
    alone (``dask_client`` entered and left with no work), the task phase
@@ -21,8 +21,8 @@ Three measurements, each printed as a Markdown table:
    sites: 12 chunks of 64 in a row, so that file writes are measured
    sustained, as in a build, not only the first few) -
    ``Simulator.run(sites, threads=1)`` then
-   :func:`simgen.build.store.write_chunk`, once in the task and once on a
-   :class:`~simgen.build.worker.BackgroundWriter` as a build runs it - timing
+   :func:`simgen.store.layout.write_chunk`, once in the task and once on a
+   :class:`~simgen.store.worker.BackgroundWriter` as a build runs it - timing
    each part. Reported: the write share of task time (goal <= 5%), bytes
    written (u + activation chunks on disk) and the compression ratio
    (stored / raw float32 bytes).
@@ -57,11 +57,11 @@ import numpy as np
 import zarr
 
 from bench.common import add_out_argument, machine, machine_line, write_out
-from simgen.build.manifest import make_plan
-from simgen.build.runner import build, dask_client
-from simgen.build.spec import BuildSpec, load_spec, spec_from_mapping, spec_hash, spec_to_dict
-from simgen.build.store import create_layout, write_chunk
-from simgen.build.worker import BackgroundWriter, Prepared, prepare
+from simgen.store.layout import create_layout, write_chunk
+from simgen.store.manifest import make_plan
+from simgen.store.runner import build, dask_client
+from simgen.store.spec import BuildSpec, load_spec, spec_from_mapping, spec_hash, spec_to_dict
+from simgen.store.worker import BackgroundWriter, Prepared, prepare
 from simgen.tissue.defaults import default_settings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -228,7 +228,7 @@ def bench_ceiling(args) -> list[dict]:
     """The same chunks in P plain processes started together (no Dask): the machine's own scaling."""
     import multiprocessing as mp
 
-    from simgen.build.runner import single_thread_env
+    from simgen.store.runner import single_thread_env
 
     ctx = mp.get_context("spawn")
     rows = []
@@ -491,7 +491,7 @@ def _write_md(write: list[dict], args) -> list[str]:
     out += [
         "",
         "In the task: `write_chunk` after `Simulator.run`, share = write_chunk / (run + write_chunk). "
-        "Background (what a build's tasks do, `simgen.build.worker.BackgroundWriter`): the chunk is written on "
+        "Background (what a build's tasks do, `simgen.store.worker.BackgroundWriter`): the chunk is written on "
         "a thread of its own while the next one simulates; write share = (task blocked + write CPU) / "
         "(run + task blocked + write CPU), the write CPU counted in full as if no core were spare (a 2-worker "
         "build on 2 cores); the disk wait it hides costs nothing. Last write = the wait for the last chunk's "

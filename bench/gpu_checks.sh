@@ -34,7 +34,7 @@ step machine 60 bash -c "nvidia-smi --query-gpu=name,memory.total,driver_version
 
 # 1. The CUDA tests: torch on CUDA against numba, the GPU-worker build.
 step tests 100 $python -m pytest -q -p no:cacheprovider tests/simgen/solver/test_torch_backend.py \
-    tests/simgen/build/test_gpu_build.py
+    tests/simgen/store/test_gpu_build.py
 # 2. Solver speed: Euler and IMEX (CG solves at these sizes) on CUDA next to numba on the host's threads.
 step solver 200 $python -m bench.solver --backend numba torch --device cuda --integrator euler imex \
     --nodes 2000 10000 50000 --batch 64 --naive-sites 0 --threads 16 --repeat 1 --out "$out/solver"

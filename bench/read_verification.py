@@ -42,7 +42,7 @@ from learner.data.episodes import EpisodeDataset, EpisodeSpec
 from learner.train.trainer import train
 from shared.integrity import SubjectReader
 from shared.reader import subject_ids
-from simgen.build.runner import build
+from simgen.store.runner import build
 
 
 @contextmanager

@@ -53,12 +53,12 @@ def child_build(nodes: int, sites: int) -> dict:
     """Plan, layout, simulator set-up, run and write of one chunk of ``sites`` sites on an LV of ``nodes``."""
     from build import small_spec  # bench/build.py, next to this file
 
-    from simgen.build.manifest import make_plan
-    from simgen.build.spec import spec_hash, spec_to_dict
-    from simgen.build.store import create_layout, write_chunk
-    from simgen.build.worker import prepare
     from simgen.meshes.ellipsoid import lv_ellipsoid
     from simgen.solver.simulate import Simulator
+    from simgen.store.layout import create_layout, write_chunk
+    from simgen.store.manifest import make_plan
+    from simgen.store.spec import spec_hash, spec_to_dict
+    from simgen.store.worker import prepare
 
     Simulator(lv_ellipsoid(300, "tetra")).run([0], threads=1)  # load the compiled kernel: untimed
     spec = small_spec(nodes, 1, sites, sites)

@@ -3,12 +3,12 @@
 One small spec built in code (default: 1 LV mesh of ~2000 nodes x 4 tissue
 settings x 200 sites, 64 sites per build task, so each subject's last task
 holds 8 sites, as in ``specs/default.toml``) is built twice through
-:func:`simgen.build.runner.build` on a LocalCluster of single-threaded workers:
+:func:`simgen.store.runner.build` on a LocalCluster of single-threaded workers:
 
 - **sharded** (schema version 3): ``u`` and ``activation`` in one shard per
   build task with one inner chunk per site;
 - **unsharded** (the layout of version 2): one chunk per build task, laid out
-  with :data:`simgen.build.store.SHARD_RESULTS` set to ``False``.
+  with :data:`simgen.store.layout.SHARD_RESULTS` set to ``False``.
 
 Reported per layout: build wall time (fastest of ``--repeat``), the store's
 bytes on disk; the time to read one simulation (``u[site]`` of a random subject
@@ -38,12 +38,12 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-import simgen.build.store as store_module
+import simgen.store.layout as store_module
 from bench.common import add_out_argument, machine_line, write_out
 from learner.data.episodes import EpisodeDataset, EpisodeSpec
 from shared.reader import subject_ids
-from simgen.build.runner import build
-from simgen.build.spec import BuildSpec, spec_from_mapping
+from simgen.store.runner import build
+from simgen.store.spec import BuildSpec, spec_from_mapping
 
 LAYOUTS = {"sharded": True, "unsharded": False}
 TISSUE = ["healthy", "scar-anterior-basal", "scar-septal-mid", "scar-lateral-apical"]

@@ -82,8 +82,8 @@ def measure_inference(meta: MetaPNS, hier, ep, repeat: int, device: str) -> dict
 
 def small_store(folder: Path) -> Path:
     """A 2k-node LV x 2 settings x 25 sites store, 55 frames (the default spec's resolution)."""
-    from simgen.build import spec_from_mapping
-    from simgen.build.runner import build
+    from simgen.store import spec_from_mapping
+    from simgen.store.runner import build
 
     spec = spec_from_mapping(
         {

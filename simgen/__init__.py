@@ -11,8 +11,8 @@ Dask and Zarr)::
     fields = simgen.tissue_fields(mesh, simgen.default_settings()[5])
     result = simgen.Simulator(mesh, fields).run([0, 500, 1200])
 
-A dataset is built from a spec with :func:`simgen.build.runner.build` (``simgen build`` on the command
-line); :mod:`simgen.build` is the package of the store's layout, builds, verification and repair.
+A dataset is built from a spec with :func:`simgen.store.runner.build` (``simgen build`` on the command
+line); :mod:`simgen.store` is the package of the store's layout, builds, verification and repair.
 """
 
 from __future__ import annotations
@@ -23,16 +23,16 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from shared.mesh import Mesh
     from shared.tissue import TissueSpec
-    from simgen.build import BuildSpec, load_spec, make_plan, spec_from_mapping, spec_hash
-    from simgen.build.card import dataset_card
-    from simgen.build.edit import add_subject, regenerate
-    from simgen.build.export import export_vtk
-    from simgen.build.repair import repair_store
-    from simgen.build.verify import verify_store
     from simgen.demo import run_demo
     from simgen.meshes import biv_ellipsoid, get_mesh, load_mesh, lv_ellipsoid, sample_anatomies, save_mesh
     from simgen.observe import AllSurface, Epicardial, Sock, make_observation
     from simgen.solver import APParams, SimulationResult, Simulator, SolverConfig, simulate
+    from simgen.store import BuildSpec, load_spec, make_plan, spec_from_mapping, spec_hash
+    from simgen.store.card import dataset_card
+    from simgen.store.edit import add_subject, regenerate
+    from simgen.store.export import export_vtk
+    from simgen.store.repair import repair_store
+    from simgen.store.verify import verify_store
     from simgen.tissue import aha_segments, default_settings, tissue_fields
 
 #: Public name -> the module that defines it.
@@ -45,13 +45,13 @@ _EXPORTS = {
     **dict.fromkeys(["default_settings", "tissue_fields", "aha_segments"], "simgen.tissue"),
     **dict.fromkeys(["Simulator", "SolverConfig", "SimulationResult", "simulate", "APParams"], "simgen.solver"),
     **dict.fromkeys(["Sock", "AllSurface", "Epicardial", "make_observation"], "simgen.observe"),
-    **dict.fromkeys(["BuildSpec", "load_spec", "spec_from_mapping", "spec_hash", "make_plan"], "simgen.build"),
-    "verify_store": "simgen.build.verify",
-    "repair_store": "simgen.build.repair",
-    "export_vtk": "simgen.build.export",
-    "add_subject": "simgen.build.edit",
-    "regenerate": "simgen.build.edit",
-    "dataset_card": "simgen.build.card",
+    **dict.fromkeys(["BuildSpec", "load_spec", "spec_from_mapping", "spec_hash", "make_plan"], "simgen.store"),
+    "verify_store": "simgen.store.verify",
+    "repair_store": "simgen.store.repair",
+    "export_vtk": "simgen.store.export",
+    "add_subject": "simgen.store.edit",
+    "regenerate": "simgen.store.edit",
+    "dataset_card": "simgen.store.card",
     "run_demo": "simgen.demo",
 }
 

@@ -24,7 +24,7 @@ from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
 
 if TYPE_CHECKING:
-    from simgen.build.estimate import BuildEstimate
+    from simgen.store.estimate import BuildEstimate
 
 app = typer.Typer(
     help="simgen: Aliev-Panfilov cardiac simulations on heart meshes, swept into datasets.",
@@ -268,9 +268,9 @@ def build(
     the store more disk space than is free. With --gpus the spec must set
     [solver] backend = "torch" or "auto" (docs/solver-backends.md).
     """
-    from simgen.build import load_spec
-    from simgen.build.runner import build as run_build
-    from simgen.build.runner import dry_run as run_dry
+    from simgen.store import load_spec
+    from simgen.store.runner import build as run_build
+    from simgen.store.runner import dry_run as run_dry
 
     if dry_run:
         try:
@@ -287,12 +287,12 @@ def build(
     )
 
 
-#: What a build does with its store, by :func:`simgen.build.runner.store_state`.
+#: What a build does with its store, by :func:`simgen.store.runner.store_state`.
 _WOULD = {"new": "lay out a new store", "resume": "resume the store", "replace": "replace the store (--force)"}
 
 
 def _show_plan(estimate: BuildEstimate) -> None:
-    """Print a build's :class:`~simgen.build.estimate.BuildEstimate`."""
+    """Print a build's :class:`~simgen.store.estimate.BuildEstimate`."""
     console.print("[bold]plan[/bold]\n  " + escape("\n  ".join(estimate.lines())), soft_wrap=True)
 
 
@@ -376,8 +376,8 @@ def add_subject(
     workers: WorkersOpt = 2,
 ) -> None:
     """Add a subject (e.g. a new patient geometry) to STORE and simulate only it."""
-    from simgen.build.edit import add_subject as run_add
-    from simgen.build.spec import MeshEntry
+    from simgen.store.edit import add_subject as run_add
+    from simgen.store.spec import MeshEntry
 
     def job(on_start, on_done):
         specs = [_tissue_spec(t) for t in tissue]
@@ -406,7 +406,7 @@ def regenerate(
     workers: WorkersOpt = 2,
 ) -> None:
     """Recompute only the chunks of SUBJECTS (or of the given site indices) and rewrite them."""
-    from simgen.build.edit import regenerate as run_regenerate
+    from simgen.store.edit import regenerate as run_regenerate
 
     def job(on_start, on_done):
         indices = None if site_index is None else parse_ids(site_index, "--site-index")
@@ -443,7 +443,7 @@ def repair(
     full disk say, included); the store ends as a clean build of its spec.
     Nothing is written before the repair is planned.
     """
-    from simgen.build.repair import repair_store
+    from simgen.store.repair import repair_store
 
     reports = []
 
@@ -461,7 +461,7 @@ def repair(
 @app.command()
 def status(store: StoreArg) -> None:
     """Per-subject progress of a (possibly unfinished) build, and the damage a cheap check finds (exit 1 if any)."""
-    from simgen.build.inspect import store_health
+    from simgen.store.inspect import store_health
 
     try:
         health = store_health(store)
@@ -516,7 +516,7 @@ def unlock(
     force: Annotated[bool, typer.Option(help="Also remove a lock of another host (check its build is gone).")] = False,
 ) -> None:
     """Remove the lock of STORE left by a build that is gone (refused while a build of STORE runs on this host)."""
-    from simgen.build.lock import unlock as run_unlock
+    from simgen.store.lock import unlock as run_unlock
 
     try:
         holder = run_unlock(store, force=force)
@@ -542,7 +542,7 @@ def verify(
     seed: Annotated[int, typer.Option(min=0, help="Seed of the chunk sample.")] = 0,
 ) -> None:
     """Check the structure against the recorded spec, every checksum and chunk, and recompute a sample."""
-    from simgen.build.verify import verify_store
+    from simgen.store.verify import verify_store
 
     try:
         report = verify_store(store, sample=sample, seed=seed)
@@ -564,7 +564,7 @@ def card(
     out: Annotated[Path | None, typer.Option(help="Markdown file to write; printed when omitted.")] = None,
 ) -> None:
     """Write the Markdown dataset card of STORE: model, parameters, sizes, cost, statistics, provenance, citation."""
-    from simgen.build.card import dataset_card
+    from simgen.store.card import dataset_card
 
     try:
         if out is not None and not out.parent.exists():
@@ -590,7 +590,7 @@ def export_vtk(
     out: Annotated[Path, typer.Option(help="Output folder for the .vtu frames and .pvd collection.")] = Path("vtk"),
 ) -> None:
     """Write one simulation as a ParaView time series (.pvd + one .vtu per frame)."""
-    from simgen.build.export import export_vtk as run_export
+    from simgen.store.export import export_vtk as run_export
 
     try:
         pvd = run_export(store, subject, site_index, out)

@@ -19,7 +19,7 @@ NEW_SUBJECT_ATTRS = ("solver", "split", "statistics")
 def as_version_2(store: Path) -> None:
     """Strip the arrays version 3 added, rewrite ``u`` and ``activation`` unsharded (one chunk per build
     task, as version 2 stored them) and mark the store version 2."""
-    from simgen.build.store import consolidate_metadata
+    from simgen.store.layout import consolidate_metadata
 
     root = zarr.open_group(str(store), mode="r+", use_consolidated=False)
     for subject_id in subject_ids(store):
@@ -54,7 +54,7 @@ def as_version_2_fixture():
 def as_version_1(store: Path) -> None:
     """Strip what version 2 added (arrays, attributes, CF attributes) from the :func:`as_version_2` store and
     mark it version 1."""
-    from simgen.build.store import consolidate_metadata
+    from simgen.store.layout import consolidate_metadata
 
     as_version_2(store)
     root = zarr.open_group(str(store), mode="r+", use_consolidated=False)
@@ -92,15 +92,15 @@ TINY_STORE_SPEC = {
 @pytest.fixture(scope="session")
 def tiny_store(tmp_path_factory) -> Path:
     """2 LV meshes x 3 tissue settings = 6 subjects, 12 sites each, 12 frames every 2 time units."""
-    from simgen.build import spec_from_mapping
-    from simgen.build.runner import build
+    from simgen.store import spec_from_mapping
+    from simgen.store.runner import build
 
     store = tmp_path_factory.mktemp("tiny") / "tiny.zarr"
     build(spec_from_mapping(TINY_STORE_SPEC), store, workers=1)
     return store
 
 
-#: The tiny build spec of tests/simgen/build/conftest.py (``tiny_spec``) as a spec file's text:
+#: The tiny build spec of tests/simgen/store/conftest.py (``tiny_spec``) as a spec file's text:
 #: 2 subjects x 2 chunks of 3 sites on a 500-node LV; a build of it resumes that reference store.
 TINY_SPEC_TOML = """
 tissue = ["healthy", "scar-apex"]

@@ -31,7 +31,7 @@ import pytest
 
 from learner.cli import _context_range
 from shared.errors import InputError
-from simgen.build.lock import StoreLock
+from simgen.store.lock import StoreLock
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """tissue = ["healthy", "scar-apex"]
@@ -667,8 +667,8 @@ def d(tmp_path_factory) -> Iterator[Path]:
 @pytest.fixture(scope="module")
 def store(d) -> Path:
     """The tiny store of :data:`SPEC`, built once."""
-    from simgen.build import load_spec
-    from simgen.build.runner import build
+    from simgen.store import load_spec
+    from simgen.store.runner import build
 
     build(load_spec(d / "good.toml"), d / "store.zarr", workers=1)
     return d / "store.zarr"

@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from shared.errors import InputError
-from simgen.build import spec_from_mapping, spec_hash
+from simgen.store import spec_from_mapping, spec_hash
 
 VALID = {
     "name": "p",
@@ -89,7 +89,7 @@ def test_a_random_spec_is_accepted_or_refused_as_bad_input(edits):
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> Path:
     """A small store: one 300-node LV, one setting, 4 sites in chunks of 2, 6 frames."""
-    from simgen.build.runner import build
+    from simgen.store.runner import build
 
     path = tmp_path_factory.mktemp("corrupt") / "s.zarr"
     build(spec_from_mapping(VALID), path, workers=1)
@@ -123,7 +123,7 @@ def pristine(store) -> tuple[list[Path], dict]:
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(which=st.integers(0, 10_000), where=st.floats(0, 1, exclude_max=True), mask=st.binary(min_size=1, max_size=8))
 def test_a_corrupted_chunk_file_is_named_by_verify_or_harmless(store, pristine, which, where, mask):
-    from simgen.build.verify import verify_store
+    from simgen.store.verify import verify_store
 
     files, before = pristine
     path = files[which % len(files)]

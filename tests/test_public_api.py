@@ -30,11 +30,11 @@ def test_import_is_lazy(package: str, heavy: tuple[str, ...]) -> None:
 
 
 def test_subpackages_keep_their_names() -> None:
-    """A top-level name never shadows a subpackage (``simgen.build`` stays the package)."""
+    """A top-level name never shadows a subpackage (``simgen.store`` stays the package)."""
     import simgen
-    import simgen.build
+    import simgen.store
 
-    assert simgen.build.__name__ == "simgen.build"
+    assert simgen.store.__name__ == "simgen.store"
     for package in ("simgen", "learner"):
         module = importlib.import_module(package)
         for name in module.__all__:

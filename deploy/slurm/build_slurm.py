@@ -101,8 +101,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from shared.errors import InputError
-    from simgen.build import load_spec
-    from simgen.build.runner import build
+    from simgen.store import load_spec
+    from simgen.store.runner import build
 
     spec = load_spec(args.spec)  # a bad spec fails here, before any job is submitted
     with make_cluster(args) as cluster:

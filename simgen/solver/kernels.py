@@ -152,7 +152,7 @@ def _run_block(indptr, indices, data, diag, a, u_init, stim, counts, params, per
             frame += 1
 
 
-# nogil: a build worker's writer thread (simgen.build.worker.BackgroundWriter) runs while a chunk simulates
+# nogil: a build worker's writer thread (simgen.store.worker.BackgroundWriter) runs while a chunk simulates
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def run_blocks(indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act):  # pragma: no cover
     """Integrate ``n_steps`` steps for every block of sites.

@@ -479,7 +479,7 @@ class Simulator:
 
 def page_aligned_empty(shape: tuple[int, ...], dtype: DTypeLike) -> NDArray:
     """``np.empty`` whose data starts on a 4096-byte page: a dataset build writes its chunk files
-    straight from such memory with direct I/O (:func:`simgen.build.chunk_files.write_checksummed`)."""
+    straight from such memory with direct I/O (:func:`simgen.store.chunk_files.write_checksummed`)."""
     dtype = np.dtype(dtype)
     nbytes = int(np.prod(shape)) * dtype.itemsize
     raw = np.empty(nbytes + 4096, np.uint8)

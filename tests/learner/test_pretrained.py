@@ -132,8 +132,8 @@ def test_export_writes_what_load_reads(tiny_store, tiny_toml, tmp_path, monkeypa
 
 @pytest.fixture(scope="module")
 def new_hearts(tmp_path_factory):
-    from simgen.build import spec_from_mapping
-    from simgen.build.runner import build
+    from simgen.store import spec_from_mapping
+    from simgen.store.runner import build
 
     store = tmp_path_factory.mktemp("new-hearts") / "new.zarr"
     build(spec_from_mapping(NEW_HEARTS_SPEC), store, workers=1)

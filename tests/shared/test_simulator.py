@@ -22,8 +22,8 @@ def test_unknown_backend_is_refused_with_the_installed_names():
 
 
 def test_backend_reproduces_the_stored_simulations(tmp_path):
-    from simgen.build import spec_from_mapping
-    from simgen.build.runner import build
+    from simgen.store import spec_from_mapping
+    from simgen.store.runner import build
 
     spec = {
         "meshes": [{"id": "lv", "source": "lv", "nodes": 500}],

@@ -120,8 +120,8 @@ def test_unknown_split_source_is_refused():
 
 def test_adding_a_subject_moves_no_stored_subject(store_copy):
     from learner.store_view import StoreView
-    from simgen.build.edit import add_subject
-    from simgen.build.spec import MeshEntry
+    from simgen.store.edit import add_subject
+    from simgen.store.spec import MeshEntry
 
     spec = SplitSpec(source="store")
     view = StoreView(store_copy)

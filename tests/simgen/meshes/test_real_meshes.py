@@ -114,7 +114,7 @@ def test_landmarks_replace_the_detected_axis():
 
 def test_spec_keys_for_real_meshes():
     from shared.errors import ConfigError
-    from simgen.build.spec import spec_from_mapping, spec_hash, spec_to_dict
+    from simgen.store.spec import spec_from_mapping, spec_hash, spec_to_dict
 
     table = {"id": "tof", "source": "real:tof-biv", "units": "mm", "axis": {"apex": [0, 0, -70], "base": [0, 0, 0]}}
     spec = spec_from_mapping({"meshes": [table]})

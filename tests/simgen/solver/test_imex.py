@@ -199,10 +199,10 @@ def test_torch_backend_runs_the_same_steps_within_the_backend_tolerance(lv):
 def test_store_records_the_integrator_that_ran_and_verify_recomputes_it_bitwise(tmp_path):
     """A build records each subject's integrator (``auto`` resolved); ``simgen verify`` recomputes with it."""
     from shared.reader import read_integrator
-    from simgen.build.card import dataset_card
-    from simgen.build.runner import build
-    from simgen.build.spec import spec_from_mapping
-    from simgen.build.verify import verify_store
+    from simgen.store.card import dataset_card
+    from simgen.store.runner import build
+    from simgen.store.spec import spec_from_mapping
+    from simgen.store.verify import verify_store
 
     def spec(solver: dict):
         return spec_from_mapping(

@@ -10,8 +10,6 @@ from shared.config import from_mapping, to_mapping
 from shared.errors import ConfigError, InputError, TimeStepError
 from shared.mesh import Mesh
 from simgen.backend import AlievPanfilovBackend
-from simgen.build.metadata import simulation_attrs
-from simgen.build.spec import spec_from_mapping, spec_hash, spec_to_dict
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.slab import slab, strip
 from simgen.solver.aliev_panfilov import APParams
@@ -19,10 +17,12 @@ from simgen.solver.rkc_kernel import DAMPING, coefficients, run_blocks_rkc, stab
 from simgen.solver.simulate import Simulator, SolverConfig, healthy_fields
 from simgen.solver.timestep import DT_ACCURACY, choose_rkc_step, rkc_stages, stability_limit
 from simgen.solver.verification import measured_front_speed, planar_run, speed_error
+from simgen.store.metadata import simulation_attrs
+from simgen.store.spec import spec_from_mapping, spec_hash, spec_to_dict
 
 RKC = SolverConfig(integrator="rkc")
 
-#: The tiny build spec of tests/simgen/build/conftest.py and its hash from before ``backend`` and
+#: The tiny build spec of tests/simgen/store/conftest.py and its hash from before ``backend`` and
 #: ``integrator`` existed: a spec that leaves both unset keeps it.
 TINY_SPEC = {
     "meshes": [{"id": "lv", "source": "lv", "nodes": 500}],
@@ -221,8 +221,8 @@ def test_store_metadata_names_the_integrator():
 
 def test_rkc_store_is_verified_bitwise_with_its_integrator(tmp_path):
     """``simgen verify`` recomputes sampled chunks with the spec's solver settings, integrator included."""
-    from simgen.build.runner import build
-    from simgen.build.verify import verify_store
+    from simgen.store.runner import build
+    from simgen.store.verify import verify_store
 
     spec = spec_from_mapping(
         {

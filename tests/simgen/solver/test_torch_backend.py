@@ -123,7 +123,7 @@ def test_numba_backend_does_not_import_torch():
         "import sys, numpy as np\n"
         "from simgen.meshes.ellipsoid import lv_ellipsoid\n"
         "from simgen.solver import Simulator, SolverConfig\n"
-        "import simgen.cli, simgen.build.runner, simgen.build.worker\n"
+        "import simgen.cli, simgen.store.runner, simgen.store.worker\n"
         "Simulator(lv_ellipsoid(200, 'tetra'), config=SolverConfig(frames=2)).run(np.array([0]))\n"
         "assert 'torch' not in sys.modules, 'torch imported'\n"
     )

@@ -1,0 +1,112 @@
+"""Self-describing attributes of a store: provenance, the simulation model, a subject's solver settings.
+
+They are written once, with the layout they describe (:func:`simgen.store.layout.create_layout`,
+:func:`simgen.store.edit.add_subject`), and never rewritten by a resumed build, so
+a resumed store stays byte-identical to an uninterrupted one. Two separate
+builds differ in their creation date unless ``SOURCE_DATE_EPOCH`` fixes it
+(the reproducible-builds convention).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+from shared.errors import ConfigError
+from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
+from simgen.solver.simulate import SolverConfig
+from simgen.store.manifest import SubjectSetup
+
+__all__ = ["PACKAGE", "AP_EQUATIONS", "provenance", "simulation_attrs", "solver_attrs"]
+
+#: The distribution that writes stores.
+PACKAGE = "metapns"
+
+#: The Aliev-Panfilov model as simulated (docs/method.md).
+AP_EQUATIONS = (
+    "du/dt = div(D grad u) + k u (1 - u)(u - a) - u v",
+    "dv/dt = eps(u, v) (-v - k u (u - a - 1))",
+    "eps(u, v) = eps0 + mu1 v / (u + mu2)   (variant 'standard'; 'simple': eps = eps_simple)",
+)
+
+
+def provenance() -> dict:
+    """Package, version, git commit (``None`` outside a checkout) and creation date (UTC, ISO 8601)."""
+    return {"software": PACKAGE, "version": _version(), "git_commit": _git_commit(), "created": _created()}
+
+
+def _version() -> str | None:
+    try:
+        return version(PACKAGE)
+    except PackageNotFoundError:
+        return None
+
+
+def _git_commit() -> str | None:
+    """HEAD of the git checkout holding this package, or ``None`` (no git, not a checkout)."""
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=10
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def _created() -> str:
+    """Now, or ``SOURCE_DATE_EPOCH`` (seconds since 1970) when set, as ``YYYY-MM-DDTHH:MM:SS+00:00``."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if epoch is None:
+        when = datetime.now(UTC)
+    elif epoch.isdigit():
+        when = datetime.fromtimestamp(int(epoch), UTC)
+    else:
+        raise ConfigError(f"SOURCE_DATE_EPOCH must be a whole number of seconds since 1970, got {epoch!r}")
+    return when.isoformat(timespec="seconds")
+
+
+#: How the root attribute ``simulation.model`` names each integrator setting.
+INTEGRATOR_NAMES = {
+    "euler": "forward Euler",
+    "rkc": "second-order Runge-Kutta-Chebyshev (RKC2)",
+    "imex": "implicit-explicit SBDF2 (implicit diffusion)",
+    "auto": "forward Euler or implicit-explicit SBDF2 per subject (subject attribute solver.integrator)",
+}
+
+
+def simulation_attrs(solver: SolverConfig) -> dict:
+    """Root attribute ``simulation``: the model, its constants and the settings every subject shares."""
+    return {
+        "model": "Aliev-Panfilov (1996), monodomain, P1 finite elements, "
+        + INTEGRATOR_NAMES.get(solver.integrator or "auto"),
+        "equations": list(AP_EQUATIONS),
+        "constants": dataclasses.asdict(solver.model),
+        "diffusivity": solver.diffusivity,
+        "stimulus_radius": solver.stimulus_radius,
+        "stimulus_duration": solver.stimulus_duration,
+        "activation_threshold": solver.activation_threshold,
+        "output_interval": solver.output_interval,
+        "frames": solver.frames,
+        "units": {
+            "length": "mm",
+            "time": TIME_UNITS,
+            "ms_per_time_unit": MS_PER_TIME_UNIT,
+            "potential": "u dimensionless, V = 100 u - 80 mV",
+            "diffusivity": f"mm2 / ({TIME_UNITS})",
+        },
+    }
+
+
+def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
+    """Subject attribute ``solver``: integrator, time step and stimulus as the solver resolved them on its mesh."""
+    return {
+        "integrator": setup.integrator,
+        "dt": setup.dt,
+        "steps_per_frame": setup.steps_per_frame,
+        "stimulus_radius": setup.stimulus_radius,
+        "stimulus_duration": solver.stimulus_duration,
+    }

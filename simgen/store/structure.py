@@ -1,0 +1,372 @@
+"""A store's structure against its recorded spec: what is missing, extra, mis-shaped or corrupted.
+
+A store records the spec it was built from (root attribute ``spec``) and
+every ``add-subject`` (``added``). From them follow its meshes (with their
+number of sites) and its subjects (one per mesh and tissue setting, with the
+mesh and tissue table each), and from those every group, array and attribute
+the store holds: each array's shape, dtype, chunks, codecs, fill value,
+dimension names and attributes are those a build writes
+(:func:`~simgen.store.layout.subject_array_metadata`,
+:func:`~simgen.store.layout.mesh_array_metadata`); node and cell counts are
+those of the stored mesh arrays, whose contents are checksummed.
+
+:func:`structure_damage` compares the live metadata (not the consolidated
+copy) with that and reads the small arrays whole (mesh, tissue fields,
+coordinates, done flags), so a checksum failure is named as what it is; it
+reads no result chunk. Groups and arrays the recorded spec does not imply are
+named as extra; attributes are checked for presence (and ``mesh_id``,
+``tissue`` and ``chunk_sites`` for their value), never refused for being
+extra. A build resuming a store, ``add-subject`` and ``regenerate`` run it
+before they write (:func:`refuse_damaged`); ``simgen repair`` mends what it
+finds (:mod:`simgen.store.repair`).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+from zarr.core.buffer import default_buffer_prototype
+from zarr.core.metadata import ArrayV3Metadata
+from zarr.errors import ZarrUserWarning
+
+from shared.config import from_mapping
+from shared.errors import InputError
+from shared.schema import MESH_ARRAYS, METADATA_VERSION, SCHEMA_VERSION, SUBJECT_ARRAYS, mesh_path, subject_path
+from shared.split import canonical_part
+from shared.units import MS_PER_TIME_UNIT
+from simgen.store.layout import mesh_array_metadata, spec_dict_of, subject_array_metadata, subject_shapes
+from simgen.store.spec import BuildSpec, SiteSelection, spec_from_mapping
+
+__all__ = [
+    "Damage",
+    "Recorded",
+    "StoreDamaged",
+    "recorded_structure",
+    "structure_damage",
+    "read_done",
+    "read_failure",
+    "refuse_damaged",
+]
+
+#: Arrays of a mesh group.
+_MESH_NAMES = (*MESH_ARRAYS,)
+#: Vertices per cell of each mesh ``cell_type``.
+_VERTICES = {"tetra": 4, "triangle": 3}
+#: Attributes every group has, by schema version that added them (statistics come with a finished build).
+_ROOT_ATTRS = {1: ("schema_version", "spec", "spec_hash", "complete"), 2: ("provenance", "simulation", "split")}
+_MESH_ATTRS = {1: ("name", "cell_type", "axis")}
+_SUBJECT_ATTRS = {1: ("mesh_id", "tissue", "chunk_sites"), 2: ("solver", "split")}
+#: Subject arrays whose content is read whole by the structure check (small, and read by every build task).
+_FIELDS = ("a", "D", "label", "times", "time_ms", "site", "x", "y", "z")
+
+
+class StoreDamaged(InputError):
+    """A store's structure disagrees with its recorded spec, or one of its small arrays fails its checksum."""
+
+
+@dataclass(frozen=True)
+class Damage:
+    """One damaged piece of a store.
+
+    ``group``: the group concerned (``""``: the root; ``meshes/<id>``,
+    ``subjects/<id>``); ``array``: its member concerned (``None``: the group
+    itself); ``chunk``: the one done flag concerned (``None``: the whole array
+    or group); ``extra``: the member is not implied by the recorded spec.
+    """
+
+    group: str
+    problem: str
+    array: str | None = None
+    chunk: int | None = None
+    extra: bool = False
+
+    @property
+    def where(self) -> str:
+        """``store``, ``mesh <id>`` or ``subject <id>``."""
+        if "/" not in self.group:
+            return "store"
+        kind, name = self.group.split("/", 1)
+        return f"{'mesh' if kind == 'meshes' else 'subject'} {name}"
+
+    def __str__(self) -> str:
+        return f"{self.where}: {self.problem}"
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """What a store's recorded spec and additions imply.
+
+    ``sites``: number of sites by mesh id; ``subjects``: mesh id by subject id;
+    ``tissue``: the tissue table by subject id; ``added``: the mesh ids added by
+    ``add-subject`` (the others are the spec's).
+    """
+
+    spec: BuildSpec
+    sites: dict[str, int]
+    subjects: dict[str, str]
+    tissue: dict[str, dict]
+    added: frozenset[str] = field(default_factory=frozenset)
+
+
+def _n_sites(selection: SiteSelection) -> int:
+    return len(selection.nodes) if selection.nodes else selection.count
+
+
+def recorded_structure(attrs: dict) -> Recorded:
+    """The meshes and subjects the root attributes ``spec`` and ``added`` imply."""
+    spec = spec_from_mapping(attrs["spec"])
+    settings = {s.name: spec_dict_of(s) for s in spec.settings()}
+    sites = {m.id: _n_sites(spec.sites) for m in spec.meshes}
+    subjects = {f"{m.id}-{name}": m.id for m in spec.meshes for name in settings}
+    tissue = {f"{m.id}-{name}": table for m in spec.meshes for name, table in settings.items()}
+    for entry in attrs.get("added", []):
+        mesh_id = entry["mesh"]["id"]
+        sites[mesh_id] = _n_sites(from_mapping(SiteSelection, entry["sites"]))
+        subjects.update(dict.fromkeys(entry["subjects"], mesh_id))
+        tissue.update(zip(entry["subjects"], entry["tissue"]))
+    added = frozenset(entry["mesh"]["id"] for entry in attrs.get("added", []))
+    return Recorded(spec, sites, subjects, tissue, added)
+
+
+def _required(table: dict[int, tuple[str, ...]], version: int) -> list[str]:
+    return [name for since, names in table.items() if since <= version for name in names]
+
+
+def read_failure(arr: zarr.Array, coords: tuple[int, ...], exc: Exception) -> str:
+    """What a failed chunk read means: a checksum mismatch or another decoding error, naming the file."""
+    key = f"{arr.path}/{arr.metadata.encode_chunk_key(coords)}"
+    if "checksum" in str(exc):
+        return f"checksum mismatch (file {key})"
+    return f"unreadable (file {key}): {type(exc).__name__}: {exc}"
+
+
+def _metadata_json(arr: zarr.Array | ArrayV3Metadata) -> dict[str, Any]:
+    """An array's ``zarr.json`` as stored (NaN fill values as strings, so they compare equal)."""
+    metadata = arr.metadata if isinstance(arr, zarr.Array) else arr
+    return json.loads(metadata.to_buffer_dict(default_buffer_prototype())["zarr.json"].to_bytes())
+
+
+def _metadata_problems(arr: zarr.Array, expected: ArrayV3Metadata, version: int) -> list[str]:
+    """Keys of ``arr``'s metadata that differ from ``expected`` (all of them in the current version)."""
+    found, want = _metadata_json(arr), _metadata_json(expected)
+    if version < SCHEMA_VERSION:  # older layouts: shape, dtype, dimensions and (version 2) CF attributes
+        keys = ["shape", "data_type", "dimension_names"] + (["attributes"] * (version >= METADATA_VERSION))
+    else:
+        keys = sorted(set(found) | set(want))
+    return [
+        f"{arr.basename} has {key} {found.get(key)}, schema expects {want.get(key)}"
+        for key in keys
+        if found.get(key) != want.get(key)
+    ]
+
+
+class _Checker:
+    """Collects the damage of one store (see the module docstring)."""
+
+    def __init__(self, store: str) -> None:
+        self.root = zarr.open_group(store, mode="r", use_consolidated=False)
+        self.attrs = dict(self.root.attrs)
+        self.version = int(self.attrs["schema_version"])
+        self.recorded = recorded_structure(self.attrs)
+        self.damage: list[Damage] = []
+        self.meshes_ok: dict[str, dict[str, NDArray]] = {}  # the sound meshes' arrays
+        self.mesh_sizes: dict[str, tuple[int, int]] = {}  # nodes and sites of meshes whose metadata are sound
+
+    def add(self, group: str, problem: str, array: str | None = None, chunk: int | None = None, extra=False) -> None:
+        self.damage.append(Damage(group, problem, array, chunk, extra))
+
+    def members(self, path: str) -> dict[str, zarr.Array | zarr.Group] | None:
+        """The members of group ``path``; ``None`` (and the damage named) when it is missing or not a group."""
+        try:
+            group = self.root[path] if path else self.root
+        except KeyError:
+            self.add(path, f"group missing ({path})")
+            return None
+        if not isinstance(group, zarr.Group):
+            self.add(path, f"{path} is an array, not a group")
+            return None
+        with warnings.catch_warnings():  # the lock file at the root is no Zarr node
+            warnings.simplefilter("ignore", ZarrUserWarning)
+            return dict(group.members())
+
+    def extras(self, path: str, members: dict, expected: set[str]) -> None:
+        for name in sorted(set(members) - expected):
+            kind = "group" if isinstance(members[name], zarr.Group) else "array"
+            where = f"{path}/{name}".strip("/")
+            self.add(path, f"extra {kind} {where} (not implied by the recorded spec)", name, extra=True)
+
+    def attributes(self, path: str, attrs: dict, required: list[str]) -> None:
+        for name in required:
+            if name not in attrs:
+                self.add(path, f"attribute {name} missing")
+
+    def metadata(self, path: str, members: dict, name: str, expected: ArrayV3Metadata) -> zarr.Array | None:
+        """Array ``name`` of group ``path`` if its metadata are ``expected`` (else the damage is named)."""
+        arr = members.get(name)
+        if not isinstance(arr, zarr.Array):
+            self.add(path, f"array {name} missing" if arr is None else f"{name} is a group, not an array", name)
+            return None
+        problems = _metadata_problems(arr, expected, self.version)
+        for problem in problems:
+            self.add(path, problem, name)
+        return None if problems else arr
+
+    def array(self, path: str, members: dict, name: str, expected: ArrayV3Metadata) -> NDArray | None:
+        """The values of array ``name`` of group ``path`` if its metadata are ``expected`` and it reads back."""
+        arr = self.metadata(path, members, name, expected)
+        return None if arr is None else self.read(path, name, arr)
+
+    def read(self, path: str, name: str, arr: zarr.Array) -> NDArray | None:
+        """The values of array ``name`` of group ``path``; ``None`` (and the damage named) when they do not decode."""
+        try:
+            return arr[...]
+        except Exception as exc:  # codec errors of a corrupted or truncated file
+            self.add(path, f"{name} {read_failure(arr, (0,) * arr.ndim, exc)}", name)
+            return None
+
+    def check(self) -> list[Damage]:
+        self.attributes("", self.attrs, _required(_ROOT_ATTRS, self.version))
+        top = self.members("")
+        if top is None:
+            return self.damage
+        self.extras("", top, {"meshes", "subjects"})
+        meshes = self.members("meshes")
+        if meshes is not None:
+            self.extras("meshes", meshes, set(self.recorded.sites))
+            for mesh_id in self.recorded.sites:
+                self.mesh(mesh_id)
+        subjects = self.members("subjects")
+        if subjects is not None:
+            self.extras("subjects", subjects, set(self.recorded.subjects))
+            for subject_id in self.recorded.subjects:
+                self.subject(subject_id)
+        return self.damage
+
+    def mesh(self, mesh_id: str) -> None:
+        path = mesh_path(mesh_id)
+        members = self.members(path)
+        if members is None:
+            return
+        attrs = dict(self.root[path].attrs)
+        shape_params = self.version >= METADATA_VERSION and mesh_id not in self.recorded.added
+        self.attributes(path, attrs, _required(_MESH_ATTRS, self.version) + ["shape_params"] * shape_params)
+        self.extras(path, members, set(_MESH_NAMES))
+        before = len(self.damage)
+        values, sizes = {}, {}
+        for name in _MESH_NAMES:
+            arr = members.get(name)
+            stored = tuple(arr.shape) if isinstance(arr, zarr.Array) and arr.ndim else (0,)
+            shape = {
+                "points": (stored[0], 3),
+                "cells": (stored[0], _VERTICES.get(attrs.get("cell_type"), 4)),
+                "stim_nodes": (self.recorded.sites[mesh_id],),
+            }.get(name, stored[:1])
+            arr = self.metadata(path, members, name, mesh_array_metadata(name, shape))
+            if arr is not None:
+                sizes[name], values[name] = arr.shape[0], self.read(path, name, arr)
+        if {"points", "stim_nodes"} <= set(sizes):  # the subjects' shapes are known
+            self.mesh_sizes[mesh_id] = sizes["points"], sizes["stim_nodes"]
+        if len(self.damage) == before:
+            self.meshes_ok[mesh_id] = values
+
+    def subject(self, subject_id: str) -> None:
+        path = subject_path(subject_id)
+        members = self.members(path)
+        if members is None:
+            return
+        before = len(self.damage)
+        attrs = dict(self.root[path].attrs)
+        self.attributes(path, attrs, _required(_SUBJECT_ATTRS, self.version))
+        mesh_id, spec = self.recorded.subjects[subject_id], self.recorded.spec
+        tissue, chunk_sites = self.recorded.tissue[subject_id], spec.output.chunk_sites
+        implied = {"mesh_id": mesh_id, "tissue": tissue, "chunk_sites": chunk_sites}
+        for key, value in implied.items():
+            if key in attrs and attrs[key] != value:
+                self.add(path, f"attribute {key} is {attrs[key]!r}, the recorded spec implies {value!r}")
+        if mesh_id not in self.mesh_sizes:  # shapes follow from the mesh: nothing more to compare against
+            return
+        names = [name for name, s in SUBJECT_ARRAYS.items() if s.since <= self.version]
+        self.extras(path, members, set(names))
+        shapes = subject_shapes(*self.mesh_sizes[mesh_id], spec.output, spec.solver)
+        values = {}
+        for name in names:  # the fields are read whole; of the result arrays, only the done flags
+            expected = subject_array_metadata(name, *shapes[name], spec.output)
+            if name in _FIELDS:
+                values[name] = self.array(path, members, name, expected)
+            elif (done := self.metadata(path, members, name, expected)) is not None and name == "done":
+                for chunk, problem in read_done(done)[1].items():
+                    self.add(path, problem, name, chunk)
+        mesh = self.meshes_ok.get(mesh_id)
+        if len(self.damage) == before and mesh is not None and self.version >= METADATA_VERSION:
+            self.coordinates(path, subject_id, attrs, mesh, values)
+
+    def coordinates(self, path: str, subject_id: str, attrs: dict, mesh: dict, values: dict) -> None:
+        """Coordinates that disagree with the mesh and the spec, a wrong split part, missing solver settings."""
+        solver = self.recorded.spec.solver
+        times = solver.output_interval * np.arange(1, solver.frames + 1)
+        expected = {
+            "site": mesh["stim_nodes"],
+            "times": times,
+            "time_ms": values["times"] * MS_PER_TIME_UNIT,
+            **{axis: mesh["points"][:, i] for i, axis in enumerate("xyz")},
+        }
+        for name, value in expected.items():
+            if not np.array_equal(values[name], value):
+                self.add(path, f"coordinate {name} disagrees with the mesh and times", name)
+        if attrs["split"] != canonical_part(subject_id):
+            self.add(
+                path,
+                f"split attribute {attrs['split']!r}, the canonical split assigns {canonical_part(subject_id)!r}",
+            )
+        if not {"dt", "steps_per_frame", "stimulus_radius"} <= set(attrs["solver"] or {}):
+            self.add(path, "solver attribute incomplete")
+
+
+def read_done(done: zarr.Array) -> tuple[NDArray[np.bool_], dict[int, str]]:
+    """A subject's done flags, and the problem of each flag that does not read back as 0 or 1.
+
+    The flags are read at once; only when that fails, one by one, so that
+    each corrupted flag is named with its chunk. An unreadable flag reads as
+    not done.
+    """
+    try:
+        flags = np.asarray(done[...])
+        problems = {}
+    except Exception:  # find the corrupted flag(s)
+        flags, problems = np.zeros(done.shape, done.dtype), {}
+        for k in range(done.shape[0]):
+            try:
+                flags[k] = done[k]
+            except Exception as exc:
+                problems[k] = f"done flag of chunk {k} {read_failure(done, (k,), exc)}"
+    for k in np.flatnonzero(flags > 1):
+        problems[int(k)] = f"done flag of chunk {int(k)} is {int(flags[k])} (0 or 1 expected)"
+    flags = flags == 1
+    flags[list(problems)] = False
+    return flags, problems
+
+
+def structure_damage(store: str) -> list[Damage]:
+    """Every missing, extra, mis-shaped or corrupted piece of ``store`` but the result chunks.
+
+    ``store``: a :func:`~simgen.store.location.store_location` whose schema
+    version the caller has checked (:func:`~shared.reader.check_store`).
+    """
+    return _Checker(store).check()
+
+
+def refuse_damaged(store: str) -> None:
+    """Raise :class:`StoreDamaged` naming what :func:`structure_damage` finds and the repair command."""
+    damage = structure_damage(store)
+    if damage:
+        shown = "; ".join(map(str, damage[:5])) + (f"; and {len(damage) - 5} more" if len(damage) > 5 else "")
+        raise StoreDamaged(
+            f"store {store} is damaged ({len(damage)} problem(s)): {shown}. Run `simgen repair {store}` to restore "
+            f"it from its recorded spec (`simgen verify {store}` lists every problem)"
+        )
