@@ -21,13 +21,13 @@ from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 
-__all__ = ["SimulatorBackend", "ENTRY_POINT_GROUP", "available_simulators", "load_simulator"]
+__all__ = ["SimulatorPlugin", "ENTRY_POINT_GROUP", "available_simulators", "load_simulator"]
 
 ENTRY_POINT_GROUP = "metapns.simulators"
 
 
 @runtime_checkable
-class SimulatorBackend(Protocol):
+class SimulatorPlugin(Protocol):
     """A cardiac model that maps tissue fields and stimulation sites to full-mesh sequences."""
 
     def simulate(
@@ -42,19 +42,19 @@ class SimulatorBackend(Protocol):
 
 
 def available_simulators() -> list[str]:
-    """Names of the installed simulator backends."""
+    """Names of the installed simulator plug-ins."""
     return sorted(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))
 
 
-def load_simulator(name: str = "aliev-panfilov") -> SimulatorBackend:
+def load_simulator(name: str = "aliev-panfilov") -> SimulatorPlugin:
     """Instantiate the backend registered as ``name``."""
     found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
     if not found:
         raise InputError(
-            f"no simulator backend {name!r} is installed (have: {available_simulators() or 'none'}); "
+            f"no simulator plug-in {name!r} is installed (have: {available_simulators() or 'none'}); "
             "install the project (`pip install -e .`) so simgen registers its entry point"
         )
     backend = found[0].load()()
-    if not isinstance(backend, SimulatorBackend):
-        raise InputError(f"simulator backend {name!r} does not implement SimulatorBackend.simulate")
+    if not isinstance(backend, SimulatorPlugin):
+        raise InputError(f"simulator plug-in {name!r} does not implement SimulatorPlugin.simulate")
     return backend

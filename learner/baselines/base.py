@@ -11,7 +11,7 @@ of the context stimuli best matches what was observed:
            \\left(u_{kti}(x) - y_{kti}\\right)^2,
 
 with ``O`` the observed nodes. One evaluation of ``f`` simulates all ``K``
-context stimuli in one batched call of the simulator backend
+context stimuli in one batched call of the simulator plug-in
 (:mod:`shared.simulator`), so a budget counts simulator calls (candidates);
 ``FitResult.sequences`` also counts the simulated sequences (``K`` per call).
 The simulator is reached only through its plug-in contract: ``learner`` never
@@ -33,7 +33,7 @@ from learner.baselines.bo import BOSettings, bayes_minimise
 from learner.personalize import Observations
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.simulator import SimulatorBackend, load_simulator
+from shared.simulator import SimulatorPlugin, load_simulator
 from shared.tissue import LABEL_BORDER, LABEL_CORE, LABEL_HEALTHY, TissueFields
 
 __all__ = [
@@ -137,12 +137,12 @@ class PersonalisationBaseline(ABC):
         seed: int = 0,
         restarts: int = 8,
         raw_samples: int = 256,
-        simulator: str | SimulatorBackend = "aliev-panfilov",
+        simulator: str | SimulatorPlugin = "aliev-panfilov",
     ) -> None:
         self.settings = BOSettings(budget, initial, restarts, raw_samples, seed)
         self.settings.initial_size(self.dim)  # refuse a budget below the initial design now, not mid-benchmark
         self.simulator = load_simulator(simulator) if isinstance(simulator, str) else simulator
-        if not isinstance(self.simulator, SimulatorBackend):
+        if not isinstance(self.simulator, SimulatorPlugin):
             raise InputError(f"simulator must be a backend name or implement simulate(), got {simulator!r}")
         self.result: FitResult | None = None
         self._mesh: Mesh | None = None

@@ -8,16 +8,16 @@ import zarr
 
 from shared.errors import InputError
 from shared.reader import read_mesh, read_sites, read_tissue
-from shared.simulator import SimulatorBackend, available_simulators, load_simulator
+from shared.simulator import SimulatorPlugin, available_simulators, load_simulator
 
 
 def test_simgen_registers_the_aliev_panfilov_backend():
     assert "aliev-panfilov" in available_simulators()
-    assert isinstance(load_simulator("aliev-panfilov"), SimulatorBackend)
+    assert isinstance(load_simulator("aliev-panfilov"), SimulatorPlugin)
 
 
 def test_unknown_backend_is_refused_with_the_installed_names():
-    with pytest.raises(InputError, match="no simulator backend 'nope'.*aliev-panfilov"):
+    with pytest.raises(InputError, match="no simulator plug-in 'nope'.*aliev-panfilov"):
         load_simulator("nope")
 
 

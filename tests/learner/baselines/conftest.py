@@ -12,7 +12,7 @@ import zarr
 from learner.personalize import Observations
 from shared.mesh import Mesh
 from shared.reader import read_mesh, read_sites
-from shared.simulator import SimulatorBackend, load_simulator
+from shared.simulator import SimulatorPlugin, load_simulator
 from shared.tissue import TissueFields
 
 
@@ -23,7 +23,7 @@ class LVProblem:
     mesh: Mesh
     sites: np.ndarray
     solver: dict[str, Any]
-    simulator: SimulatorBackend
+    simulator: SimulatorPlugin
 
     @property
     def times(self) -> np.ndarray:
@@ -38,7 +38,7 @@ class LVProblem:
 class CountingSimulator:
     """Wraps a backend and counts its calls and simulated sequences."""
 
-    def __init__(self, backend: SimulatorBackend) -> None:
+    def __init__(self, backend: SimulatorPlugin) -> None:
         self.backend, self.calls, self.sequences = backend, 0, 0
 
     def simulate(self, mesh, tissue, sites, solver):

@@ -61,7 +61,7 @@ def test_budget_below_the_initial_design_is_refused():
         FSBO(regions=2, budget=5, initial=6)
     with pytest.raises(InputError, match=r"initial design \(7 points for 3 parameters\)"):
         VAEBO(latent=3, budget=6)
-    with pytest.raises(InputError, match="no simulator backend 'nope'"):
+    with pytest.raises(InputError, match="no simulator plug-in 'nope'"):
         FSBO(simulator="nope")
 
 

@@ -9,9 +9,9 @@ import scipy.sparse as sp
 from shared.config import from_mapping, to_mapping
 from shared.errors import ConfigError, InputError, TimeStepError
 from shared.mesh import Mesh
-from simgen.backend import AlievPanfilovBackend
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.slab import slab, strip
+from simgen.plugin import AlievPanfilovPlugin
 from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.rkc_kernel import DAMPING, coefficients, run_blocks_rkc, stability_bound
 from simgen.solver.simulate import Simulator, SolverConfig, healthy_fields
@@ -201,7 +201,7 @@ def test_integrator_reaches_the_simulator_backend_of_the_baselines(lv):
     solver = to_mapping(SolverConfig(integrator="rkc", frames=4))
     assert from_mapping(SolverConfig, solver).integrator == "rkc"
     sites = np.array([3, 250])
-    u = AlievPanfilovBackend().simulate(lv, healthy_fields(lv.n_nodes), sites, solver)
+    u = AlievPanfilovPlugin().simulate(lv, healthy_fields(lv.n_nodes), sites, solver)
     assert np.array_equal(u, Simulator(lv, config=SolverConfig(integrator="rkc", frames=4)).run(sites).u)
     assert not np.array_equal(u, Simulator(lv, config=SolverConfig(frames=4)).run(sites).u)
 

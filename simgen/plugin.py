@@ -1,4 +1,4 @@
-"""simgen's simulator backend for ``shared.simulator`` (entry point ``metapns.simulators: aliev-panfilov``)."""
+"""simgen's simulator plug-in for ``shared.simulator`` (entry point ``metapns.simulators: aliev-panfilov``)."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.solver.simulate import Simulator, SolverConfig
 
-__all__ = ["AlievPanfilovBackend"]
+__all__ = ["AlievPanfilovPlugin"]
 
 
-class AlievPanfilovBackend:
-    """The batched Aliev-Panfilov solver behind the :class:`shared.simulator.SimulatorBackend` protocol."""
+class AlievPanfilovPlugin:
+    """The batched Aliev-Panfilov solver behind the :class:`shared.simulator.SimulatorPlugin` protocol."""
 
     def __init__(self, threads: int = 1) -> None:
         self.threads = threads
