@@ -16,6 +16,8 @@ from rich.table import Table
 from shared.cli import fail, finite, parse_ids, print_markdown
 from shared.config import load_toml
 from shared.errors import InputError
+from shared.observation import node_mask
+from shared.observation import observe as observe_field
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
@@ -168,10 +170,7 @@ def simulate(
             m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png", stim_nodes=site_ids
         )
         if observed is not None:
-            obs = np.where(observed, result.u, np.float32(0))
-            obs[..., observed] += (
-                np.random.default_rng(seed).normal(0, noise, obs[..., observed].shape).astype(np.float32)
-            )
+            obs = observe_field(result.u, observed, noise, np.random.default_rng(seed))
             np.savez_compressed(
                 out / "observations.npz",
                 points=m.points,
@@ -198,18 +197,17 @@ def _observed_nodes(m, observe: str) -> np.ndarray:
     """(N,) bool: the nodes of ``observe`` on mesh ``m``."""
     from simgen.observe import Sock
 
-    mask = np.zeros(m.n_nodes, dtype=bool)
     if observe == "all":
-        mask[:] = True
-    elif observe == "electrodes":
-        mask[Sock().indices(m)] = True
+        return np.ones(m.n_nodes, dtype=bool)
+    if observe == "electrodes":
+        ids = Sock().indices(m)
     elif observe in OBSERVE_NODE_SETS:
-        mask[m.nodes(observe)] = True
+        ids = m.nodes(observe)
     else:
         raise InputError(
             f"--observe: unknown node set {observe!r}; use {', '.join(OBSERVE_NODE_SETS)}, electrodes or all"
         )
-    return mask
+    return node_mask(m.n_nodes, ids, observe, m.name)
 
 
 def _tissue_spec(tissue: str):
