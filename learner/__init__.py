@@ -20,8 +20,9 @@ does not.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from shared.lazy import attach
 
 if TYPE_CHECKING:
     from learner.benchmark import BenchmarkConfig, load_benchmark_config, run_benchmark
@@ -88,14 +89,4 @@ _EXPORTS = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    """Load a public name's module on first use (PEP 562); later lookups find the name in this module."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'learner' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = attach(__name__, _EXPORTS)

@@ -17,8 +17,9 @@ line); :mod:`simgen.store` is the package of the store's layout, builds, verific
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from shared.lazy import attach
 
 if TYPE_CHECKING:
     from shared.mesh import Mesh
@@ -91,14 +92,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Load a public name's module on first use (PEP 562); later lookups find the name in this module."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'simgen' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = attach(__name__, _EXPORTS)
