@@ -16,7 +16,7 @@ implicit matrix's times the CG products of a solve), CG iterations per solve,
 setup and wall time, and the error
 against the Euler run of the same mesh (largest activation-time difference as
 a share of the activation range, and the smallest correlation of the
-activation maps over the sites). Then the issue's goals, measured in this run:
+activation maps over the sites). Then, measured in this run:
 
 * each real heart's default-integrator wall time over the procedural LV's of
   about the same node count (``--real-nodes``);
@@ -62,33 +62,43 @@ def agreement(reference: np.ndarray, other: np.ndarray) -> tuple[float, float]:
     return share, cc
 
 
-def bench(
-    mesh: Mesh, label: str, sites: np.ndarray, integrator: str, solve: str | None, args: argparse.Namespace
-) -> tuple[dict, np.ndarray]:
-    """One mesh with one integrator (and IMEX ``solve``): the row of the table and the activation times."""
-    t0 = time.perf_counter()
-    config = SolverConfig(integrator=integrator, stimulus_radius=args.stimulus_radius)
-    sim = Simulator(mesh, config=config, imex_solve=solve)
-    setup = time.perf_counter() - t0
-    sim.run(sites[:1])  # compile, and any first-call cost
-    walls = []
-    for _ in range(args.repeat):
+def bench(mesh: Mesh, label: str, sites: np.ndarray, args: argparse.Namespace) -> list[tuple[dict, np.ndarray]]:
+    """One mesh with each of :data:`INTEGRATORS`: per integrator the row of the table and the activation times.
+
+    The timed runs go round the integrators ``--repeat`` times and each keeps its best, so that a slow
+    spell of the machine does not fall on one integrator's runs alone."""
+    simulators, setups = [], []
+    for integrator, solve in INTEGRATORS:
         t0 = time.perf_counter()
-        result = sim.run(sites, threads=1)
-        walls.append(time.perf_counter() - t0)
-    row = {
-        "mesh": label,
-        "nodes": mesh.n_nodes,
-        "integrator": integrator if solve is None else f"{integrator} {solve}",
-        "runs": sim.integrator if sim.imex_solve is None else f"{sim.integrator} {sim.imex_solve}",
-        "cg_iterations": sim.cg_iterations,
-        "dt": sim.dt,
-        "steps": sim.steps_per_frame * sim.config.frames,
-        "entries_per_node": sim.entries_per_step / mesh.n_nodes,
-        "setup_s": setup,
-        "wall_s": min(walls),
-    }
-    return row, result.activation
+        config = SolverConfig(integrator=integrator, stimulus_radius=args.stimulus_radius)
+        simulators.append(Simulator(mesh, config=config, imex_solve=solve))
+        setups.append(time.perf_counter() - t0)
+        simulators[-1].run(sites[:1])  # compile, and any first-call cost
+    walls = np.full((args.repeat, len(simulators)), np.inf)
+    results = []
+    for repeat in range(args.repeat):
+        for i, sim in enumerate(simulators):
+            t0 = time.perf_counter()
+            result = sim.run(sites, threads=1)
+            walls[repeat, i] = time.perf_counter() - t0
+            if repeat == 0:
+                results.append(result)
+    out = []
+    for (integrator, solve), sim, setup, wall, result in zip(INTEGRATORS, simulators, setups, walls.min(0), results):
+        row = {
+            "mesh": label,
+            "nodes": mesh.n_nodes,
+            "integrator": integrator if solve is None else f"{integrator} {solve}",
+            "runs": sim.integrator if sim.imex_solve is None else f"{sim.integrator} {sim.imex_solve}",
+            "cg_iterations": sim.cg_iterations,
+            "dt": sim.dt,
+            "steps": sim.steps_per_frame * sim.config.frames,
+            "entries_per_node": sim.entries_per_step / mesh.n_nodes,
+            "setup_s": setup,
+            "wall_s": float(wall),
+        }
+        out.append((row, result.activation))
+    return out
 
 
 def meshes(args: argparse.Namespace) -> list[tuple[str, str, Mesh]]:
@@ -105,8 +115,8 @@ def meshes(args: argparse.Namespace) -> list[tuple[str, str, Mesh]]:
     return out
 
 
-def goals(rows: list[dict], args: argparse.Namespace) -> list[str]:
-    """The three measured goals as Markdown lines."""
+def comparisons(rows: list[dict], args: argparse.Namespace) -> list[str]:
+    """Real hearts against procedural ones, growth with node count, default against Euler: Markdown lines."""
     auto = {r["mesh"]: r for r in rows if r["integrator"] == "auto"}
     euler = {r["mesh"]: r for r in rows if r["integrator"] == "euler"}
     lv = [r for r in auto.values() if r["mesh"].startswith("lv ")]
@@ -115,7 +125,7 @@ def goals(rows: list[dict], args: argparse.Namespace) -> list[str]:
         ref = min(lv, key=lambda x: abs(np.log(x["nodes"] / r["nodes"])))
         lines.append(
             f"- {r['mesh']} ({r['nodes']} nodes, {r['runs']}): {r['wall_s'] / ref['wall_s']:.2f}x the wall time of "
-            f"the procedural {ref['mesh']} ({ref['nodes']} nodes, {ref['runs']}); goal <= 2x"
+            f"the procedural {ref['mesh']} ({ref['nodes']} nodes, {ref['runs']})"
         )
     for family in ("lv", "biv"):
         sized = sorted((r for r in auto.values() if r["mesh"].startswith(family + " ")), key=lambda r: r["nodes"])
@@ -130,7 +140,7 @@ def goals(rows: list[dict], args: argparse.Namespace) -> list[str]:
             )
     if "lv 2000" in auto:
         ratio = auto["lv 2000"]["wall_s"] / euler["lv 2000"]["wall_s"]
-        lines.append(f"- lv 2000: default ({auto['lv 2000']['runs']}) / Euler wall time {ratio:.2f}; goal <= 1.10")
+        lines.append(f"- lv 2000: default ({auto['lv 2000']['runs']}) / Euler wall time {ratio:.2f}")
     return lines
 
 
@@ -142,7 +152,7 @@ def markdown(rows: list[dict]) -> str:
     )
     body = "".join(
         f"| {r['mesh']} | {r['nodes']} | {r['integrator']} ({r['runs']}) | {r['dt']:.3g} | {r['steps']} "
-        f"| {r['entries_per_node']:.1f} | {r['setup_s']:.2f} | {r['wall_s']:.2f} "
+        f"| {r['entries_per_node']:.1f} | {r['setup_s']:.2f} | {r['wall_s']:.3f} "
         f"| {'' if r['cg_iterations'] is None else format(r['cg_iterations'], '.1f')} "
         f"| {r.get('share', float('nan')):.4f} | {r.get('cc', float('nan')):.5f} |\n"
         for r in rows
@@ -155,7 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--nodes", type=int, nargs="+", default=[1000, 5000, 20000], help="procedural mesh sizes")
     p.add_argument("--real-nodes", type=int, default=1000, help="node target of the real meshes (default 1000)")
     p.add_argument("--sites", type=int, default=8, help="stimulation sites per run (default 8)")
-    p.add_argument("--repeat", type=int, default=2, help="timed runs; best kept (default 2)")
+    p.add_argument("--repeat", type=int, default=5, help="timed rounds over the integrators; best kept (default 5)")
     p.add_argument(
         "--stimulus-radius",
         type=float,
@@ -172,11 +182,9 @@ def main(argv: list[str] | None = None) -> None:
     rows = []
     for _, label, mesh in meshes(args):
         sites = np.random.default_rng(0).choice(mesh.n_nodes, args.sites, replace=False)
-        reference = None
-        for integrator, solve in INTEGRATORS:
-            row, activation = bench(mesh, label, sites, integrator, solve, args)
-            if reference is None:
-                reference = activation
+        measured = bench(mesh, label, sites, args)
+        reference = measured[0][1]  # Euler's
+        for row, activation in measured:
             row["share"], row["cc"] = agreement(reference, activation)
             rows.append(row)
             print(markdown([row]).splitlines()[-1], flush=True)
@@ -187,7 +195,7 @@ def main(argv: list[str] | None = None) -> None:
         f"total {total:.0f} s; "
         f"1-min load average before the run {load_before:.1f}\n"
     )
-    text = header + "\n" + markdown(rows) + "\n" + "\n".join(goals(rows, args)) + "\n"
+    text = header + "\n" + markdown(rows) + "\n" + "\n".join(comparisons(rows, args)) + "\n"
     print(text)
     write_out(args.out, "real_hearts", text, {**machine(), "total_s": total, "rows": rows}, indent=2)
 
