@@ -41,17 +41,24 @@ from learner.train.trainer import train
 
 
 def run_config(base: LearnerConfig, runs: Path, count: int, kind: str, steps: int) -> LearnerConfig:
-    """``base`` trained on ``count`` anatomies for ``steps`` episodes, in ``runs/<kind>-<count>``."""
+    """``base`` trained on ``count`` anatomies for ``steps`` episodes, in ``runs/<kind>-<count>``.
+
+    PNS reads no context, so it gets no capture gate (nor the gate's loss) whatever ``base`` sets."""
     split = dataclasses.replace(base.data.split, train_count=count)
     subjects = _train_subjects(base, split)
     epochs = math.ceil(steps / subjects)
+    gated = kind == "metapns"
+    model = dataclasses.replace(base.model, kind=kind)
+    if not gated:
+        model = dataclasses.replace(model, capture_gate=False, capture_evidence=False)
     return dataclasses.replace(
         base,
         out=str(runs / f"{kind}-{count}"),
         data=dataclasses.replace(base.data, split=split),
-        model=dataclasses.replace(base.model, kind=kind),
+        model=model,
         train=dataclasses.replace(
             base.train,
+            gate_loss=base.train.gate_loss if gated else 0.0,
             epochs=epochs,
             lr_halve_every=max(1, round(0.4 * epochs)),
             validate_every=max(1, epochs // 5),
