@@ -9,12 +9,13 @@ and metrics as ``learner benchmark``, here on every fold (``--folds 0``) instead
 ``baseline_folds``. Prints the target MSE, spatial and temporal CC (mean ± std over the folds) per
 method beside the noise-free truth scored the same way (the ceiling), and the wall time of each fit:
 the first (for VAE-BO it includes building the scar library and training the VAE, once per mesh),
-the mean per fold, and the share spent inside the simulator.
+the mean per fold, and the share spent inside the simulator. ``--models`` scores trained models
+(checkpoints, or shipped names such as ``anatomies``) on the same folds, their rows first.
 
 Run (one thread for the simulator and for the GP)::
 
     OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python -m bench.real_baselines \\
-        --store data/realdata.zarr --out report/bench            # every fold, both methods
+        --store data/realdata.zarr --models anatomies --out report/bench   # every fold, both methods
     .venv/bin/python -m bench.real_baselines --folds 1 --methods fs-bo   # first fold of each subject
 
 ``--out DIR`` writes real_baselines.md (the tables) and real_baselines.json (every fold and fit).
@@ -31,11 +32,11 @@ import numpy as np
 from torch import Tensor
 
 from bench.common import add_out_argument, machine, machine_line, write_out
-from learner.benchmark import baseline_methods, load_benchmark_config, real_data, real_data_setting
+from learner.benchmark import BenchmarkConfig, baseline_methods, load_benchmark_config, real_data, real_data_setting
 from learner.benchmark_report import real_data_table
 from learner.config import ModelConfig
 from learner.data.episodes import Episode
-from learner.evaluate import EvalSetting, Method
+from learner.evaluate import EvalSetting, Method, load_method
 from learner.graph.hierarchy import MeshHierarchy
 from learner.methods import BaselineMethod
 from learner.store_view import StoreView
@@ -88,11 +89,34 @@ def timing_table(methods: list[TimedFit]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def score_models(refs: list[str], cfg: BenchmarkConfig, folds: int, result: dict) -> dict[str, float]:
+    """Score each trained model of ``refs`` on the folds of ``result`` (the same sites, noise draws and
+    metrics, each model with its own mesh hierarchy) and add its rows, named by its reference, before the
+    baselines'; the wall seconds of each."""
+    seconds, methods, rows = {}, {}, {}
+    for ref in refs:
+        method, config, _ = load_method(ref)
+        start = time.perf_counter()
+        scored = real_data([method], real_data_setting(cfg, EvalSetting.of(config)), cfg, folds)
+        seconds[ref] = time.perf_counter() - start
+        methods[ref], rows[ref] = scored["methods"][method.name], scored["folds"][method.name]
+    result["methods"] = {**methods, **result["methods"]}
+    result["folds"] = {**rows, **result["folds"]}
+    return seconds
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--store", default="data/realdata.zarr", help="real-heart store (specs/realdata.toml)")
     p.add_argument("--config", default="specs/benchmark-default.toml", help="benchmark config: [baselines], seed")
-    p.add_argument("--methods", nargs="+", default=["fs-bo", "vae-bo"], help="baselines to run")
+    p.add_argument("--methods", nargs="*", default=["fs-bo", "vae-bo"], help="baselines to run")
+    p.add_argument(
+        "--models",
+        nargs="*",
+        default=[],
+        metavar="REF",
+        help="trained models scored on the same folds: checkpoints or shipped names (e.g. anatomies)",
+    )
     p.add_argument("--folds", type=int, default=0, help="left-out sites per subject (0: all)")
     add_out_argument(p, "real_baselines")
     args = p.parse_args(argv)
@@ -107,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
     model = ModelConfig()  # the hierarchy real_data builds; the baselines do not use it
     setting = real_data_setting(cfg, EvalSetting(Observation(), model.levels, model.coarsest))
     result = real_data(methods, setting, cfg, args.folds)
+    model_seconds = score_models(args.models, cfg, args.folds, result)
     total = time.perf_counter() - start
     load_after = os.getloadavg()[0]
 
@@ -121,7 +146,14 @@ def main(argv: list[str] | None = None) -> None:
         f"({'all' if args.folds <= 0 else f'the first {args.folds}'} of each subject); budget {b.budget} "
         f"simulator calls per fit, FS-BO on {b.regions} regions, seed {cfg.seed}.\n"
     )
-    text = header + "\n" + real_data_table(result) + "\n" + timing_table(methods)
+    scored = "".join(f"- {ref}: {seconds:.1f} s for all its folds\n" for ref, seconds in model_seconds.items())
+    text = (
+        header
+        + "\n"
+        + real_data_table(result)
+        + (methods and "\n" + timing_table(methods))
+        + (scored and "\n" + scored)
+    )
     print(text)
     meta = {
         **machine(),
@@ -131,6 +163,7 @@ def main(argv: list[str] | None = None) -> None:
         "nodes": mesh.n_nodes,
         "folds_per_subject": args.folds,
         "fits": {m.name: m.fits for m in methods},
+        "model_seconds": model_seconds,
         **result,
     }
     write_out(args.out, "real_baselines", text, meta)
