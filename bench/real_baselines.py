@@ -105,6 +105,17 @@ def score_models(refs: list[str], cfg: BenchmarkConfig, folds: int, result: dict
     return seconds
 
 
+def report(header: str, result: dict, methods: list[TimedFit], model_seconds: dict[str, float]) -> str:
+    """The printed report: ``header``, the metrics of every method, the baselines' fit times (where any
+    ran) and each trained model's seconds for all its folds."""
+    parts = [header, real_data_table(result)]
+    if methods:
+        parts.append(timing_table(methods))
+    if model_seconds:
+        parts.append("".join(f"- {ref}: {seconds:.1f} s for all its folds\n" for ref, seconds in model_seconds.items()))
+    return "\n".join(parts)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--store", default="data/realdata.zarr", help="real-heart store (specs/realdata.toml)")
@@ -146,14 +157,7 @@ def main(argv: list[str] | None = None) -> None:
         f"({'all' if args.folds <= 0 else f'the first {args.folds}'} of each subject); budget {b.budget} "
         f"simulator calls per fit, FS-BO on {b.regions} regions, seed {cfg.seed}.\n"
     )
-    scored = "".join(f"- {ref}: {seconds:.1f} s for all its folds\n" for ref, seconds in model_seconds.items())
-    text = (
-        header
-        + "\n"
-        + real_data_table(result)
-        + (methods and "\n" + timing_table(methods))
-        + (scored and "\n" + scored)
-    )
+    text = report(header, result, methods, model_seconds)
     print(text)
     meta = {
         **machine(),

@@ -32,3 +32,12 @@ def test_score_models_puts_each_model_first_under_its_reference(monkeypatch: pyt
     assert result["methods"]["runs/pns/best.pt"]["target"] == {"ref": "runs/pns/best.pt"}  # its own hierarchy
     assert list(result["folds"]) == ["anatomies", "runs/pns/best.pt", "FS-BO", "ceiling"]
     assert calls == [("anatomies", 0), ("runs/pns/best.pt", 0)] and set(seconds) == {"anatomies", "runs/pns/best.pt"}
+
+
+def test_report_without_baselines_lists_the_models_alone() -> None:
+    stats = {"mean": 0.5, "std": 0.1}
+    row = {"target": {"mse": stats, "cc_spatial": stats, "cc_temporal": stats}, "context": {"cc_spatial": stats}}
+    result = {"methods": {"anatomies": row}, "ceiling": row}
+    text = real_baselines.report("header\n", result, [], {"anatomies": 12.04})
+    assert text.startswith("header\n\n| method |") and "| anatomies |" in text and "noise-free truth" in text
+    assert "first fit" not in text and text.endswith("- anatomies: 12.0 s for all its folds\n")
