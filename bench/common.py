@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import time
@@ -11,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
-__all__ = ["cpu_model", "machine", "machine_line", "best_of", "add_out_argument", "write_out"]
+__all__ = ["cpu_model", "machine", "machine_line", "best_of", "growth_exponent", "add_out_argument", "write_out"]
 
 T = TypeVar("T")
 
@@ -60,6 +61,11 @@ def best_of(
             sync()
         best = min(best, time.perf_counter() - start)
     return best, result
+
+
+def growth_exponent(size: tuple[float, float], cost: tuple[float, float]) -> float:
+    """The exponent ``p`` of ``cost ~ size^p`` through two points: ``log(cost ratio) / log(size ratio)``."""
+    return float(math.log(cost[1] / cost[0]) / math.log(size[1] / size[0]))
 
 
 def add_out_argument(parser: argparse.ArgumentParser, name: str, default: Path | None = None) -> None:

@@ -37,7 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import cg
 
-from bench.common import add_out_argument, best_of, machine, machine_line, write_out
+from bench.common import add_out_argument, best_of, growth_exponent, machine, machine_line, write_out
 from shared.mesh import Mesh
 from simgen.meshes import get_mesh
 from simgen.solver.simulate import Simulator, SolverConfig, assemble, healthy_fields
@@ -86,15 +86,15 @@ def growth_row(mesh: Mesh, sites: int, repeat: int, warmup: bool) -> dict:
     sim = Simulator(mesh, config=config, imex_solve="cg")
     chosen = np.random.default_rng(0).choice(mesh.n_nodes, sites, replace=False)
     wall, _ = best_of(lambda: sim.run(chosen, threads=1), repeat, warmup=warmup)
-    iterations = float(sim.cg_iterations)
+    iterations, steps = float(sim.cg_iterations), sim.steps_per_frame * sim.config.frames
     return {
         "nodes": mesh.n_nodes,
         "dt": sim.dt,
-        "steps": sim.steps_per_frame * sim.config.frames,
+        "steps": steps,
         "cg_iterations": iterations,
         "wall_s": wall,
         "us_per_node": 1e6 * wall / mesh.n_nodes,
-        "ns_per_node_iteration": 1e9 * wall / (mesh.n_nodes * sim.steps_per_frame * sim.config.frames * iterations),
+        "ns_per_node_iteration": 1e9 * wall / (mesh.n_nodes * steps * iterations),
     }
 
 
@@ -111,14 +111,14 @@ def growth_table(rows: list[dict], sites: int) -> str:
     for row in rows:
         exponent = ""
         if previous is not None:
-            exponent = f"{np.log(row['wall_s'] / previous['wall_s']) / np.log(row['nodes'] / previous['nodes']):.2f}"
+            exponent = f"{growth_exponent((previous['nodes'], row['nodes']), (previous['wall_s'], row['wall_s'])):.2f}"
         out.append(
             f"| lv {row['target']} | {row['nodes']} | {row['dt']:.3g} | {row['steps']} | {row['cg_iterations']:.1f} | "
             f"{row['wall_s']:.3f} | {row['us_per_node']:.1f} | {row['ns_per_node_iteration']:.3f} | {exponent} |"
         )
         previous = row
     first, last = rows[0], rows[-1]
-    overall = np.log(last["wall_s"] / first["wall_s"]) / np.log(last["nodes"] / first["nodes"])
+    overall = growth_exponent((first["nodes"], last["nodes"]), (first["wall_s"], last["wall_s"]))
     out += ["", f"- IMEX-CG wall time ~ nodes^{overall:.2f} from {first['nodes']} to {last['nodes']} nodes"]
     return "\n".join(out)
 

@@ -41,7 +41,7 @@ import time
 import numba
 import numpy as np
 
-from bench.common import add_out_argument, machine, machine_line, write_out
+from bench.common import add_out_argument, growth_exponent, machine, machine_line, write_out
 from shared.mesh import Mesh
 from simgen.meshes import get_mesh
 from simgen.meshes.io import load_mesh
@@ -132,8 +132,9 @@ def comparisons(rows: list[dict], args: argparse.Namespace) -> list[str]:
         sized = [r for r in sized if r["mesh"] != "lv 2000" or len(args.nodes) == 1]
         if len(sized) >= 2:
             a, b = sized[0], sized[-1]
-            p = np.log(b["wall_s"] / a["wall_s"]) / np.log(b["nodes"] / a["nodes"])
-            e = np.log(euler[b["mesh"]]["wall_s"] / euler[a["mesh"]]["wall_s"]) / np.log(b["nodes"] / a["nodes"])
+            nodes = (a["nodes"], b["nodes"])
+            p = growth_exponent(nodes, (a["wall_s"], b["wall_s"]))
+            e = growth_exponent(nodes, (euler[a["mesh"]]["wall_s"], euler[b["mesh"]]["wall_s"]))
             lines.append(
                 f"- {family}: default-integrator wall time ~ nodes^{p:.2f} from {a['nodes']} to {b['nodes']} nodes "
                 f"(forward Euler alone: nodes^{e:.2f})"

@@ -86,3 +86,9 @@ def test_scripts_run_as_modules_of_the_package() -> None:
         [sys.executable, "-m", "bench.seed_spread", "--help"], cwd=BENCH.parent, capture_output=True, text=True
     )
     assert done.returncode == 0 and "--out" in done.stdout, done.stderr
+
+
+def test_growth_exponent_through_two_points() -> None:
+    common = _common()
+    assert common.growth_exponent((1000, 8000), (2.0, 32.0)) == pytest.approx(4 / 3)
+    assert common.growth_exponent((10, 20), (5.0, 5.0)) == 0.0
