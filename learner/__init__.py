@@ -6,16 +6,14 @@ simulations, predicts new stimulation sites, and compares with Bayesian-optimisa
 ``import learner`` does not import torch::
 
     import learner
-    from learner.personalize import personalize
 
     observations = learner.observations_from_file("recordings.npz")
-    personalize("anatomies", observations, "heart.pt")  # a shipped model, or a trained best.pt
-    prediction = learner.predict("heart.pt", sites=[818, 631])
+    heart = learner.personalize("anatomies", observations)  # a shipped model, or a trained best.pt
+    prediction = heart.predict([818, 631])  # again and again: the heart keeps its operators
+    heart.save("heart.pt")  # learner.predict("heart.pt", [818]) in another process
 
-Training, evaluation and personalisation are :func:`learner.train.train`,
-:func:`learner.evaluate.evaluate` and :func:`learner.personalize.personalize` (``learner train``,
-``learner evaluate``, ``learner personalize``): their modules have those names, so the top level
-does not.
+Training and evaluation are :func:`learner.train.train` and :func:`learner.evaluate.evaluate`
+(``learner train``, ``learner evaluate``): their modules have those names, so the top level does not.
 """
 
 from __future__ import annotations
@@ -31,13 +29,8 @@ if TYPE_CHECKING:
     from learner.evaluate import EvalReport, EvalSetting, EvalSpec, evaluate_methods
     from learner.methods import METHODS, build_methods
     from learner.models import PNS, MetaPNS, build_model
-    from learner.personalize import (
-        Observations,
-        Prediction,
-        observations_from_file,
-        observations_from_store,
-        predict,
-    )
+    from learner.observations import Observations, observations_from_file, observations_from_store, read_mesh_file
+    from learner.personalized import PersonalizedHeart, Prediction, personalize, predict
     from learner.store_view import StoreView
     from learner.train import Trainer, load_model
     from shared.observation import Observation
@@ -62,9 +55,12 @@ __all__ = [
     "METHODS",
     "build_methods",
     "Observations",
-    "Prediction",
     "observations_from_store",
     "observations_from_file",
+    "read_mesh_file",
+    "PersonalizedHeart",
+    "Prediction",
+    "personalize",
     "predict",
     "BenchmarkConfig",
     "load_benchmark_config",
@@ -82,9 +78,9 @@ _EXPORTS = {
     **dict.fromkeys(["EvalSpec", "EvalSetting", "EvalReport", "evaluate_methods"], "learner.evaluate"),
     **dict.fromkeys(["METHODS", "build_methods"], "learner.methods"),
     **dict.fromkeys(
-        ["Observations", "Prediction", "observations_from_store", "observations_from_file", "predict"],
-        "learner.personalize",
+        ["Observations", "observations_from_store", "observations_from_file", "read_mesh_file"], "learner.observations"
     ),
+    **dict.fromkeys(["PersonalizedHeart", "Prediction", "personalize", "predict"], "learner.personalized"),
     **dict.fromkeys(["BenchmarkConfig", "load_benchmark_config", "run_benchmark"], "learner.benchmark"),
 }
 

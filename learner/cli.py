@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, NoReturn
 
@@ -9,8 +11,9 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from shared.cli import fail, finite, parse_ids, print_markdown
+from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, parse_ids, print_markdown
 from shared.errors import InputError
+from shared.sites import SITE_TOLERANCE
 
 if TYPE_CHECKING:
     from learner.config import LearnerConfig
@@ -265,53 +268,66 @@ def personalize(
     observations: Annotated[
         Path | None,
         typer.Option(
-            help=".npz (instead of --store): sites (K,) int node ids; obs (K, T, N) float u = (V + 80) / 100, "
-            "V in mV; observed (N,) bool; times (T,) float in time units of 12.9 ms (the shipped model: T = 55, "
-            "0.6, 1.2, ..., 33.0); the mesh's points (N, 3) float mm and cells (M, 4|3) int "
+            help=".npz (instead of --store): sites (K,) int node ids or site_xyz (K, 3) mm; obs (K, T, N) float "
+            "u = (V + 80) / 100, V in mV; observed (N,) bool; times (T,) float in time units of 12.9 ms (the shipped "
+            "model: T = 55, 0.6, 1.2, ..., 33.0); the mesh's points (N, 3) float mm and cells (M, 4|3) int "
             "(docs/formats.md, examples/observations.npz)."
         ),
     ] = None,
     mesh: Annotated[
         Path | None,
         typer.Option(
-            help="Mesh file (any meshio format, read as it is) of --observations, which may then omit points and cells."
+            help="Mesh file (any meshio format, any resolution, read as it is: node ids are the file's) of "
+            "--observations, which may then omit points and cells."
         ),
     ] = None,
+    site_tolerance: SiteToleranceOpt = SITE_TOLERANCE,
     refine_steps: RefineOpt = 0,
     device: DeviceOpt = "auto",
 ) -> None:
     """Embed a subject's few observations into a saved personalised surrogate."""
-    from learner.personalize import mesh_from_file, observations_from_file, observations_from_store
-    from learner.personalize import personalize as run
+    from learner.observations import observations_from_file, observations_from_store, read_mesh_file
+    from learner.personalized import NoWaveWarning
+    from learner.personalized import personalize as run
     from learner.refine import Refinement
 
     try:
         if mesh is not None and observations is None:
             raise InputError("--mesh is the mesh of --observations: give --observations FILE too")
         if observations is not None:
-            obs = observations_from_file(observations, mesh_from_file(mesh) if mesh is not None else None)
+            given = read_mesh_file(mesh) if mesh is not None else (None, None)
+            obs = observations_from_file(observations, *given, tolerance=site_tolerance)
         elif store is not None and subject is not None:
             obs = observations_from_store(store, subject, parse_ids(sites, "--sites"), observe)
         else:
             raise InputError("give either --observations FILE or --store, --subject and --sites")
-        info = run(checkpoint, obs, out, device, Refinement(steps=refine_steps))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", NoWaveWarning)
+            heart = run(checkpoint, obs, out, device, Refinement(steps=refine_steps))
     except (InputError, OSError) as exc:
         _fail(exc, out)
-    history = info["refine_objective"]
+    for warning in caught:
+        if issubclass(warning.category, NoWaveWarning):
+            console.print(f"[yellow]{warning.message}[/yellow]", soft_wrap=True)
+    history = heart.refine_objective
     refined = f", refined in {refine_steps} steps (objective {history[0]:.4g} -> {history[-1]:.4g})" if history else ""
     console.print(
-        f"personalised on {info['context_size']} simulation(s) in {1000 * info['embed_seconds']:.1f} ms"
-        f"{refined} -> {out}"
+        f"personalised on {len(obs.sites) - len(heart.dropped)} recording(s) in {1000 * heart.embed_seconds:.1f} ms"
+        f"{refined}; {heart.graph_summary()} -> {out}",
+        soft_wrap=True,
     )
 
 
 @app.command()
 def predict(
     personalized: Annotated[Path, typer.Argument(help="Personalised surrogate (from `learner personalize`).")],
-    sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids.")],
-    out: Annotated[Path, typer.Option(help=".npz with sites, times and u (site, time, node).")] = Path(
-        "prediction.npz"
-    ),
+    sites: Annotated[str | None, typer.Option(help="Comma-separated stimulation node ids.")] = None,
+    site_xyz: SiteXyzOpt = None,
+    site_region: SiteRegionOpt = None,
+    site_tolerance: SiteToleranceOpt = SITE_TOLERANCE,
+    out: Annotated[
+        Path, typer.Option(help=".npz with sites, times and u (site, time, node), activated_fraction, started_wave.")
+    ] = Path("prediction.npz"),
     vtk: Annotated[Path | None, typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
     png: Annotated[Path | None, typer.Option(help="PNG of the predicted activation maps, one row per site.")] = None,
     samples: Annotated[
@@ -319,23 +335,47 @@ def predict(
     ] = 0,
     device: DeviceOpt = "auto",
 ) -> None:
-    """Predict full-mesh sequences for new stimulation sites."""
-    from learner.personalize import plot_prediction, write_vtk
-    from learner.personalize import predict as run
+    """Predict full-mesh sequences for new stimulation sites (node ids, points or regions)."""
+    from learner.personalized import PersonalizedHeart, plot_prediction, write_vtk
+    from learner.runtime import peak_memory_mb
+    from shared.sites import parse_points, parse_regions
 
+    start = time.perf_counter()
     try:
-        pred = run(personalized, parse_ids(sites, "--sites"), samples=samples, device=device)
+        if sites is None and site_xyz is None and site_region is None:
+            raise InputError("give the sites: --sites node ids, --site-xyz points or --site-region regions")
+        heart = PersonalizedHeart.load(personalized, device)
+        ids = parse_ids(sites, "--sites") if sites is not None else []
+        points = parse_points(site_xyz) if site_xyz is not None else None
+        regions = parse_regions(site_region) if site_region is not None else []
+        pred = heart.predict(heart.sites(ids, points, regions, site_tolerance), samples=samples)
     except InputError as exc:
         _fail(exc)
-    arrays = {"sites": pred.sites, "times": pred.times, "u": pred.u}
+    arrays = {
+        "sites": pred.sites,
+        "times": pred.times,
+        "u": pred.u,
+        "activated_fraction": pred.activated,
+        "started_wave": pred.started_wave,
+    }
     if pred.spread is not None:
         arrays["spread"] = pred.spread
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(out, **arrays)
+        np.savez(out, **arrays)
     except OSError as exc:
         _fail(exc, out)
-    console.print(f"{len(pred.sites)} sequence(s) in {1000 * pred.seconds:.1f} ms -> {out}")
+    console.print(
+        f"{len(pred.sites)} sequence(s) of {heart.mesh.n_nodes} nodes in {1000 * pred.seconds:.1f} ms "
+        f"({time.perf_counter() - start:.2f} s with loading, peak memory {peak_memory_mb():.0f} MB) -> {out}",
+        soft_wrap=True,
+    )
+    for site, share in zip(pred.sites[~pred.started_wave], pred.activated[~pred.started_wave]):
+        console.print(
+            f"[yellow]site {int(site)}: the model predicts no propagating wave[/yellow] ({100 * share:.1f}% of the "
+            "nodes activate): it reads the site as scar core",
+            soft_wrap=True,
+        )
     if vtk is not None:
         try:
             paths = write_vtk(pred, vtk)

@@ -66,6 +66,7 @@ class ModelConfig:
     context_stimulus: bool = False  # metaPNS: c joins the stimulus features before the coarse blocks
     capture_gate: bool = False  # metaPNS: c at the site decides whether a wave starts (PNS.generate)
     capture_evidence: bool = False  # the gate also reads the context's peak at the site (SiteEvidence)
+    working_nodes: int | None = None  # a finer mesh is seen as this many clusters (learner.graph.working); None: as is
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
@@ -78,6 +79,11 @@ class ModelConfig:
             raise ConfigError(f"model.context_stride must be >= 1, got {self.context_stride}")
         if self.coarsest < 4:
             raise ConfigError(f"model.coarsest must be >= 4, got {self.coarsest}")
+        if self.working_nodes is not None and self.working_nodes < 2 * self.coarsest:
+            raise ConfigError(
+                f"model.working_nodes must be at least twice model.coarsest ({2 * self.coarsest}), "
+                f"got {self.working_nodes}"
+            )
         if self.capture_evidence and not self.capture_gate:
             raise ConfigError("model.capture_evidence is an input of the capture gate: set model.capture_gate too")
 

@@ -86,6 +86,7 @@ class EvalSetting:
     observation: Observation
     levels: int
     coarsest: int
+    working_nodes: int | None = None
 
     @classmethod
     def of(cls, config: LearnerConfig, observe: str | None = None, noise_std: float | None = None) -> EvalSetting:
@@ -94,11 +95,11 @@ class EvalSetting:
         observation = Observation(
             observe or episodes.primary_observe, episodes.noise_std if noise_std is None else noise_std
         )
-        return cls(observation, config.model.levels, config.model.coarsest)
+        return cls(observation, config.model.levels, config.model.coarsest, config.model.working_nodes)
 
     def hierarchy(self, view: StoreView, mesh_id: str) -> MeshHierarchy:
         """The mesh hierarchy of ``mesh_id`` that the model works on."""
-        return view.hierarchy(mesh_id, self.levels, self.coarsest)
+        return view.hierarchy(mesh_id, self.levels, self.coarsest, self.working_nodes)
 
     def episode(
         self, view: StoreView, subject: str, context: ArrayLike, targets: ArrayLike, rng: np.random.Generator | None

@@ -17,7 +17,7 @@ from learner.data.episodes import Episode
 from learner.evaluate import Method, NeuralMethod
 from learner.graph.hierarchy import MeshHierarchy
 from learner.models.surrogate import PNS
-from learner.personalize import Observations
+from learner.observations import Observations
 from shared.errors import ConfigError
 from shared.mesh import Mesh
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import re
+import resource
+import sys
 import weakref
 from contextlib import AbstractContextManager
 
@@ -22,6 +24,7 @@ __all__ = [
     "on_device",
     "tune_allocator",
     "set_threads",
+    "peak_memory_mb",
 ]
 
 #: What ``--device`` and ``train.device`` accept (``cuda:N`` picks GPU ``N``).
@@ -108,3 +111,9 @@ def on_device(hierarchy: MeshHierarchy, device: torch.device) -> MeshHierarchy:
     if device not in copies:
         copies[device] = hierarchy.to(device)
     return copies[device]
+
+
+def peak_memory_mb() -> float:
+    """This process's peak resident memory so far, in MB (``getrusage``: kB on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1e6 if sys.platform == "darwin" else 1e3)

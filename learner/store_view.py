@@ -96,9 +96,11 @@ class StoreView:
         """Stimulation node ids of the mesh's site rows."""
         return read_sites(self.store, mesh_id)
 
-    def hierarchy(self, mesh_id: str, levels: int, coarsest: int) -> MeshHierarchy:
-        """The mesh's graph hierarchy (computed once, cached in memory and in ``cache_dir``)."""
-        key = (mesh_id, levels, coarsest)
+    def hierarchy(self, mesh_id: str, levels: int, coarsest: int, working_nodes: int | None = None) -> MeshHierarchy:
+        """The mesh's graph hierarchy (computed once, cached in memory and in ``cache_dir``); with
+        ``working_nodes``, that of its working graph (:func:`~learner.graph.hierarchy.hierarchy_for_mesh`)."""
+        key = (mesh_id, levels, coarsest, working_nodes)
         if key not in self._hierarchies:
-            self._hierarchies[key] = hierarchy_for_mesh(self.mesh(mesh_id), levels, coarsest, self.cache_dir)
+            mesh = self.mesh(mesh_id)
+            self._hierarchies[key] = hierarchy_for_mesh(mesh, levels, coarsest, self.cache_dir, working_nodes)
         return self._hierarchies[key]

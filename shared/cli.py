@@ -14,7 +14,7 @@ import math
 import re
 from collections import Counter
 from pathlib import Path
-from typing import NoReturn
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
@@ -22,7 +22,18 @@ from rich.markup import escape
 
 from shared.errors import InputError
 
-__all__ = ["PATH_ERRNOS", "fail", "finite", "one_line", "path_error", "parse_ids", "print_markdown"]
+__all__ = [
+    "PATH_ERRNOS",
+    "SiteXyzOpt",
+    "SiteRegionOpt",
+    "SiteToleranceOpt",
+    "fail",
+    "finite",
+    "one_line",
+    "path_error",
+    "parse_ids",
+    "print_markdown",
+]
 
 #: errno values of a file system refusing a path: bad input, not a bug.
 PATH_ERRNOS = frozenset(
@@ -103,3 +114,26 @@ def parse_ids(text: str, option: str) -> list[int]:
 def print_markdown(console: Console, text: str) -> None:
     """Print Markdown ``text`` as it is: tables unwrapped at any terminal width, brackets not read as markup."""
     console.print(text, soft_wrap=True, markup=False, highlight=False)
+
+
+#: Sites by position (:mod:`shared.sites`), the options of every command that takes ``--sites`` node ids.
+SiteXyzOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--site-xyz",
+        help="Sites as points x,y,z in mm, ';' between points: each the nearest node within --site-tolerance "
+        "(simgen centres the stimulus on the point).",
+    ),
+]
+SiteRegionOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--site-region",
+        help="Sites by region, comma-separated: aha-1 ... aha-17 (AHA segments of the LV), apex, rv-free-wall; "
+        "each optionally :epi (default) or :endo.",
+    ),
+]
+SiteToleranceOpt = Annotated[
+    float,
+    typer.Option(min=0, callback=finite, help="Largest distance (mm) from a --site-xyz point to its node."),
+]

@@ -59,6 +59,10 @@ class Mesh:
         a closed triangle mesh, boundary nodes for a tetrahedral mesh.
     axis : optional ventricular frame used by regional (AHA) scar specs.
     name : identifier, used as the mesh id in stores.
+    file_index : for a mesh read from a file as it is whose reading dropped
+        nodes in no cell: (n_file,) the mesh node of each node of the file, -1
+        for a dropped one (:meth:`to_file`, :meth:`from_file`); ``None``: the
+        node ids are the file's (or the mesh was made, not read).
     """
 
     points: NDArray[np.float64]
@@ -66,6 +70,7 @@ class Mesh:
     node_sets: dict[str, NDArray[np.int32]] = field(default_factory=dict)
     axis: LongAxis | None = None
     name: str = "mesh"
+    file_index: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float64)
@@ -83,6 +88,11 @@ class Mesh:
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "cells", cells.astype(np.int32, copy=False))
         object.__setattr__(self, "node_sets", sets)
+        if self.file_index is not None:
+            index = np.asarray(self.file_index, np.int64)
+            if index.ndim != 1 or not np.array_equal(np.sort(index[index >= 0]), np.arange(len(pts))):
+                raise MeshError(f"mesh {self.name!r}: file_index must map file nodes onto each of its nodes once")
+            object.__setattr__(self, "file_index", index)
 
     @property
     def n_nodes(self) -> int:
@@ -111,6 +121,35 @@ class Mesh:
         e.sort(axis=1)
         key = np.unique(e[:, 0].astype(np.int64) * self.n_nodes + e[:, 1])  # 1-D keys: 10x faster than axis=0
         return np.stack([key // self.n_nodes, key % self.n_nodes], axis=1).astype(np.int32)
+
+    def from_file(self, ids: NDArray[np.integer]) -> NDArray[np.int64]:
+        """This mesh's nodes of the file's node ``ids`` (the same ids where no node was dropped)."""
+        ids = np.asarray(ids, np.int64)
+        if self.file_index is None:
+            return ids
+        bad = ids[(ids < 0) | (ids >= len(self.file_index))]
+        dropped = ids[(ids >= 0) & (ids < len(self.file_index))]
+        dropped = dropped[self.file_index[dropped] < 0]
+        if bad.size or dropped.size:
+            what = f"node(s) {bad[:5].tolist()} are not nodes of the file" if bad.size else ""
+            what = what or f"node(s) {dropped[:5].tolist()} of the file are in no cell (they carry no tissue)"
+            raise MeshError(f"mesh {self.name!r}: {what}")
+        return self.file_index[ids]
+
+    def file_ids(self, nodes: NDArray[np.integer]) -> NDArray[np.int64]:
+        """The file's node id of each of this mesh's ``nodes`` (the inverse of :meth:`from_file`)."""
+        nodes = np.asarray(nodes, np.int64)
+        return nodes if self.file_index is None else np.flatnonzero(self.file_index >= 0)[nodes]
+
+    def to_file(self, values: NDArray, fill: float = np.nan) -> NDArray:
+        """Per-node ``values`` (..., N) laid out on the file's nodes (..., n_file), ``fill`` at dropped ones."""
+        values = np.asarray(values)
+        if self.file_index is None:
+            return values
+        kept = self.file_index >= 0
+        out = np.full((*values.shape[:-1], len(self.file_index)), fill, dtype=np.result_type(values, type(fill)))
+        out[..., kept] = values[..., self.file_index[kept]]
+        return out
 
     def mean_edge_length(self) -> float:
         e = self.edges()

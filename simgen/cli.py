@@ -13,11 +13,12 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from shared.cli import fail, finite, parse_ids, print_markdown
+from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, parse_ids, print_markdown
 from shared.config import load_toml
 from shared.errors import InputError
 from shared.observation import node_mask
 from shared.observation import observe as observe_field
+from shared.sites import SITE_TOLERANCE
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
@@ -37,9 +38,18 @@ console = Console()
 
 MeshOpt = Annotated[str, typer.Option("--mesh", help="'lv', 'biv' or a mesh file (any meshio format).")]
 NodesOpt = Annotated[
-    int, typer.Option("--nodes", min=1, help="Target node count: a procedural mesh's, or a mesh file resampled to it.")
+    int | None,
+    typer.Option(
+        "--nodes",
+        min=1,
+        help="Target node count: a procedural mesh's (default 2000), or a mesh file's resampled to it; without it "
+        "a mesh file (and a shipped real mesh) is used as it is, its node ids kept.",
+    ),
 ]
-KindOpt = Annotated[str, typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface).")]
+KindOpt = Annotated[
+    str | None,
+    typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface); default: a file's own, tetra otherwise."),
+]
 HeartOpt = Annotated[
     bool,
     typer.Option(
@@ -76,14 +86,15 @@ def _fail(exc: Exception, path: str | Path | None = None) -> NoReturn:
 def mesh(
     out: Annotated[Path, typer.Argument(help="Output mesh file (.vtu, .vtk, .msh, ...).")],
     source: MeshOpt = "lv",
-    nodes: NodesOpt = 2000,
-    kind: KindOpt = "tetra",
+    nodes: NodesOpt = None,
+    kind: KindOpt = None,
     heart: HeartOpt = True,
 ) -> None:
-    """Generate (or load and validate) a mesh and write it to OUT."""
+    """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
+    region labels (AHA segments, RV free wall) as point data: what sites by region need."""
     try:
         m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
-        save_mesh(m, out)
+        save_mesh(m, out, _labels(m).arrays() if heart else None)
     except (InputError, OSError) as exc:
         _fail(exc, out)
     table = Table(title=f"{m.name} -> {out}")
@@ -115,11 +126,16 @@ def tissues() -> None:
 def simulate(
     out: Annotated[Path, typer.Argument(help="Output folder (NPZ + activation-map PNG).")],
     source: MeshOpt = "lv",
-    nodes: NodesOpt = 2000,
-    kind: KindOpt = "tetra",
+    nodes: NodesOpt = None,
+    kind: KindOpt = None,
     heart: HeartOpt = True,
     tissue: Annotated[str, typer.Option(help=TISSUE_HELP)] = "healthy",
-    sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the mesh.")] = "0",
+    sites: Annotated[
+        str | None, typer.Option(help="Comma-separated stimulation node ids of the mesh (default 0 without others).")
+    ] = None,
+    site_xyz: SiteXyzOpt = None,
+    site_region: SiteRegionOpt = None,
+    site_tolerance: SiteToleranceOpt = SITE_TOLERANCE,
     threads: ThreadsOpt = 2,
     dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
     integrator: Annotated[
@@ -147,38 +163,49 @@ def simulate(
     ] = 0.0,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the observation noise.")] = 0,
 ) -> None:
-    """Simulate stimulation SITES on one mesh + tissue and save u, activation times and a figure."""
+    """Simulate stimulation sites (node ids, points or regions) on one mesh + tissue and save u, activation
+    times and a figure; a mesh file without --nodes is used as it is, results on its own node ids."""
     from simgen.plot import plot_activation_maps
 
     try:
-        site_ids = np.array(parse_ids(sites, "--sites"))
         m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
+        site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
         config = SolverConfig(dt=dt, integrator=integrator)  # type: ignore[arg-type]
         sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
-        result = sim.run(site_ids, threads=threads)
+        result = sim.run(site_ids, threads=threads, centres=centres)
     except (InputError, ValueError) as exc:
         _fail(exc)
     act_ms = result.activation * MS_PER_TIME_UNIT
+    file_sites = m.file_ids(site_ids)
     try:
         out.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(
-            out / "simulation.npz", u=result.u, activation=result.activation, times=result.times, sites=result.sites
+            out / "simulation.npz",
+            u=m.to_file(result.u),
+            activation=m.to_file(result.activation),
+            times=result.times,
+            sites=file_sites,
+            site_xyz=centres,
+            activated_fraction=result.activated_fraction,
         )
         plot_activation_maps(
-            m, act_ms, [f"{spec.name} site {s}" for s in site_ids], out / "activation.png", stim_nodes=site_ids
+            m, act_ms, [f"{spec.name} site {s}" for s in file_sites], out / "activation.png", stim_nodes=site_ids
         )
         if observed is not None:
             obs = observe_field(result.u, observed, noise, np.random.default_rng(seed))
+            labels = _labels(m).arrays() if heart else {}
             np.savez_compressed(
                 out / "observations.npz",
                 points=m.points,
                 cells=m.cells,
                 sites=result.sites,
+                site_xyz=centres,
                 obs=obs.astype(np.float32),
                 observed=observed,
                 times=result.times,
+                **labels,
             )
     except OSError as exc:
         _fail(exc, out)
@@ -187,6 +214,20 @@ def simulate(
         f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), {sim.integrator} dt={sim.dt:.4g}, {where}, "
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
+    _report_no_wave(site_ids, result.activated_fraction)
+
+
+def _report_no_wave(sites: np.ndarray, fraction: np.ndarray) -> None:
+    """One line per site whose stimulus started no propagating wave (:mod:`shared.capture`)."""
+    from shared.capture import started_wave
+
+    for site, share in zip(sites, fraction):
+        if not started_wave(share):
+            console.print(
+                f"[yellow]site {int(site)} starts no propagating wave[/yellow]: {100 * share:.1f}% of the nodes "
+                "activate (its stimulus patch): the site lies in or against a scar core",
+                soft_wrap=True,
+            )
 
 
 #: Node sets ``simulate --observe`` records on (besides ``all`` and the sock's ``electrodes``).
@@ -208,6 +249,37 @@ def _observed_nodes(m, observe: str) -> np.ndarray:
             f"--observe: unknown node set {observe!r}; use {', '.join(OBSERVE_NODE_SETS)}, electrodes or all"
         )
     return node_mask(m.n_nodes, ids, observe, m.name)
+
+
+def _sites(
+    m, ids: str | None, xyz: str | None, regions: str | None, tolerance: float, heart: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The stimulation nodes of ``m`` and the points their stimuli are centred on, from ``--sites`` (the
+    file's node ids), ``--site-xyz`` (each point itself) and ``--site-region`` (:mod:`shared.sites`)."""
+    from shared.sites import nearest_nodes, parse_points, parse_regions, region_nodes
+
+    nodes, centres = [], []
+    if ids is not None or (xyz is None and regions is None):
+        given = m.from_file(parse_ids(ids or "0", "--sites"))
+        nodes.append(given)
+        centres.append(m.points[given])
+    if xyz is not None:
+        points = parse_points(xyz)
+        nodes.append(nearest_nodes(m.points, points, tolerance))
+        centres.append(points)
+    if regions is not None:
+        labels = _labels(m) if heart else None
+        named = region_nodes(labels, m.points, parse_regions(regions))
+        nodes.append(named)
+        centres.append(m.points[named])
+    return np.concatenate(nodes), np.concatenate(centres)
+
+
+def _labels(m):
+    """The region labels of heart mesh ``m`` (:func:`simgen.meshes.regions.site_labels`)."""
+    from simgen.meshes.regions import site_labels
+
+    return site_labels(m)
 
 
 def _tissue_spec(tissue: str):
@@ -466,17 +538,24 @@ def status(store: StoreArg) -> None:
     except InputError as exc:
         _fail(exc)
     rows = health.rows
-    table = Table("subject", "mesh", "chunks done", "sites", "damaged", title=str(store))
+    table = Table("subject", "mesh", "chunks done", "sites", "no wave", "damaged", title=str(store))
     for r in rows:
         if r.missing:
-            table.add_row(r.subject_id, r.mesh_id, f"0/{r.chunks}", str(r.sites), "group missing or damaged")
+            table.add_row(r.subject_id, r.mesh_id, f"0/{r.chunks}", str(r.sites), "", "group missing or damaged")
         else:
             damaged = f"{r.damaged} chunk(s)" if r.damaged else ""
-            table.add_row(r.subject_id, r.mesh_id, f"{r.chunks_done}/{r.chunks}", str(r.sites), damaged)
+            no_wave = "-" if r.no_wave is None else str(r.no_wave)
+            table.add_row(r.subject_id, r.mesh_id, f"{r.chunks_done}/{r.chunks}", str(r.sites), no_wave, damaged)
     console.print(table)
     done = sum(r.chunks_done for r in rows)
     total = sum(r.chunks for r in rows)
     console.print(f"{done}/{total} chunks done and sound ({100 * done / max(total, 1):.0f}%)")
+    counted = [r for r in rows if r.no_wave is not None]
+    if counted:
+        console.print(
+            f"{sum(r.no_wave for r in counted)} of {sum(r.sites for r in counted)} simulations start no propagating "
+            f"wave (a stimulus in a scar core; `no wave` per subject, '-': not recorded or chunks pending)"
+        )
     if health.problems:
         for problem in health.problems[:20]:
             console.print(f"damaged: {escape(problem)}", soft_wrap=True)

@@ -581,7 +581,8 @@ def write_checkpoints(d: Path, mesh) -> None:
 
     from learner.config import config_from_mapping
     from learner.models.surrogate import build_model
-    from learner.personalize import observations_from_file, personalize
+    from learner.observations import observations_from_file
+    from learner.personalized import personalize
     from learner.train.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
 
     config = config_from_mapping(

@@ -37,7 +37,7 @@ def test_tissue_example_is_a_valid_setting_with_its_scars():
 def test_observation_example_is_valid_and_what_its_script_writes(tmp_path, capsys):
     import numpy as np
 
-    from learner.personalize import observations_from_file
+    from learner.observations import observations_from_file
 
     shipped = observations_from_file(EXAMPLES / "observations.npz")
     k, frames, n = shipped.obs.shape

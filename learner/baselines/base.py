@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from learner.baselines.bo import BOSettings, bayes_minimise
-from learner.personalize import Observations
+from learner.observations import Observations
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.simulator import SimulatorPlugin, load_simulator
@@ -230,7 +230,7 @@ def _check_observations(
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Observed values (K, T, |O|) as float64 and the mask; refuses what a fit cannot use."""
     if not isinstance(observations, Observations):
-        raise InputError(f"observations must be learner.personalize.Observations, got {type(observations).__name__}")
+        raise InputError(f"observations must be learner.observations.Observations, got {type(observations).__name__}")
     if not isinstance(solver, Mapping):
         raise InputError(f"solver must be the store's solver table (a mapping), got {type(solver).__name__}")
     obs = np.asarray(observations.obs)

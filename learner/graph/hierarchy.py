@@ -18,6 +18,7 @@ import hashlib
 import os
 import tempfile
 import zipfile
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,19 +27,24 @@ import torch
 from numpy.typing import NDArray
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 from torch import Tensor
 
+from learner.graph.working import WorkingMap
 from shared.errors import InputError, MeshError
 from shared.graph import edge_length_graph, undirected_edges
 from shared.mesh import Mesh
 
-__all__ = ["Graph", "MeshHierarchy", "build_hierarchy", "hierarchy_for_mesh"]
+__all__ = ["Graph", "MeshHierarchy", "build_hierarchy", "cluster_graph", "hierarchy_for_mesh"]
 
 #: Bump when the clustering changes, so cached hierarchies are rebuilt.
 ALGORITHM_VERSION = 1
 #: Lloyd relaxations after farthest-point seeding.
 LLOYD_ITERATIONS = 3
 _FILE_FORMAT = 1
+#: Hierarchies :func:`hierarchy_for_mesh` keeps in memory (least recently used dropped first).
+RECENT_HIERARCHIES = 4
+_RECENT: OrderedDict[str, MeshHierarchy] = OrderedDict()
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,10 +120,14 @@ class MeshHierarchy:
     graphs : one :class:`Graph` per level.
     assign : ``assign[l]`` (n_l,) long maps each level-``l`` node to its
         level-``l+1`` cluster; one entry per level but the last.
+    working : how the mesh's nodes map onto level 0 when level 0 is a working
+        graph of clusters of them (:mod:`learner.graph.working`); ``None``:
+        level 0 is the mesh itself.
     """
 
     graphs: tuple[Graph, ...]
     assign: tuple[Tensor, ...]
+    working: WorkingMap | None = None
 
     def __post_init__(self) -> None:
         graphs, assign = tuple(self.graphs), tuple(self.assign)
@@ -131,6 +141,10 @@ class MeshHierarchy:
                 raise InputError(f"assign[{lvl}] must be a ({n},) long tensor, got {tuple(a.shape)} {a.dtype}")
             if n and (int(a.min()) < 0 or int(a.max()) >= m):
                 raise InputError(f"assign[{lvl}] has cluster ids outside [0, {m})")
+        if self.working is not None and self.working.working_nodes != graphs[0].num_nodes:
+            raise InputError(
+                f"the working map ends on {self.working.working_nodes} nodes, level 0 has {graphs[0].num_nodes}"
+            )
 
     @property
     def n_levels(self) -> int:
@@ -140,6 +154,23 @@ class MeshHierarchy:
     def sizes(self) -> tuple[int, ...]:
         """Number of nodes per level, fine to coarse."""
         return tuple(g.num_nodes for g in self.graphs)
+
+    @property
+    def mesh_nodes(self) -> int:
+        """Nodes of the mesh the hierarchy stands for: level 0's, or the working map's mesh."""
+        return self.sizes[0] if self.working is None else self.working.mesh_nodes
+
+    def level0_sites(self, nodes: Tensor) -> Tensor:
+        """The level-0 node of each mesh node in ``nodes``: itself, or its working cluster."""
+        return nodes.long() if self.working is None else self.working.sites(nodes)
+
+    def level0_observations(self, obs: Tensor, observed: Tensor) -> tuple[Tensor, Tensor]:
+        """Observed mesh sequences ``(K, T, N)`` and mask ``(N,)`` at level 0 (unchanged without a working map)."""
+        return (obs, observed) if self.working is None else self.working.observations(obs, observed)
+
+    def to_mesh(self, x: Tensor) -> Tensor:
+        """A level-0 field ``(..., n_0)`` at the mesh's nodes (unchanged without a working map)."""
+        return x if self.working is None else self.working.expand(x)
 
     def _check_level(self, level: int, what: str) -> None:
         if not 0 <= level < self.n_levels - 1:
@@ -198,11 +229,13 @@ class MeshHierarchy:
 
     def to(self, device: torch.device | str) -> MeshHierarchy:
         """A copy with every tensor on ``device``."""
-        return MeshHierarchy(tuple(g.to(device) for g in self.graphs), tuple(a.to(device) for a in self.assign))
+        working = None if self.working is None else self.working.to(device)
+        return MeshHierarchy(
+            tuple(g.to(device) for g in self.graphs), tuple(a.to(device) for a in self.assign), working
+        )
 
-    def save(self, path: str | Path) -> None:
-        """Write to ``path`` as an ``.npz`` archive (atomically: a reader never sees half a file)."""
-        path = Path(path)
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every tensor as a named array (:meth:`from_arrays` inverts it; :meth:`save` writes them)."""
         arrays: dict[str, np.ndarray] = {"format": np.array(_FILE_FORMAT), "n_levels": np.array(self.n_levels)}
         for lvl, g in enumerate(self.graphs):
             arrays[f"edge_index_{lvl}"] = g.edge_index.cpu().numpy()
@@ -210,11 +243,42 @@ class MeshHierarchy:
             arrays[f"positions_{lvl}"] = g.positions.cpu().numpy()
         for lvl, a in enumerate(self.assign):
             arrays[f"assign_{lvl}"] = a.cpu().numpy()
+        if self.working is not None:
+            arrays.update({f"working_{key}": value for key, value in self.working.arrays().items()})
+        return arrays
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], where: str = "mesh hierarchy") -> MeshHierarchy:
+        """The hierarchy of :meth:`arrays`; :class:`InputError` naming ``where`` for a wrong or partial set."""
+        if "format" not in arrays or int(arrays["format"]) != _FILE_FORMAT:
+            raise InputError(f"{where} is not a mesh hierarchy of format {_FILE_FORMAT}")
+        try:
+            n = int(arrays["n_levels"])
+            graphs = tuple(
+                Graph(
+                    edge_index=torch.from_numpy(np.asarray(arrays[f"edge_index_{lvl}"]).astype(np.int64)),
+                    pseudo=torch.from_numpy(np.asarray(arrays[f"pseudo_{lvl}"])),
+                    num_nodes=len(arrays[f"positions_{lvl}"]),
+                    positions=torch.from_numpy(np.asarray(arrays[f"positions_{lvl}"])),
+                )
+                for lvl in range(n)
+            )
+            assign = tuple(
+                torch.from_numpy(np.asarray(arrays[f"assign_{lvl}"]).astype(np.int64)) for lvl in range(n - 1)
+            )
+        except KeyError as exc:
+            raise InputError(f"{where} lacks array {exc}") from None
+        working = {key.removeprefix("working_"): v for key, v in arrays.items() if key.startswith("working_")}
+        return cls(graphs, assign, WorkingMap.from_arrays(working) if working else None)
+
+    def save(self, path: str | Path) -> None:
+        """Write :meth:`arrays` to ``path`` as an ``.npz`` archive (atomically: a reader never sees half a file)."""
+        path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         try:
             with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
+                np.savez(f, **self.arrays())
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -228,26 +292,11 @@ class MeshHierarchy:
                 arrays = {k: z[k] for k in z.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise InputError(f"{path} is not a readable mesh hierarchy file: {exc}") from None
-        if "format" not in arrays or int(arrays["format"]) != _FILE_FORMAT:
-            raise InputError(f"{path} is not a mesh hierarchy file of format {_FILE_FORMAT}")
-        try:
-            n = int(arrays["n_levels"])
-            graphs = tuple(
-                Graph(
-                    edge_index=torch.from_numpy(arrays[f"edge_index_{lvl}"].astype(np.int64)),
-                    pseudo=torch.from_numpy(arrays[f"pseudo_{lvl}"]),
-                    num_nodes=len(arrays[f"positions_{lvl}"]),
-                    positions=torch.from_numpy(arrays[f"positions_{lvl}"]),
-                )
-                for lvl in range(n)
-            )
-            assign = tuple(torch.from_numpy(arrays[f"assign_{lvl}"].astype(np.int64)) for lvl in range(n - 1))
-        except KeyError as exc:
-            raise InputError(f"{path}: mesh hierarchy file lacks array {exc}") from None
-        return cls(graphs, assign)
+        return cls.from_arrays(arrays, str(path))
 
     def __repr__(self) -> str:
-        return f"MeshHierarchy(sizes={self.sizes})"
+        mesh = "" if self.working is None else f", mesh_nodes={self.mesh_nodes}"
+        return f"MeshHierarchy(sizes={self.sizes}{mesh})"
 
 
 def _farthest_point_seeds(adj: csr_matrix, k: int) -> NDArray[np.int64]:
@@ -338,19 +387,32 @@ def build_hierarchy(
     sizes = _level_sizes(n, levels, coarsest)
     pos, graphs, assign = points, [Graph.from_edges(points, und)], []
     for target in sizes[1:]:
-        a = _cluster(pos, und, min(target, len(pos)))
-        m = int(a.max()) + 1
-        count = np.bincount(a, minlength=m)
-        pos = np.stack([np.bincount(a, pos[:, d], minlength=m) for d in range(3)], axis=1) / count[:, None]
-        und = undirected_edges(a[und], m)
+        a, pos, und = cluster_graph(pos, und, target)
         assign.append(torch.from_numpy(a))
         graphs.append(Graph.from_edges(pos, und))
     return MeshHierarchy(tuple(graphs), tuple(assign))
 
 
-def _cache_key(mesh: Mesh, levels: int, coarsest: int) -> str:
+def cluster_graph(
+    points: NDArray[np.float64], edges: NDArray[np.int64], k: int
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
+    """One coarsening of a connected graph into at most ``k`` clusters: ``(assign, centres, edges)``.
+
+    ``assign`` (N,) the cluster of each node (:func:`build_hierarchy` describes
+    the clustering); ``centres`` (k', 3) each cluster's mean position; ``edges``
+    the unique undirected pairs of clusters joined by an edge of ``edges``.
+    """
+    a = _cluster(points, edges, min(k, len(points)))
+    m = int(a.max()) + 1
+    count = np.bincount(a, minlength=m)
+    centres = np.stack([np.bincount(a, points[:, d], minlength=m) for d in range(3)], axis=1) / count[:, None]
+    return a, centres, undirected_edges(a[edges], m)
+
+
+def _cache_key(mesh: Mesh, levels: int, coarsest: int, working_nodes: int | None) -> str:
     h = hashlib.sha256()
-    h.update(f"hierarchy v{ALGORITHM_VERSION} levels={levels} coarsest={coarsest};".encode())
+    working = "" if working_nodes is None else f" working={working_nodes}"
+    h.update(f"hierarchy v{ALGORITHM_VERSION} levels={levels} coarsest={coarsest}{working};".encode())
     for arr in (np.ascontiguousarray(mesh.points, np.float64), np.ascontiguousarray(mesh.cells, np.int32)):
         h.update(f"{arr.shape};".encode())
         h.update(arr.tobytes())
@@ -358,21 +420,70 @@ def _cache_key(mesh: Mesh, levels: int, coarsest: int) -> str:
 
 
 def hierarchy_for_mesh(
-    mesh: Mesh, levels: int = 5, coarsest: int = 40, cache_dir: str | Path | None = None
+    mesh: Mesh,
+    levels: int = 5,
+    coarsest: int = 40,
+    cache_dir: str | Path | None = None,
+    working_nodes: int | None = None,
 ) -> MeshHierarchy:
     """:func:`build_hierarchy` on a mesh's edges, cached in ``cache_dir`` (None: no cache).
 
-    The cache file is keyed by a hash of the points, cells, ``levels`` and
-    ``coarsest`` (and the algorithm version); an unreadable file is rebuilt.
+    ``working_nodes``: a mesh of more nodes is first clustered into that many,
+    its working graph (:mod:`learner.graph.working`), and the hierarchy built
+    on that graph with the map from the mesh attached; ``None``, or a mesh of
+    at most that many nodes: the hierarchy of the mesh itself.
+
+    The cache file is keyed by a hash of the points, cells, ``levels``,
+    ``coarsest`` and ``working_nodes`` (and the algorithm version); an
+    unreadable file is rebuilt. Without ``cache_dir`` the last
+    :data:`RECENT_HIERARCHIES` are kept in memory under the same key, so
+    personalising one mesh again (a user's mesh of 100,000 nodes takes
+    seconds to cluster) builds nothing.
     """
+    if working_nodes is not None and mesh.n_nodes <= working_nodes and len(np.unique(mesh.cells)) == mesh.n_nodes:
+        working_nodes = None  # a mesh of every node in a cell, no finer than the working graph: as it is
+    key = _cache_key(mesh, levels, coarsest, working_nodes)
     if cache_dir is None:
-        return build_hierarchy(mesh.points, mesh.edges(), levels, coarsest)
-    path = Path(cache_dir) / f"hierarchy-{_cache_key(mesh, levels, coarsest)}.npz"
+        if key not in _RECENT:
+            _RECENT[key] = _hierarchy(mesh, levels, coarsest, working_nodes)
+            while len(_RECENT) > RECENT_HIERARCHIES:
+                _RECENT.popitem(last=False)
+        _RECENT.move_to_end(key)
+        return _RECENT[key]
+    path = Path(cache_dir) / f"hierarchy-{key}.npz"
     if path.exists():
         try:
             return MeshHierarchy.load(path)
         except (InputError, OSError):
             pass  # a damaged cache entry: rebuild and overwrite it
-    hierarchy = build_hierarchy(mesh.points, mesh.edges(), levels, coarsest)
+    hierarchy = _hierarchy(mesh, levels, coarsest, working_nodes)
     hierarchy.save(path)
     return hierarchy
+
+
+def _hierarchy(mesh: Mesh, levels: int, coarsest: int, working_nodes: int | None) -> MeshHierarchy:
+    """The hierarchy of the mesh, or of its working graph of ``working_nodes`` clusters with the map attached.
+
+    On a working graph, nodes in no cell (a file's unused points) join the
+    cluster of their nearest node that is in one.
+    """
+    if working_nodes is None:
+        return build_hierarchy(mesh.points, mesh.edges(), levels, coarsest)
+    used = np.unique(mesh.cells)
+    index = np.full(mesh.n_nodes, -1, np.int64)
+    index[used] = np.arange(len(used))
+    points = mesh.points[used]
+    edges = undirected_edges(index[mesh.edges()], len(used))
+    n_comp, _ = connected_components(edge_length_graph(points, edges), directed=False)
+    if n_comp != 1:
+        raise MeshError(f"the mesh graph has {n_comp} connected components; a hierarchy needs a connected mesh")
+    if len(used) <= working_nodes:  # the mesh's own nodes (a few unused ones apart): the graph itself
+        assign, centres, working = np.arange(len(used)), points, edges
+    else:
+        assign, centres, working = cluster_graph(points, edges, working_nodes)
+    if len(used) < mesh.n_nodes:
+        unused = np.flatnonzero(index < 0)
+        index[unused] = cKDTree(points).query(mesh.points[unused])[1]
+    assign = assign[index]
+    hierarchy = build_hierarchy(centres, working, levels, coarsest)
+    return MeshHierarchy(hierarchy.graphs, hierarchy.assign, WorkingMap.of(mesh.points, assign, centres, working))

@@ -46,7 +46,7 @@ class ContextEncoder(nn.Module):
         """
         if obs.shape[1] != self.frames:
             raise ValueError(f"context sequences have {obs.shape[1]} frames, the model was built for {self.frames}")
-        obs = obs[:, :: self.stride]
+        obs, observed = hierarchy.level0_observations(obs[:, :: self.stride], observed)
         k, t, n = obs.shape
         mask = observed.to(obs.dtype).expand(k, t, n)
         x = torch.stack([obs * mask, mask], dim=-1).reshape(k * t, n, 2)

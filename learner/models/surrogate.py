@@ -122,10 +122,11 @@ class PNS(nn.Module):
         """
         n = hierarchy.graphs[0].num_nodes
         device = hierarchy.graphs[0].edge_index.device
+        level0 = hierarchy.level0_sites(sites.to(device))  # the sites' working nodes on a working graph
         x = torch.zeros(len(sites), n, 1, device=device)
-        x[torch.arange(len(sites), device=device), sites.long().to(device), 0] = 1.0
+        x[torch.arange(len(sites), device=device), level0, 0] = 1.0
         if self.config.stimulus_distance:
-            x = torch.cat([x, geodesic_distances(hierarchy.graphs[0], sites).unsqueeze(-1)], dim=-1)
+            x = torch.cat([x, geodesic_distances(hierarchy.graphs[0], level0).unsqueeze(-1)], dim=-1)
         e, levels = self.stimulus_encoder.forward_levels(x, hierarchy)
         if self.context_stimulus is not None and c is not None:
             e = e + self.context_stimulus(c)
@@ -133,7 +134,7 @@ class PNS(nn.Module):
             e = block(e, hierarchy.graphs[-1])
         gate = None
         if self.capture is not None and c is not None:
-            node = hierarchy.coarsest_cluster(sites.long().to(device))
+            node = hierarchy.coarsest_cluster(level0)
             rows = torch.arange(len(sites), device=device)
             inputs = [c[node], e[rows, node]]
             if self.config.capture_evidence:
@@ -165,6 +166,9 @@ class PNS(nn.Module):
     ) -> Tensor:
         """Predicted sequences ``(S, T, N)`` (or ``(S, len(frames), N)`` for a subset of frame indices).
 
+        ``sites`` are mesh node ids and ``N`` the mesh's nodes; on a hierarchy
+        with a working map the model runs on its working graph in between.
+
         ``evidence`` (the context set at node level) is required by a model with
         ``capture_evidence`` and ignored by every other.
         """
@@ -185,7 +189,7 @@ class PNS(nn.Module):
             z = z[:, frames]
         s, t, v, l = z.shape
         skips = [f.repeat_interleave(t, dim=0) for f in levels] if self.config.decoder_skips else None
-        x = self.decoder(z.reshape(s * t, v, l), hierarchy, skips).reshape(s, t, -1)
+        x = hierarchy.to_mesh(self.decoder(z.reshape(s * t, v, l), hierarchy, skips).reshape(s, t, -1))
         if logit is None:
             return x, None
         rest = (self.no_capture if frames is None else self.no_capture[frames]).view(1, t, 1)

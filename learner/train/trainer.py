@@ -192,7 +192,7 @@ class Trainer:
 
     def _hierarchy(self, mesh_id: str) -> MeshHierarchy:
         model = self.config.model
-        return on_device(self.view.hierarchy(mesh_id, model.levels, model.coarsest), self.device)
+        return on_device(self.view.hierarchy(mesh_id, model.levels, model.coarsest, model.working_nodes), self.device)
 
     def _last_good(self) -> str:
         """Where the last good checkpoint is, or that none was written yet."""

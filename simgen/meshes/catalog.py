@@ -14,16 +14,19 @@ from simgen.meshes.heart import load_heart
 from simgen.meshes.shapes import shape_from_params
 from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX, is_real, real_mesh_file
 
-__all__ = ["GENERATORS", "get_mesh", "source_file"]
+__all__ = ["GENERATORS", "DEFAULT_NODES", "get_mesh", "source_file"]
 
 #: Procedural geometries, each ``f(n_nodes, kind, name=...) -> Mesh``.
 GENERATORS = {"lv": lv_ellipsoid, "biv": biv_ellipsoid}
 
+#: Node count of a procedural geometry when none is given.
+DEFAULT_NODES = 2000
+
 
 def get_mesh(
     source: str,
-    n_nodes: int = 2000,
-    kind: Literal["tetra", "triangle"] = "tetra",
+    n_nodes: int | None = None,
+    kind: Literal["tetra", "triangle"] | None = None,
     name: str | None = None,
     shape_params: dict[str, Any] | None = None,
     units: str | None = None,
@@ -33,19 +36,22 @@ def get_mesh(
 ) -> Mesh:
     """A procedural geometry (``"lv"``, ``"biv"``), a shipped real mesh (``"real:<name>"``) or a mesh file.
 
-    Procedural geometries have about ``n_nodes`` nodes of cell ``kind``;
+    Procedural geometries have about ``n_nodes`` nodes (default
+    :data:`DEFAULT_NODES`) of cell ``kind`` (default tetrahedra);
     ``shape_params`` (:func:`~simgen.meshes.shapes.shape_from_params`;
     ``None``: the default geometry) apply to them only. Real meshes and files
     go through :func:`~simgen.meshes.heart.load_heart` (units, repair,
     resampling to ``n_nodes`` and ``kind``, node sets and axis), which
-    ``units``, ``landmarks`` and ``node_set_arrays`` steer; a file that is no
-    heart is refused unless ``heart=False``.
+    ``units``, ``landmarks`` and ``node_set_arrays`` steer; without
+    ``n_nodes`` they are used as they are (their own node ids and cells). A
+    file that is no heart is refused unless ``heart=False``.
     """
     if source in GENERATORS:
         if units is not None or landmarks or node_set_arrays or not heart:
             raise MeshError(
                 f"procedural mesh {source!r} takes no units, landmarks, node_set_arrays or heart = false (files do)"
             )
+        n_nodes, kind = n_nodes or DEFAULT_NODES, kind or "tetra"
         geometry = None if shape_params is None else shape_from_params(source, shape_params).geometry()
         return GENERATORS[source](n_nodes, kind, geometry=geometry, name=name or f"{source}-{kind}-{n_nodes}")
     if shape_params is not None:

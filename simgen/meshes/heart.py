@@ -5,6 +5,9 @@ file or a shipped real mesh (``"real:<name>"``):
 
 1. :func:`~simgen.meshes.io.load_mesh`: millimetres, safe repairs, validation;
 2. :func:`~simgen.meshes.resample.resample` to about ``nodes`` nodes of ``kind``;
+   without ``nodes`` the mesh is used as it is: its own nodes and cells, node
+   ids as in the file (:attr:`shared.mesh.Mesh.file_index` maps them back
+   where the repairs dropped nodes in no cell);
 3. the node sets the file carries (its own masks, or those ``node_set_arrays``
    names) are kept; when it lacks ``epicardium`` or ``endocardium``, all heart
    sets and the long axis are detected (:func:`~simgen.meshes.nodesets.detect_heart`),
@@ -12,7 +15,8 @@ file or a shipped real mesh (``"real:<name>"``):
    slab, a solid) is no heart and refused, unless ``heart=False`` accepts it
    as it is: its own sets only, nothing detected;
 4. ``landmarks`` (``apex``, ``base`` and optionally ``septum`` points in mm)
-   replace the detected long axis.
+   replace the detected long axis; a shipped mesh takes its own
+   (:data:`~simgen.meshes.shipped.REAL_LANDMARKS`) unless others are given.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from shared.mesh import CellType, LongAxis, Mesh
 from simgen.meshes.io import load_mesh
 from simgen.meshes.nodesets import detect_heart
 from simgen.meshes.resample import resample
-from simgen.meshes.shipped import REAL_PREFIX, is_real, unpacked
+from simgen.meshes.shipped import REAL_LANDMARKS, REAL_PREFIX, is_real, unpacked
 from simgen.meshes.validate import validate_mesh
 
 __all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
@@ -39,8 +43,8 @@ LANDMARKS = ("apex", "base", "septum")
 
 def load_heart(
     source: str | PathLike,
-    nodes: int,
-    kind: CellType,
+    nodes: int | None,
+    kind: CellType | None,
     name: str | None = None,
     units: str | None = None,
     landmarks: Mapping[str, Sequence[float]] | None = None,
@@ -54,6 +58,7 @@ def load_heart(
     tests and verification) without detecting anything.
     """
     if is_real(str(source)):
+        landmarks = landmarks or REAL_LANDMARKS.get(str(source).removeprefix(REAL_PREFIX))
         with unpacked(str(source)) as path:
             mesh = load_mesh(
                 path,
@@ -63,7 +68,13 @@ def load_heart(
             )
     else:
         mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays)
-    mesh = resample(mesh, nodes, kind)
+    if nodes is not None:
+        mesh = resample(mesh, nodes, kind or mesh.cell_type)
+    elif kind is not None and kind != mesh.cell_type:
+        raise MeshError(
+            f"{source} holds {mesh.cell_type}s: used as it is, it is simulated as {mesh.cell_type}s; to have "
+            f"{kind}s, give a node count to resample it to (--nodes N; resampling renumbers its nodes)"
+        )
     sets, axis = dict(mesh.node_sets), mesh.axis
     if heart and ("epicardium" not in sets or "endocardium" not in sets):
         try:
@@ -77,7 +88,7 @@ def load_heart(
         sets = {**detected, **sets}
     if landmarks:
         axis = axis_from_landmarks(landmarks, axis)
-    return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name))
+    return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name, mesh.file_index))
 
 
 def axis_from_landmarks(landmarks: Mapping[str, Sequence[float]], detected: LongAxis | None = None) -> LongAxis:

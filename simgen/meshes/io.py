@@ -99,8 +99,12 @@ def load_mesh(
         cells = orient_triangles(points, cells, where)
     node_sets = {key: np.flatnonzero(mask[kept]) for key, mask in masks.items()}
     node_sets["surface"] = np.arange(len(points)) if cells.shape[1] == 3 else np.unique(boundary_faces(cells))
+    file_index = None
+    if len(kept) < len(raw.points):  # nodes in no cell were dropped: keep the way back to the file's ids
+        file_index = np.full(len(raw.points), -1, np.int64)
+        file_index[kept] = np.arange(len(kept))
     try:
-        mesh = Mesh(points=points, cells=cells, node_sets=node_sets, axis=axis, name=name or path.stem)
+        mesh = Mesh(points, cells, node_sets, axis, name or path.stem, file_index)
         return validate_mesh(mesh)
     except MeshError as exc:
         raise MeshError(f"{path}: {exc}") from exc
@@ -117,8 +121,8 @@ def _read(path: Path) -> meshio.Mesh:
         raise MeshError(f"cannot read mesh file {path}: {reason}") from exc
 
 
-def save_mesh(mesh: Mesh, path: str | PathLike) -> Path:
-    """Write ``mesh`` with its node sets as 0/1 point data; returns the path.
+def save_mesh(mesh: Mesh, path: str | PathLike, point_data: Mapping[str, NDArray] | None = None) -> Path:
+    """Write ``mesh`` with its node sets as 0/1 point data, and any further ``point_data``; returns the path.
 
     Formats without point data (.stl, .obj, .off) keep the geometry only;
     surface-only formats refuse tetrahedral meshes.
@@ -126,12 +130,13 @@ def save_mesh(mesh: Mesh, path: str | PathLike) -> Path:
     path = Path(path)
     if mesh.cell_type == "tetra" and path.suffix.lower() in _SURFACE_ONLY:
         raise MeshError(f"cannot write {path}: {path.suffix} files hold no tetrahedra (use .vtu or .msh)")
-    point_data = {UNIT_KEY: np.ones(mesh.n_nodes, dtype=np.float32)}  # coordinates are mm
+    data = {UNIT_KEY: np.ones(mesh.n_nodes, dtype=np.float32)}  # coordinates are mm
     for key, idx in mesh.node_sets.items():
         mask = np.zeros(mesh.n_nodes, dtype=np.uint8)
         mask[idx] = 1
-        point_data[key if key in NODE_SETS else _PREFIX + key] = mask
-    raw = meshio.Mesh(mesh.points, [(mesh.cell_type, mesh.cells)], point_data=point_data)
+        data[key if key in NODE_SETS else _PREFIX + key] = mask
+    data.update(point_data or {})
+    raw = meshio.Mesh(mesh.points, [(mesh.cell_type, mesh.cells)], point_data=data)
     try:
         meshio.write(path, raw, file_format=_FORMAT.get(path.suffix.lower()))
     except Exception as exc:

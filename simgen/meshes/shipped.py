@@ -16,7 +16,7 @@ from pathlib import Path
 
 from shared.errors import MeshError
 
-__all__ = ["REAL_PREFIX", "REAL_MESHES", "REAL_DIR", "is_real", "real_mesh_file", "unpacked"]
+__all__ = ["REAL_PREFIX", "REAL_MESHES", "REAL_LANDMARKS", "REAL_DIR", "is_real", "real_mesh_file", "unpacked"]
 
 REAL_PREFIX = "real:"
 REAL_DIR = Path(__file__).parent / "real"
@@ -29,6 +29,17 @@ REAL_MESHES: dict[str, tuple[str, str]] = {
         "cobiveco_geo1_ssm_mean_surface.vtu.gz",
         "biventricular closed surface, triangles (mean of a statistical shape model)",
     ),
+}
+
+
+#: Long-axis landmarks of each shipped mesh (mm): the axis detected on the mesh resampled to 20,000 nodes
+#: (:func:`simgen.meshes.nodesets.detect_heart`; ``septum`` 30 mm from the base along angle 0). Every
+#: resolution of a shipped mesh takes this one frame, so its AHA segments, and the scars placed on them, stay
+#: where they are: detected anew on each resampled mesh the axis moves by up to 3 mm and 3 degrees.
+REAL_LANDMARKS: dict[str, dict[str, tuple[float, float, float]]] = {
+    "rodero01-lv": {"apex": (122.7, 26.5, 4.5), "base": (81.3, 83.0, 69.2), "septum": (108.3, 91.6, 79.0)},
+    "tof-biv": {"apex": (-12.1, -8.3, -72.4), "base": (6.9, 7.3, -1.5), "septum": (-9.5, -15.9, 8.0)},
+    "cobiveco-mean-biv": {"apex": (-43.6, -3.3, -51.7), "base": (-44.4, 10.4, 42.7), "septum": (-15.1, 4.0, 43.9)},
 }
 
 

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from numpy.typing import DTypeLike, NDArray
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from shared.capture import activated_fraction, started_wave
 from shared.errors import ConfigError, InputError, TissueError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
@@ -36,7 +37,7 @@ from simgen.solver.imex_kernel import Factor, factorise, run_imex
 from simgen.solver.kernels import run_blocks
 from simgen.solver.rkc_kernel import coefficients, run_blocks_rkc
 from simgen.solver.simd import LANES
-from simgen.solver.stimulus import patch_mask
+from simgen.solver.stimulus import STIMULUS_REGIONS, patch_mask
 from simgen.solver.timestep import (
     cg_iterations,
     cg_solve_cost,
@@ -51,6 +52,7 @@ from simgen.solver.timestep import (
 
 __all__ = [
     "INTEGRATORS",
+    "STIMULUS_RADIUS",
     "SolverConfig",
     "SimulationResult",
     "Assembly",
@@ -76,6 +78,10 @@ IMEX_SOLVES = ("factor", "cg")
 #: (at 5,000 nodes CG already is on the procedural LV) and factoring alone takes seconds.
 DIRECT_SOLVE_NODES = 10_000
 
+#: Default stimulus radius (mm): the patch launches a wave from every non-scar site of the procedural and real
+#: hearts at 1k to 20k nodes (bench/convergence.py; docs/method.md, Convergence).
+STIMULUS_RADIUS = 10.0
+
 #: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`),
 #: implicit-explicit SBDF2 (:mod:`simgen.solver.imex_kernel`), and the cheaper of Euler and IMEX per mesh.
 INTEGRATORS = ("euler", "rkc", "imex", "auto")
@@ -88,12 +94,17 @@ class SolverConfig:
     Defaults are scaled for the default ~2,000-node LV (mean edge ~5.4 mm):
     ``diffusivity = 100 mm^2`` per time unit gives a planar front speed of
     ``sqrt(2 k D)(1/2 - a) = 14 mm`` per time unit (1.09 m/s) spanning ~20 mm
-    (about four edges). The stimulus holds ``u = 1`` within ``stimulus_radius``
-    mm (geodesic) of the site for ``stimulus_duration`` time units (12.9 ms),
-    long enough to launch a wave from a small patch; the default radius is 1.5
-    mean edge lengths (8 mm on the default mesh), which launches a wave from
-    every node of LVs of 500 to 5,000 nodes; at 20,000 nodes it is 3.7 mm, and
-    3 of 8 random sites launch none (set ``stimulus_radius`` there, e.g. 8 mm).
+    (about four edges). The stimulus holds ``u = 1`` on a patch around the
+    site for ``stimulus_duration`` time units (12.9 ms): the tissue within
+    ``stimulus_radius`` mm, :data:`STIMULUS_RADIUS` when unset, of the shape
+    ``stimulus_region`` (:data:`~simgen.solver.stimulus.STIMULUS_REGIONS`;
+    ``None``: ``"ball"``, the Euclidean ball around the site). Both are
+    lengths in mm, so the patch is the same piece of tissue at any mesh
+    resolution, and it launches a wave from every site outside scar cores
+    at every resolution measured (docs/method.md, Convergence). Stores
+    record the radius and region that ran on each subject; subjects without
+    the region record ran ``"geodesic"`` patches (edge paths) of 1.5 mean
+    edge lengths, the default of stores built before these settings existed.
     55 frames every 0.6 time units (7.7 ms) cover 33 time units (426 ms): the
     whole activation and the start of repolarisation.
 
@@ -122,6 +133,7 @@ class SolverConfig:
     output_interval: float = 0.6
     frames: int = 55
     stimulus_radius: float | None = None
+    stimulus_region: Literal["ball", "geodesic"] | None = None
     stimulus_duration: float = 1.0
     activation_threshold: float = 0.5
     backend: Literal["numba", "torch", "auto"] | None = None
@@ -136,6 +148,10 @@ class SolverConfig:
             raise InputError(f"frames must be a positive integer, got {self.frames}")
         if self.stimulus_radius is not None and not (np.isfinite(self.stimulus_radius) and self.stimulus_radius >= 0):
             raise InputError(f"stimulus_radius must be >= 0 mm, got {self.stimulus_radius}")
+        if self.stimulus_region is not None and self.stimulus_region not in STIMULUS_REGIONS:
+            raise ConfigError(
+                f"unknown stimulus_region {self.stimulus_region!r}; allowed: {', '.join(map(repr, STIMULUS_REGIONS))}"
+            )
         if not np.isfinite(self.stimulus_duration) or self.stimulus_duration < 0:
             raise InputError(f"stimulus_duration must be >= 0 time units, got {self.stimulus_duration}")
         if not 0 < self.activation_threshold < 1:
@@ -152,9 +168,15 @@ class SolverConfig:
         """Simulated time (time units)."""
         return self.frames * self.output_interval
 
-    def radius_on(self, mesh: Mesh) -> float:
-        """The stimulus radius (mm) on ``mesh``: ``stimulus_radius``, or 1.5 mean edge lengths when unset."""
-        return 1.5 * mesh.mean_edge_length() if self.stimulus_radius is None else self.stimulus_radius
+    @property
+    def radius(self) -> float:
+        """The stimulus radius in mm: ``stimulus_radius``, or :data:`STIMULUS_RADIUS` when unset."""
+        return STIMULUS_RADIUS if self.stimulus_radius is None else self.stimulus_radius
+
+    @property
+    def region(self) -> str:
+        """The stimulus patch's shape: ``stimulus_region``, or ``"ball"`` when unset."""
+        return self.stimulus_region or STIMULUS_REGIONS[0]
 
 
 @dataclass(frozen=True)
@@ -170,6 +192,16 @@ class SimulationResult:
     u: NDArray[np.float32]
     activation: NDArray[np.float32]
     dt: float
+
+    @property
+    def activated_fraction(self) -> NDArray[np.float64]:
+        """(S,) share of the nodes each stimulus activated (:func:`shared.capture.activated_fraction`)."""
+        return activated_fraction(self.activation)
+
+    @property
+    def started_wave(self) -> NDArray[np.bool_]:
+        """(S,) whether each stimulus started a propagating wave (:func:`shared.capture.started_wave`)."""
+        return started_wave(self.activated_fraction)
 
 
 def healthy_fields(n_nodes: int, a: float = 0.15) -> TissueFields:
@@ -312,7 +344,7 @@ class Simulator:
         self._estimated_iterations = cg_iterations(self.dt, K.diagonal(), mass)
         #: Mean CG iterations per implicit solve in the last IMEX run by CG (``None`` before one).
         self.cg_iterations: float | None = None
-        self.stimulus_radius = self.config.radius_on(mesh)
+        self.stimulus_radius = self.config.radius
         self._edge_graph = edge_graph(mesh)  # for the stimulus patches of every run
 
     @property
@@ -337,12 +369,20 @@ class Simulator:
             return self._implicit.nnz * (iterations + 1.0)
         return (len(self._data) + len(self._diag)) * self.stages
 
-    def run(self, sites: NDArray[np.integer], threads: int = 1, block_size: int = BLOCK_SIZE) -> SimulationResult:
+    def run(
+        self,
+        sites: NDArray[np.integer],
+        threads: int = 1,
+        block_size: int = BLOCK_SIZE,
+        centres: NDArray[np.floating] | None = None,
+    ) -> SimulationResult:
         """Simulate every site in ``sites`` (node ids) in one batch on ``threads`` threads.
 
-        Each site excites the nodes within ``stimulus_radius`` (geodesic) of it.
+        Each site excites its patch: the nodes within ``stimulus_radius`` mm of it
+        (:func:`~simgen.solver.stimulus.patch_mask`, of ``config.region``), or of
+        its point in ``centres`` (S, 3) mm for sites given by position.
         """
-        mask = patch_mask(self.mesh, sites, self.stimulus_radius, self._edge_graph)
+        mask = patch_mask(self.mesh, sites, self.stimulus_radius, self._edge_graph, self.config.region, centres)
         return self.run_patches(mask, threads, block_size, sites=np.asarray(sites, np.int64))
 
     def run_patches(

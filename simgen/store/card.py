@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 import zarr
 
+from shared.capture import started_wave
 from shared.mesh import Mesh
 from shared.reader import check_store
 from shared.schema import METADATA_VERSION, subject_path
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
 from simgen.meshes.quality import mesh_quality
 from simgen.store import location
-from simgen.store.metadata import simulation_attrs
+from simgen.store.metadata import LEGACY_REGION, recorded_scar_border, simulation_attrs
 from simgen.store.spec import spec_from_mapping
 from simgen.store.structure import refuse_damaged
 
@@ -93,6 +94,20 @@ def _span(values) -> str:
     """``"a"`` or ``"a-b"`` (``:g`` format) over ``values``."""
     lo, hi = min(values), max(values)
     return f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
+
+
+#: How the card names each scar border rule (:data:`simgen.tissue.fields.SCAR_BORDERS`).
+_BORDER_TEXT = {"boundary": "the core's boundary", "nodes": "the core's nodes"}
+
+
+def _no_wave(facts: StoreFacts) -> str:
+    """``"3 of 120 (2.5%)"`` from the subjects' ``capture`` attributes, or the missing-record note."""
+    recorded = [s["capture"]["activated_fraction"] for s in facts.subjects.values() if s.get("capture")]
+    if len(recorded) < len(facts.subjects):
+        return facts.missing()
+    total = sum(len(f) for f in recorded)
+    none = sum(int((~started_wave(f)).sum()) for f in recorded)
+    return f"{none} of {total} ({100 * none / max(total, 1):.1f}%)"
 
 
 def _tally(words: list[str]) -> str:
@@ -177,6 +192,7 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         return _span([s[key] for s in solvers]) if solvers else facts.missing()
 
     radius = sim["stimulus_radius"]
+    legacy = any("stimulus_region" not in s for s in solvers)  # built before the radius default was in mm
     spec_integrator = facts.attrs["spec"]["solver"].get("integrator") or "euler"  # stores without the record
     rows = [
         ("diffusivity (mm2 per time unit)", f"{sim['diffusivity']:g}"),
@@ -185,12 +201,15 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         ("solver steps per frame", resolved("steps_per_frame")),
         (
             "stimulus radius (mm, per mesh)",
-            resolved("stimulus_radius") + (" (1.5 mean edge lengths)" if solvers and radius is None else ""),
+            resolved("stimulus_radius") + (" (1.5 mean edge lengths)" if solvers and legacy and radius is None else ""),
         ),
+        ("stimulus patch (subjects)", _tally([s.get("stimulus_region", LEGACY_REGION) for s in solvers])),
         ("stimulus duration (time units)", f"{sim['stimulus_duration']:g}"),
+        ("scar border zones measured from", _BORDER_TEXT[recorded_scar_border(facts.attrs)]),
         ("activation threshold (u)", f"{sim['activation_threshold']:g}"),
         ("output interval (time units)", f"{sim['output_interval']:g}"),
         ("frames", sim["frames"]),
+        ("simulations that start no wave (stimulus in a scar core)", _no_wave(facts)),
     ]
     settings: dict[str, list[str]] = {}
     for subject_id, attrs in facts.subjects.items():

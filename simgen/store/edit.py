@@ -57,7 +57,7 @@ from simgen.store.layout import (
 from simgen.store.location import store_location
 from simgen.store.lock import StoreLock
 from simgen.store.manifest import Plan, Subject, Task, entry_mesh, select_sites, sock_electrodes, validate_plan
-from simgen.store.metadata import provenance
+from simgen.store.metadata import provenance, recorded_scar_border
 from simgen.store.runner import BuildReport, run_pending
 from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection, spec_from_mapping
 from simgen.store.structure import refuse_damaged
@@ -204,7 +204,7 @@ def add_subject(
         # Everything that can fail, before anything is written (as validate_plan does for a build).
         selection = sites if sites is not None else spec.sites
         plan = addition_plan(spec, mesh, settings, selection)
-        setups = validate_plan(plan)
+        setups = validate_plan(plan, recorded_scar_border(dict(root.attrs)))
         record = {
             "mesh": spec_dict_of(mesh),
             "mesh_sha256": _file_sha256(mesh.source),

@@ -20,6 +20,7 @@ from pathlib import Path
 import zarr
 from zarr.errors import ZarrUserWarning
 
+from shared.capture import started_wave
 from shared.errors import InputError
 from shared.integrity import SubjectReader
 from shared.reader import implied_subject_ids
@@ -43,6 +44,7 @@ class SubjectStatus:
     sites: int
     damaged: int = 0  # done chunks that fail the readers' check
     missing: bool = False  # implied by the recorded spec, not in the store (or unreadable)
+    no_wave: int | None = None  # sites whose stimulus starts no wave (None: not recorded, or chunks pending)
 
 
 @dataclass
@@ -79,7 +81,17 @@ def _subject_row(store: str, root: zarr.Group, subject_id: str, version: int, he
             damaged += 1
             health.problems.append(f"subject {subject_id}: chunk {chunk} unreadable ({type(exc).__name__}: {exc})")
     sound = int(done.sum()) - damaged
-    health.rows.append(SubjectStatus(subject_id, mesh_id, len(done), sound, reader.n_sites, damaged))
+    health.rows.append(
+        SubjectStatus(subject_id, mesh_id, len(done), sound, reader.n_sites, damaged, no_wave=_no_wave(g.attrs))
+    )
+
+
+def _no_wave(attrs) -> int | None:
+    """The number of sites whose stimulus started no wave, from the subject's ``capture`` attribute."""
+    capture = attrs.get("capture")
+    if not isinstance(capture, dict) or not isinstance(capture.get("activated_fraction"), list):
+        return None
+    return int((~started_wave(capture["activated_fraction"])).sum())
 
 
 def store_health(store: str | Path) -> StoreHealth:

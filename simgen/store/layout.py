@@ -28,6 +28,7 @@ from zarr.core.metadata import ArrayV3Metadata
 from zarr.core.sync import sync
 from zarr.storage import MemoryStore
 
+from shared.capture import activated_fraction
 from shared.cli import PATH_ERRNOS
 from shared.config import to_mapping
 from shared.errors import InputError
@@ -474,11 +475,15 @@ def pending_tasks(path: str | Path, subjects: list[str] | None = None) -> list[T
 
 
 def write_statistics(path: str | Path, subjects: list[str] | None = None) -> dict | None:
-    """Set the ``statistics`` attribute of ``subjects`` (default: all) from their chunk moments; the store's.
+    """Set the ``statistics`` and ``capture`` attributes of ``subjects`` (default: all); return the store's statistics.
 
-    A subject with a pending chunk gets ``None``, and so does the store while
-    any subject has one (:mod:`simgen.store.stats`). An attribute is written
-    only when it changes: other subjects' metadata stay untouched.
+    ``statistics`` come from the subjects' chunk moments (:mod:`simgen.store.stats`);
+    ``capture`` is ``{"activated_fraction": [...]}``, the share of the nodes
+    each site's simulation activates, from which readers tell the sites that
+    start no wave (:mod:`shared.capture`). A subject with a pending chunk gets
+    ``None`` for both, and so does the store's statistics while any subject has
+    one. An attribute is written only when it changes: other subjects' metadata
+    stay untouched.
     """
     root = zarr.open_group(str(path), mode="r+", use_consolidated=False)
     ids = subject_ids(path)
@@ -487,13 +492,22 @@ def write_statistics(path: str | Path, subjects: list[str] | None = None) -> dic
         g = root[subject_path(subject_id)]
         return g["moments"][...] if g["done"][...].all() else None
 
+    def capture(subject_id: str) -> dict | None:
+        if moments[subject_id] is None:
+            return None
+        fraction = activated_fraction(root[subject_path(subject_id)]["activation"][...])
+        return {"activated_fraction": [round(float(f), 4) for f in fraction]}
+
     with ThreadPoolExecutor(IO_THREADS) as pool:
         moments = dict(zip(ids, pool.map(done_moments, ids)))
-    for subject_id in ids if subjects is None else subjects:
-        value = None if moments[subject_id] is None else statistics(moments[subject_id])
+        chosen = ids if subjects is None else subjects
+        captures = dict(zip(chosen, pool.map(capture, chosen)))
+    for subject_id in chosen:
         attrs = root[subject_path(subject_id)].attrs
-        if "statistics" not in attrs or attrs["statistics"] != value:
-            attrs["statistics"] = value
+        value = None if moments[subject_id] is None else statistics(moments[subject_id])
+        for name, new in (("statistics", value), ("capture", captures[subject_id])):
+            if name not in attrs or attrs[name] != new:
+                attrs[name] = new
     if any(m is None for m in moments.values()):
         return None
     return statistics(np.concatenate(list(moments.values())))

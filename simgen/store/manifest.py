@@ -35,7 +35,7 @@ from simgen.observe.sock import Sock, farthest_point_sampling
 from simgen.solver.fem import element_gradients
 from simgen.solver.simulate import assemble
 from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection
-from simgen.tissue.fields import tissue_fields
+from simgen.tissue.fields import SCAR_BORDERS, tissue_fields
 
 __all__ = ["Subject", "SubjectSetup", "Task", "Plan", "make_plan", "validate_plan", "select_sites", "sock_electrodes"]
 
@@ -201,8 +201,12 @@ def make_plan(spec: BuildSpec) -> Plan:
     return Plan(spec, meshes, sites, electrodes, subjects, tasks)
 
 
-def validate_plan(plan: Plan) -> dict[str, SubjectSetup]:
+def validate_plan(plan: Plan, scar_border: str = SCAR_BORDERS[0]) -> dict[str, SubjectSetup]:
     """Check every subject before anything is written; its tissue fields and solver settings, by subject id.
+
+    ``scar_border``: where border zones are measured from
+    (:data:`~simgen.tissue.fields.SCAR_BORDERS`): a new store's default, or the
+    rule an existing store recorded (:func:`~simgen.store.metadata.recorded_scar_border`).
 
     Builds the tissue fields (:class:`~shared.errors.TissueError`) and
     assembles the operator of every subject (largest eigenvalue and time step:
@@ -224,11 +228,11 @@ def validate_plan(plan: Plan) -> dict[str, SubjectSetup]:
             per_mesh[subject.mesh_id] = element_gradients(mesh.points, mesh.cells), edge_graph(mesh)
         geometry, graph = per_mesh[subject.mesh_id]
         try:
-            fields = tissue_fields(mesh, subject.tissue, graph=graph)
+            fields = tissue_fields(mesh, subject.tissue, graph=graph, border=scar_border)
             assembly = assemble(mesh, fields, solver, geometry)
         except InputError as exc:
             raise type(exc)(f"subject {subject.id!r} (mesh {subject.mesh_id!r}): {exc}") from exc
         setups[subject.id] = SubjectSetup(
-            fields, assembly.dt, assembly.steps_per_frame, solver.radius_on(mesh), assembly.integrator
+            fields, assembly.dt, assembly.steps_per_frame, solver.radius, assembly.integrator
         )
     return setups

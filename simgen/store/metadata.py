@@ -17,11 +17,28 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from shared.errors import ConfigError
+from shared.mesh import Mesh
+from shared.reader import read_integrator, subject_attrs
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
 from simgen.solver.simulate import SolverConfig
 from simgen.store.manifest import SubjectSetup
+from simgen.tissue.fields import SCAR_BORDERS
 
-__all__ = ["PACKAGE", "AP_EQUATIONS", "provenance", "simulation_attrs", "solver_attrs"]
+__all__ = [
+    "PACKAGE",
+    "AP_EQUATIONS",
+    "provenance",
+    "simulation_attrs",
+    "solver_attrs",
+    "recorded_solver",
+    "recorded_scar_border",
+]
+
+#: The stimulus of subjects whose ``solver`` attribute names no ``stimulus_region`` (stores built before it
+#: existed): edge-path patches of this many mean edge lengths where no radius is recorded either.
+LEGACY_REGION, LEGACY_EDGES = "geodesic", 1.5
+#: The scar border rule of stores whose ``simulation`` attribute names none (built before it existed).
+LEGACY_SCAR_BORDER = "nodes"
 
 #: The distribution that writes stores.
 PACKAGE = "metapns"
@@ -89,6 +106,7 @@ def simulation_attrs(solver: SolverConfig) -> dict:
         "stimulus_radius": solver.stimulus_radius,
         "stimulus_duration": solver.stimulus_duration,
         "activation_threshold": solver.activation_threshold,
+        "scar_border": SCAR_BORDERS[0],
         "output_interval": solver.output_interval,
         "frames": solver.frames,
         "units": {
@@ -108,5 +126,31 @@ def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
         "dt": setup.dt,
         "steps_per_frame": setup.steps_per_frame,
         "stimulus_radius": setup.stimulus_radius,
+        "stimulus_region": solver.region,
         "stimulus_duration": solver.stimulus_duration,
     }
+
+
+def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mesh) -> SolverConfig:
+    """``solver`` as it ran on the subject (``mesh`` its mesh): its recorded integrator and stimulus.
+
+    A resumed build, a repair and ``verify`` simulate with these, so a store
+    keeps its results whatever the defaults of the code that resumes it.
+    Subjects recorded before a setting existed ran its legacy value: forward
+    Euler (:func:`~shared.reader.read_integrator`) and edge-path patches of
+    :data:`LEGACY_EDGES` mean edge lengths.
+    """
+    record = subject_attrs(store, subject_id).get("solver") or {}
+    radius = record.get("stimulus_radius")
+    return dataclasses.replace(
+        solver,
+        integrator=read_integrator(store, subject_id),
+        stimulus_radius=LEGACY_EDGES * mesh.mean_edge_length() if radius is None else radius,
+        stimulus_region=record.get("stimulus_region", LEGACY_REGION),
+    )
+
+
+def recorded_scar_border(attrs: dict) -> str:
+    """Where a store's border zones are measured from (:data:`~simgen.tissue.fields.SCAR_BORDERS`), from its
+    root attributes ``attrs``: subjects added to it or repaired get the fields of the rule its others have."""
+    return (attrs.get("simulation") or {}).get("scar_border", LEGACY_SCAR_BORDER)

@@ -44,6 +44,7 @@ from simgen.store.layout import check_store, layout_attrs, remove_partials, writ
 from simgen.store.location import remove, store_location
 from simgen.store.lock import StoreLock
 from simgen.store.manifest import Plan, make_plan, validate_plan
+from simgen.store.metadata import recorded_scar_border
 from simgen.store.runner import BuildReport, run_pending
 from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection, load_spec, spec_from_mapping, spec_hash, spec_to_dict
 from simgen.store.structure import Damage, Recorded, StoreDamaged, recorded_structure, structure_damage
@@ -160,7 +161,7 @@ def _restore_root(store: str, spec_file: Path | None, report: RepairReport) -> N
         return
     recorded = recorded_structure(restored)
     plan = _recorded_plan(recorded, restored, set(recorded.sites), set(recorded.subjects))
-    validate_plan(plan)
+    validate_plan(plan, recorded_scar_border(restored))
     if "spec" in missing:
         _check_fits(store, plan, spec_file)
     if attrs is None:
@@ -205,7 +206,7 @@ def _mend_structure(store: str, damage: list[Damage], report: RepairReport) -> N
     meshes = _named(sound, "meshes", list(recorded.sites))
     subjects = _named(sound, "subjects", list(recorded.subjects))
     plan = _recorded_plan(recorded, attrs, meshes, subjects)
-    setups = validate_plan(plan)
+    setups = validate_plan(plan, recorded_scar_border(attrs))
     for d in damage:
         if d.extra:
             _remove_tree(root, f"{d.group}/{d.array}".strip("/"))

@@ -17,14 +17,13 @@ so any difference means the stored chunk is not what the spec produces.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from shared.reader import read_integrator
 from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
 from shared.units import U_RANGE
 from simgen.solver.backends import BACKEND_TOLERANCE
@@ -32,6 +31,7 @@ from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig
 from simgen.store.fingerprint import chunk_fingerprint
 from simgen.store.layout import check_store, read_mesh, read_sites, read_tissue
 from simgen.store.location import store_location
+from simgen.store.metadata import recorded_solver
 from simgen.store.stats import chunk_moments, statistics
 from simgen.store.structure import Damage, read_done, read_failure, recorded_structure, structure_damage
 
@@ -185,8 +185,9 @@ def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: Solve
     for ref in refs:
         if ref.subject_id not in sims:
             mesh_id = root[subject_path(ref.subject_id)].attrs["mesh_id"]
-            recorded = replace(solver, integrator=read_integrator(store, ref.subject_id))
-            sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, ref.subject_id), recorded, backend="numba")
+            mesh = read_mesh(store, mesh_id)
+            recorded = recorded_solver(store, ref.subject_id, solver, mesh)
+            sim = Simulator(mesh, read_tissue(store, ref.subject_id), recorded, backend="numba")
             sims = {ref.subject_id: (sim, read_sites(store, mesh_id))}  # keep one subject's operator
         sim, sites = sims[ref.subject_id]
         result = sim.run(sites[ref.start : ref.stop], threads=1)

@@ -14,17 +14,16 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import zarr
 
-from shared.reader import read_integrator
 from shared.schema import subject_path
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.store.layout import ResultArrays, read_mesh, read_sites, read_tissue, result_arrays, write_chunk
+from simgen.store.metadata import recorded_solver
 
 __all__ = ["Prepared", "prepare", "run_task", "BackgroundWriter", "flush_writes", "SUBJECTS_KEPT"]
 
@@ -47,8 +46,8 @@ def prepare(store: str, subject_id: str, solver: SolverConfig) -> Prepared:
     key = (store, zarr.open_group(store, mode="r").attrs["spec_hash"], subject_id, solver)
     if key not in _CACHE:
         mesh_id = zarr.open_group(store, path=subject_path(subject_id), mode="r").attrs["mesh_id"]
-        recorded = replace(solver, integrator=read_integrator(store, subject_id))  # the subject's, not "auto"
-        sim = Simulator(read_mesh(store, mesh_id), read_tissue(store, subject_id), recorded)
+        mesh = read_mesh(store, mesh_id)
+        sim = Simulator(mesh, read_tissue(store, subject_id), recorded_solver(store, subject_id, solver, mesh))
         _CACHE[key] = Prepared(sim, read_sites(store, mesh_id), result_arrays(store, subject_id))
         while len(_CACHE) > SUBJECTS_KEPT:
             _CACHE.popitem(last=False)

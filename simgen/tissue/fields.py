@@ -3,7 +3,18 @@
 Each scar has a *core* (its region: AHA segments or a Euclidean ball) and a
 *border zone*: the non-core nodes within ``border_width`` mm of the core,
 measured as the shortest path along mesh edges (a geodesic distance, so a
-border does not jump across the LV cavity or between walls).
+border does not jump across the LV cavity or between walls). Where the
+distance starts is :data:`SCAR_BORDERS`' choice:
+
+- ``"boundary"`` (the default): the core's boundary, which a nodal field
+  places halfway along each edge that leaves the core. A node next to the
+  core is half an edge from it, so a border of 5 mm is one ring of nodes on
+  a mesh of 7 mm edges and two rings at 2.5 mm: the band is about as wide
+  at every resolution.
+- ``"nodes"``: the core's nodes. A border narrower than an edge then holds
+  no node at all on a coarse mesh (the 5 mm border of the default scars
+  vanishes at 1,000 nodes); stores built before ``"boundary"`` existed used
+  it, and record no ``scar_border`` in their ``simulation`` attribute.
 
 Overlaps: a core beats any border; among cores, and among borders, the
 material with the higher ``a`` wins (ties: the lower ``D``).
@@ -30,7 +41,10 @@ from shared.tissue import (
 from simgen.meshes.topology import edge_graph
 from simgen.tissue.aha import aha_segments
 
-__all__ = ["tissue_fields", "scar_regions"]
+__all__ = ["SCAR_BORDERS", "tissue_fields", "scar_regions"]
+
+#: Where a border zone's width is measured from; the first is the default (module docstring).
+SCAR_BORDERS = ("boundary", "nodes")
 
 
 def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | None) -> NDArray[np.bool_]:
@@ -53,14 +67,17 @@ def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | N
 
 
 def scar_regions(
-    mesh: Mesh, spec: TissueSpec, graph: sp.csr_matrix | None = None
+    mesh: Mesh, spec: TissueSpec, graph: sp.csr_matrix | None = None, border: str = SCAR_BORDERS[0]
 ) -> list[tuple[NDArray[np.bool_], NDArray[np.bool_]]]:
     """``(core, border)`` boolean node masks of every scar, before overlap rules.
 
     ``graph``: the mesh's :func:`~simgen.meshes.topology.edge_graph`, when the
-    caller has it. Raises :class:`TissueError` naming the scar for an empty
-    region or an out-of-range sphere node.
+    caller has it. ``border``: where the border width is measured from
+    (:data:`SCAR_BORDERS`). Raises :class:`TissueError` naming the scar for an
+    empty region or an out-of-range sphere node.
     """
+    if border not in SCAR_BORDERS:
+        raise TissueError(f"unknown scar border measure {border!r}; use one of {list(SCAR_BORDERS)}")
     segments = None
     if any(s.region == "segments" for s in spec.scars):
         segments = aha_segments(mesh)
@@ -69,16 +86,40 @@ def scar_regions(
     regions = []
     for i, scar in enumerate(spec.scars):
         core = _core(mesh, scar, i, segments)
-        border = np.zeros_like(core)
+        band = np.zeros_like(core)
         if scar.border_width > 0:
-            dist = dijkstra(graph, directed=False, indices=np.flatnonzero(core), limit=scar.border_width, min_only=True)
-            border = np.isfinite(dist) & ~core
-        regions.append((core, border))
+            distance = _from_boundary if border == "boundary" else _from_nodes
+            band = (distance(graph, core, scar.border_width) <= scar.border_width) & ~core
+        regions.append((core, band))
     return regions
 
 
+def _from_nodes(graph: sp.csr_matrix, core: NDArray[np.bool_], limit: float) -> NDArray[np.float64]:
+    """Edge-path distance (mm) of every node from the nearest core node (inf beyond ``limit``)."""
+    return dijkstra(graph, directed=False, indices=np.flatnonzero(core), limit=limit, min_only=True)
+
+
+def _from_boundary(graph: sp.csr_matrix, core: NDArray[np.bool_], limit: float) -> NDArray[np.float64]:
+    """Edge-path distance (mm) of every node from the core's boundary, halfway along the edges that leave
+    the core (inf beyond ``limit``): a shortest-path search from one extra node joined to each node next
+    to the core by half of its shortest edge into the core."""
+    n = graph.shape[0]
+    edges = graph.tocoo()
+    leaving = core[edges.row] & ~core[edges.col]
+    start = np.full(n, np.inf)
+    np.minimum.at(start, edges.col[leaving], 0.5 * edges.data[leaving])
+    rim = np.flatnonzero(np.isfinite(start))
+    link = sp.csr_matrix((start[rim], (np.zeros(len(rim), np.int64), rim)), shape=(1, n))
+    joined = sp.bmat([[graph, link.T], [link, None]], format="csr")
+    return dijkstra(joined, directed=False, indices=n, limit=limit)[:n]
+
+
 def tissue_fields(
-    mesh: Mesh, spec: TissueSpec, max_scar_fraction: float = 0.5, graph: sp.csr_matrix | None = None
+    mesh: Mesh,
+    spec: TissueSpec,
+    max_scar_fraction: float = 0.5,
+    graph: sp.csr_matrix | None = None,
+    border: str = SCAR_BORDERS[0],
 ) -> TissueFields:
     """Per-node tissue fields of ``spec`` on ``mesh``.
 
@@ -90,6 +131,7 @@ def tissue_fields(
         or together) cover more than this fraction of the nodes.
     graph : the mesh's :func:`~simgen.meshes.topology.edge_graph` (border zones),
         computed here if not given.
+    border : where border widths are measured from (:data:`SCAR_BORDERS`).
 
     Returns
     -------
@@ -109,7 +151,7 @@ def tissue_fields(
     a = np.full(n, spec.healthy.a, dtype=np.float64)
     D = np.full(n, spec.healthy.D, dtype=np.float64)
     label = np.full(n, LABEL_HEALTHY, dtype=np.int8)
-    regions = scar_regions(mesh, spec, graph)
+    regions = scar_regions(mesh, spec, graph, border)
 
     limit = max_scar_fraction * n
     for i, (core, border) in enumerate(regions):

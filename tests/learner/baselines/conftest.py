@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import zarr
 
-from learner.personalize import Observations
+from learner.observations import Observations
 from shared.mesh import Mesh
 from shared.reader import read_mesh, read_sites
 from shared.simulator import SimulatorPlugin, load_simulator

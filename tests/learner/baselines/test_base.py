@@ -11,7 +11,7 @@ import pytest
 
 import learner
 from learner.baselines import FSBO, VAEBO, diffusivity_from_excitability, fields_from_excitability
-from learner.personalize import Observations
+from learner.observations import Observations
 from shared.errors import InputError
 
 FAST = {"restarts": 4, "raw_samples": 64}
@@ -83,7 +83,7 @@ def test_empty_nan_or_mismatched_observations_are_refused(lv, context):
         baseline.fit(holed, lv.solver)
     with pytest.raises(InputError, match="simulates 10 frames but the observations have 12"):
         baseline.fit(context, {**lv.solver, "frames": 10})
-    with pytest.raises(InputError, match="must be learner.personalize.Observations"):
+    with pytest.raises(InputError, match="must be learner.observations.Observations"):
         baseline.fit(context.obs, lv.solver)
     assert baseline.result is None
 

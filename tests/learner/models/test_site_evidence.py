@@ -89,7 +89,8 @@ def test_the_gate_reads_the_evidence_at_the_site_only(tiny_store):
 
 def test_a_personalised_model_keeps_its_evidence(tiny_store, tiny_config, tmp_path):
     """`learner personalize` stores the context's evidence: `predict` then equals generate with the live context."""
-    from learner.personalize import observations_from_store, personalize, predict
+    from learner.observations import observations_from_store
+    from learner.personalized import personalize, predict
     from learner.train.trainer import Trainer, load_model
 
     model_keys = {"capture_gate": True, "capture_evidence": True}

@@ -91,6 +91,7 @@ def test_root_and_subject_attributes_record_model_solver_and_provenance(referenc
             "dt": sim.dt,
             "steps_per_frame": sim.steps_per_frame,
             "stimulus_radius": sim.stimulus_radius,
+            "stimulus_region": "ball",
             "stimulus_duration": 1.0,
         }
         assert g.attrs["split"] == canonical_part(subject.id)
@@ -129,3 +130,46 @@ def test_statistics_describe_the_data(reference_store):
             assert _close(stats[name], _described(values)), (subject_id, name)
     stats = read_statistics(reference_store)
     assert all(_close(stats[name], _described(np.concatenate(data[name]))) for name in data)
+
+
+def test_subjects_simulate_with_the_stimulus_they_recorded_whatever_the_defaults(tmp_path):
+    """Stores built before the stimulus was in mm record no region (edge-path patches) and, in version 1,
+    no radius either (1.5 mean edge lengths): a resume, a repair and verify simulate with those."""
+    from dataclasses import replace
+
+    from simgen.meshes.ellipsoid import lv_ellipsoid
+    from simgen.solver.simulate import SolverConfig
+    from simgen.store.metadata import recorded_solver
+
+    mesh = lv_ellipsoid(500, "tetra")
+    root = zarr.open_group(tmp_path / "old.zarr", mode="w")
+    root.attrs["spec"] = {"solver": {"frames": 4}}
+    group = root.create_group("subjects/lv-healthy")
+
+    def recorded(solver: dict) -> SolverConfig:
+        group.attrs["solver"] = solver
+        return recorded_solver(str(tmp_path / "old.zarr"), "lv-healthy", SolverConfig(frames=4), mesh)
+
+    old = recorded({"dt": 0.02, "steps_per_frame": 30, "stimulus_radius": 8.1})
+    assert (old.integrator, old.stimulus_radius, old.region) == ("euler", 8.1, "geodesic")
+    oldest = recorded({"dt": 0.02, "steps_per_frame": 30})
+    assert oldest.stimulus_radius == pytest.approx(1.5 * mesh.mean_edge_length()) and oldest.region == "geodesic"
+    new = recorded({"integrator": "imex", "stimulus_radius": 10.0, "stimulus_region": "ball", "dt": 0.05})
+    assert new == replace(SolverConfig(frames=4), integrator="imex", stimulus_radius=10.0, stimulus_region="ball")
+
+
+def test_verify_recomputes_with_the_recorded_stimulus(tmp_path, reference_store):
+    """A subject whose record is changed to another patch no longer verifies: verify reads the record."""
+    import shutil
+
+    from simgen.store.verify import verify_store
+
+    store = tmp_path / "copy.zarr"
+    shutil.copytree(reference_store, store)
+    group = zarr.open_group(str(store), path="subjects/lv-healthy", mode="r+")
+    solver = dict(group.attrs["solver"])
+    del solver["stimulus_region"]  # as a store built before the ball: edge-path patches
+    group.attrs["solver"] = solver
+    report = verify_store(str(store), sample=100)
+    assert report.chunks_recomputed and report.problems
+    assert all("lv-healthy" in str(p) and "recomputation" in str(p) for p in report.problems), report.problems

@@ -18,13 +18,18 @@ def lv(request: pytest.FixtureRequest) -> Mesh:
     return lv_ellipsoid(2000, request.param)
 
 
-def _geodesic(mesh: Mesh, sources: np.ndarray) -> np.ndarray:
-    """Multi-source shortest path along edges by Bellman-Ford relaxation (reference)."""
+def _geodesic(mesh: Mesh, core: np.ndarray, boundary: bool = True) -> np.ndarray:
+    """Shortest path along edges from the core by Bellman-Ford relaxation (reference): from its nodes, or from
+    its boundary, halfway along each edge that leaves it."""
     e = mesh.edges()
     w = np.linalg.norm(mesh.points[e[:, 0]] - mesh.points[e[:, 1]], axis=1)
     i, j, w = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]), np.concatenate([w, w])
     dist = np.full(mesh.n_nodes, np.inf)
-    dist[sources] = 0.0
+    if boundary:
+        leaving = core[i] & ~core[j]
+        np.minimum.at(dist, j[leaving], 0.5 * w[leaving])
+    else:
+        dist[core] = 0.0
     while True:
         new = dist.copy()
         np.minimum.at(new, j, dist[i] + w)
@@ -51,8 +56,9 @@ def test_custom_healthy_material(lv: Mesh) -> None:
     assert np.all(f.a == 0.2) and np.all(f.D == 0.8)
 
 
+@pytest.mark.parametrize("border_rule", ["boundary", "nodes"])
 @pytest.mark.parametrize("by", ["node", "centre"])
-def test_sphere_core_and_border_distances(lv: Mesh, by: str) -> None:
+def test_sphere_core_and_border_distances(lv: Mesh, by: str, border_rule: str) -> None:
     node = _equator_node(lv)
     centre = lv.points[node] + np.array([1.0, 2.0, 0.5])
     radius, width = 12.0, 6.0
@@ -61,11 +67,11 @@ def test_sphere_core_and_border_distances(lv: Mesh, by: str) -> None:
         if by == "node"
         else ScarSpec(region="sphere", centre=tuple(centre), radius=radius, border_width=width)
     )
-    f = tissue_fields(lv, TissueSpec(name="s", scars=(scar,)))
+    f = tissue_fields(lv, TissueSpec(name="s", scars=(scar,)), border=border_rule)
     origin = lv.points[node] if by == "node" else centre
     core = np.linalg.norm(lv.points - origin, axis=1) <= radius
     np.testing.assert_array_equal(f.label == LABEL_CORE, core)
-    geo = _geodesic(lv, np.flatnonzero(core))
+    geo = _geodesic(lv, core, boundary=border_rule == "boundary")
     border = ~core & (geo <= width)
     np.testing.assert_array_equal(f.label == LABEL_BORDER, border)
     assert border.sum() > 10
@@ -114,7 +120,7 @@ def test_overlap_rules(lv: Mesh) -> None:
     for name in ("a", "D", "label"):
         np.testing.assert_array_equal(getattr(f, name), getattr(g, name))
     d = np.linalg.norm(lv.points - lv.points[node], axis=1)
-    geo_big, geo_small = _geodesic(lv, np.flatnonzero(d <= 10.0)), _geodesic(lv, np.flatnonzero(d <= 5.0))
+    geo_big, geo_small = _geodesic(lv, d <= 10.0), _geodesic(lv, d <= 5.0)
     # Cores win over borders; the small core lies in the big core: the higher a wins.
     core = d <= 10.0
     np.testing.assert_array_equal(f.label == LABEL_CORE, core)
@@ -188,3 +194,21 @@ def test_no_conduction_anywhere_is_refused_naming_the_setting(lv: Mesh) -> None:
         tissue_fields(lv, blocked)
     scar = ScarSpec(region="sphere", node=0, radius=5.0, core=Material(a=0.5, D=0.2))
     assert tissue_fields(lv, dataclasses.replace(blocked, scars=(scar,))).D.max() == 0.2  # some conduction
+
+
+def test_a_border_measured_from_the_core_boundary_is_as_wide_at_every_resolution() -> None:
+    """The default scars' 5 mm border: from the core's boundary its share of the heart stays about the same from
+    1,000 to 10,000 nodes; from the core's nodes (stores built before) it loses 40% at 1,000 nodes, whose 7.7 mm
+    edges leave few nodes within 5 mm of a core node."""
+    scar = ScarSpec(region="segments", segments=(8, 9), border_width=5.0)
+    spec = TissueSpec(name="septal", scars=(scar,))
+    shares = {}
+    for nodes in (1000, 10_000):
+        mesh = lv_ellipsoid(nodes, "tetra")
+        for rule in ("boundary", "nodes"):
+            label = tissue_fields(mesh, spec, border=rule).label
+            shares[nodes, rule] = (label == LABEL_BORDER).sum() / (label == LABEL_CORE).sum()
+    assert shares[1000, "nodes"] < 0.65 * shares[10_000, "nodes"]
+    assert 0.85 < shares[1000, "boundary"] / shares[10_000, "boundary"] < 1.2
+    with pytest.raises(TissueError, match="border"):
+        tissue_fields(lv_ellipsoid(500, "tetra"), spec, border="cells")

@@ -1,0 +1,334 @@
+"""A personalised heart: a trained metaPNS fitted to one subject's recordings, predicting new pacing sites.
+
+:func:`personalize` embeds a subject's context set (:class:`~learner.observations.Observations`)
+once and returns a :class:`PersonalizedHeart`, which keeps everything a
+prediction needs in memory: the model on its device, the context embedding
+``c``, the mesh and its graph hierarchy (with the working-graph map of a model
+that has one, :mod:`learner.graph.working`), and the geodesic distance rows of
+the sites already asked for. :meth:`PersonalizedHeart.predict` then costs one
+pass of the generator. A heart saved to a file (:meth:`PersonalizedHeart.save`)
+holds the same, hierarchy included, so a new process loads it without building
+anything.
+
+Recordings whose stimulus started no wave (:mod:`shared.capture`) are left out
+of the context set, each named in :attr:`PersonalizedHeart.dropped`, and a
+prediction says which of its sites start none (:attr:`Prediction.started_wave`).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from learner.config import config_from_mapping
+from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
+from learner.models.site_evidence import SiteEvidence
+from learner.models.surrogate import MetaPNS, Posterior, build_model
+from learner.observations import Observations
+from learner.refine import Refinement, refine_context
+from learner.runtime import resolve_device
+from learner.train.checkpoint import load_checkpoint, save_checkpoint
+from learner.train.trainer import load_model
+from shared.capture import recorded_fraction, started_wave
+from shared.errors import InputError
+from shared.mesh import Mesh
+from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes, region_nodes
+from shared.units import MS_PER_TIME_UNIT
+
+__all__ = ["NoWaveWarning", "Prediction", "PersonalizedHeart", "personalize", "predict", "write_vtk", "plot_prediction"]
+
+
+class NoWaveWarning(UserWarning):
+    """Recordings left out of a context set because their stimulus started no wave."""
+
+
+@dataclass
+class Prediction:
+    """Predicted sequences of a personalised heart at ``sites`` (mesh node ids).
+
+    ``activated``: (S,) the share of the mesh's nodes each predicted sequence
+    activates (``u`` reaches 0.5); :attr:`started_wave` reads it.
+    """
+
+    sites: np.ndarray  # (S,)
+    u: np.ndarray  # (S, T, N) mean prediction
+    times: np.ndarray  # (T,)
+    mesh: Mesh
+    spread: np.ndarray | None = None  # (S, T, N) std over samples of c, when samples > 1
+    seconds: float = 0.0
+    activated: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def started_wave(self) -> np.ndarray:
+        """(S,) whether the model predicts a propagating wave from each site (:mod:`shared.capture`)."""
+        return started_wave(self.activated)
+
+
+class PersonalizedHeart:
+    """A metaPNS personalised to one heart, with what its predictions need kept in memory (module docstring).
+
+    Made by :func:`personalize` or read by :meth:`load`. ``dropped``: the
+    recordings left out of the context set for showing no wave, as
+    ``(node id, activated share of the observed nodes)``.
+    """
+
+    def __init__(
+        self,
+        model: MetaPNS,
+        posterior: Posterior,
+        hierarchy: MeshHierarchy,
+        mesh: Mesh,
+        times: np.ndarray,
+        payload: dict,
+        labels: SiteLabels | None = None,
+        evidence: SiteEvidence | None = None,
+    ) -> None:
+        self.model, self.posterior, self.hierarchy = model, posterior, hierarchy
+        self.mesh, self.times, self.labels, self.evidence = mesh, times, labels, evidence
+        self._payload = payload  # what save() writes besides the arrays above
+        self.dropped: list[tuple[int, float]] = [tuple(d) for d in payload.get("dropped", [])]
+
+    @property
+    def device(self) -> torch.device:
+        return self.posterior.mu.device
+
+    @property
+    def subject(self) -> str:
+        return self._payload.get("subject", "")
+
+    @property
+    def embed_seconds(self) -> float:
+        """Seconds the personalisation took (embedding, and refinement if any)."""
+        return float(self._payload.get("embed_seconds", 0.0))
+
+    @property
+    def refine_objective(self) -> list[float]:
+        """The refinement's objective per step (empty without refinement)."""
+        return list(self._payload.get("refine_objective", []))
+
+    def graph_summary(self) -> str:
+        """One line on the graph the model runs on: the mesh, or its working graph."""
+        sizes = self.hierarchy.sizes
+        if self.hierarchy.working is None:
+            return f"model on the {sizes[0]}-node mesh itself"
+        return f"model on a working graph of {sizes[0]} clusters of the {self.hierarchy.mesh_nodes}-node mesh"
+
+    def sites(self, ids=(), xyz: np.ndarray | None = None, regions=(), tolerance: float = SITE_TOLERANCE) -> np.ndarray:
+        """Node ids of sites given as node ids, points (K, 3) in mm and region names (:mod:`shared.sites`)."""
+        parts = [np.asarray(ids, np.int64).reshape(-1)]
+        if xyz is not None:
+            parts.append(nearest_nodes(self.mesh.points, xyz, tolerance))
+        if len(regions):
+            parts.append(region_nodes(self.labels, self.mesh.points, regions))
+        return np.concatenate(parts)
+
+    def predict(self, sites, samples: int = 0, seed: int = 0) -> Prediction:
+        """Full-mesh sequences for stimulation nodes ``sites``; ``samples > 1`` also draws ``c`` for a spread."""
+        n = self.mesh.n_nodes
+        sites = np.asarray(sites).reshape(-1)
+        bad = [int(s) for s in sites if not 0 <= int(s) < n]
+        if bad or not len(sites):
+            raise InputError(f"stimulation nodes {bad or list(sites)} are not nodes of the {n}-node mesh")
+        s = torch.as_tensor(sites.astype(np.int64), device=self.device)
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            u = self.model.generate(s, self.hierarchy, self.posterior.mu, evidence=self.evidence)
+            seconds = time.perf_counter() - t0
+            spread = None
+            if samples > 1:
+                g = torch.Generator().manual_seed(seed)
+                draws = [
+                    self.model.generate(s, self.hierarchy, self.posterior.sample(g), evidence=self.evidence)
+                    for _ in range(samples)
+                ]
+                spread = torch.stack(draws).std(dim=0).cpu().numpy()
+        u = u.cpu().numpy()
+        activated = (u.max(axis=1) >= 0.5).mean(axis=1)
+        return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the heart to ``path`` (a personalised surrogate file that :meth:`load` reads)."""
+        path = Path(path)
+        payload = {
+            **self._payload,
+            "kind": "personalized",
+            "frames": self.model.frames,
+            "model": self.model.state_dict(),
+            "c_mu": self.posterior.mu.cpu(),
+            "c_logvar": self.posterior.logvar.cpu(),
+            "points": torch.as_tensor(self.mesh.points),
+            "cells": torch.as_tensor(self.mesh.cells),
+            "times": torch.as_tensor(np.asarray(self.times, np.float64)),
+            "hierarchy": {key: torch.as_tensor(value) for key, value in self.hierarchy.arrays().items()},
+        }
+        if self.labels is not None:
+            payload["labels"] = {key: torch.as_tensor(value) for key, value in self.labels.arrays().items()}
+        save_checkpoint(path, payload)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, device: str = "cpu") -> PersonalizedHeart:
+        """The heart saved in ``path`` (on ``device``), its graph hierarchy as saved (rebuilt for files without)."""
+        placed = resolve_device(device)
+        p = load_checkpoint(path, kind="personalized")
+        config = config_from_mapping(p["config"])
+        model = build_model(config.model, p["frames"])
+        model.load_state_dict(p["model"])
+        model.to(placed).eval()
+        mesh = Mesh(points=p["points"].numpy(), cells=p["cells"].numpy(), name=p["subject"] or "mesh")
+        if "hierarchy" in p:
+            hierarchy = MeshHierarchy.from_arrays({k: v.numpy() for k, v in p["hierarchy"].items()}, str(path))
+        else:
+            hierarchy = _hierarchy(mesh, config.model)
+        labels = SiteLabels.from_arrays({k: v.numpy() for k, v in p["labels"].items()}) if "labels" in p else None
+        evidence = None
+        if "context_peaks" in p:  # missing from files that predate it; only capture_evidence models need it
+            evidence = SiteEvidence(p["context_peaks"], p["context_sites"], p["observed"]).to(placed)
+        posterior = Posterior(p["c_mu"].to(placed), p["c_logvar"].to(placed))
+        arrays = ("model", "c_mu", "c_logvar", "points", "cells", "times", "hierarchy", "labels", "kind", "format")
+        payload = {key: value for key, value in p.items() if key not in arrays}
+        return cls(model, posterior, hierarchy.to(placed), mesh, p["times"].numpy(), payload, labels, evidence)
+
+
+def _hierarchy(mesh: Mesh, model_config) -> MeshHierarchy:
+    """The graph hierarchy the model runs on for ``mesh`` (its working graph for a model that has one)."""
+    return hierarchy_for_mesh(mesh, model_config.levels, model_config.coarsest, None, model_config.working_nodes)
+
+
+def _span(times) -> str:
+    """``first, second, ..., last`` of a time axis."""
+    t = [float(v) for v in times]
+    return ", ".join(f"{v:g}" for v in t) if len(t) <= 3 else f"{t[0]:g}, {t[1]:g}, ..., {t[-1]:g}"
+
+
+def personalize(
+    checkpoint: str | Path,
+    observations: Observations,
+    out: str | Path | None = None,
+    device: str = "cpu",
+    refine: Refinement = Refinement(),
+) -> PersonalizedHeart:
+    """Embed the context set on ``device`` into a :class:`PersonalizedHeart` (saved to ``out`` when given).
+
+    Recordings that show no wave are left out (module docstring; a warning
+    names them); none left is an :class:`InputError`. ``refine.steps > 0``
+    refines ``c`` on the context set (:mod:`learner.refine`): the heart's ``c``
+    mean is then the refined one, its log-variance the encoder's.
+    """
+    placed = resolve_device(device)
+    model, config, ckpt = load_model(checkpoint, placed)
+    if not isinstance(model, MetaPNS):
+        raise InputError(f"{checkpoint} is a PNS model: it has no context embedding to personalise")
+    if observations.obs.shape[1] != model.frames:
+        raise InputError(f"observations have {observations.obs.shape[1]} frames, the model expects {model.frames}")
+    expected = ckpt.get("times")  # a shipped model records its frame times
+    if expected is not None and not np.allclose(observations.times, expected, rtol=1e-3, atol=1e-6):
+        step = expected[1] - expected[0] if len(expected) > 1 else expected[0]
+        raise InputError(
+            f"observations are at times {_span(observations.times)}; the model expects {len(expected)} frames "
+            f"at {_span(expected)} ({step:g} time units = {step * MS_PER_TIME_UNIT:.2f} ms apart, after the stimulus)"
+        )
+    activated = recorded_fraction(observations.obs, observations.observed)
+    wave = started_wave(activated)
+    dropped = [
+        (int(site), round(float(share), 4)) for site, share, w in zip(observations.sites, activated, wave) if not w
+    ]
+    if not wave.any():
+        raise InputError(
+            f"none of the {len(wave)} recordings shows a propagating wave (at most {100 * activated.max():.0f}% of "
+            "the observed nodes activate): each site's stimulus excited its patch alone, so the recordings say "
+            "nothing about how this heart conducts; record sites outside scar cores"
+        )
+    if dropped:
+        warnings.warn(
+            "left out recording(s) that show no propagating wave (node id, share of observed nodes activated): "
+            + ", ".join(f"{site} ({100 * share:.1f}%)" for site, share in dropped),
+            NoWaveWarning,
+            stacklevel=2,
+        )
+    hier = _hierarchy(observations.mesh, config.model).to(placed)
+    obs = torch.as_tensor(observations.obs[wave], dtype=torch.float32, device=placed)
+    observed = torch.as_tensor(observations.observed, device=placed)
+    sites = torch.as_tensor(np.asarray(observations.sites, np.int64)[wave])
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        post = model.embed(obs, observed, hier)
+    evidence = SiteEvidence.from_context(obs, observed, sites)  # its sites on obs's device
+    objective = []
+    if refine.steps:
+        c, objective = refine_context(model, post, obs, observed, evidence.sites, hier, evidence, refine)
+        post = Posterior(c, post.logvar)
+    payload = {
+        "config": ckpt["config"],
+        "subject": observations.subject,
+        "context_sites": sites,
+        "context_peaks": evidence.peaks.cpu(),
+        "context_activated": torch.as_tensor(activated),
+        "dropped": dropped,
+        "refine_steps": refine.steps,
+        "refine_objective": objective,
+        "embed_seconds": time.perf_counter() - t0,
+        "observed": observed.cpu(),
+    }
+    heart = PersonalizedHeart(
+        model,
+        Posterior(post.mu.detach(), post.logvar),
+        hier,
+        observations.mesh,
+        np.asarray(observations.times),
+        payload,
+        observations.labels,
+        evidence.to(placed),
+    )
+    if out is not None:
+        heart.save(out)
+    return heart
+
+
+def predict(
+    personalized: str | Path | PersonalizedHeart, sites, samples: int = 0, seed: int = 0, device: str = "cpu"
+) -> Prediction:
+    """:meth:`PersonalizedHeart.predict` of a heart, or of the heart saved in a file (read on ``device``)."""
+    heart = (
+        personalized if isinstance(personalized, PersonalizedHeart) else PersonalizedHeart.load(personalized, device)
+    )
+    return heart.predict(sites, samples, seed)
+
+
+def write_vtk(prediction: Prediction, folder: str | Path, threshold: float = 0.5) -> list[Path]:
+    """One ``.vtu`` per site with ``u`` per frame and the predicted activation time (ms) as point data."""
+    import meshio
+
+    from learner.metrics import activation_times
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    cell_type = "tetra" if prediction.mesh.cells.shape[1] == 4 else "triangle"
+    paths = []
+    for site, u in zip(prediction.sites, prediction.u):
+        data = {f"u_{t:03d}": u[t] for t in range(u.shape[0])}
+        data["activation_ms"] = activation_times(u, prediction.times, threshold) * MS_PER_TIME_UNIT
+        path = folder / f"site-{int(site)}.vtu"
+        meshio.write(path, meshio.Mesh(prediction.mesh.points, [(cell_type, prediction.mesh.cells)], point_data=data))
+        paths.append(path)
+    return paths
+
+
+def plot_prediction(prediction: Prediction, path: str | Path, threshold: float = 0.5) -> Path:
+    """A PNG of the predicted activation-time maps (ms), one row per site, front and back views."""
+    from learner.metrics import activation_times
+    from learner.plot import plot_activation_panels
+
+    rows = [
+        (
+            f"site {int(site)}",
+            [("predicted activation", activation_times(u, prediction.times, threshold) * MS_PER_TIME_UNIT)],
+        )
+        for site, u in zip(prediction.sites, prediction.u)
+    ]
+    return plot_activation_panels(prediction.mesh.points, rows, path)

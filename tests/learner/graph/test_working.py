@@ -1,0 +1,103 @@
+"""The working graph: a fine mesh seen as clusters, values carried both ways, and a model run on it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from learner.config import ModelConfig
+from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
+from learner.metrics import spatial_cc
+from learner.models.surrogate import build_model
+from shared.mesh import Mesh
+from simgen.meshes import get_mesh
+from simgen.solver.simulate import Simulator, SolverConfig
+
+WORKING = 300
+
+
+@pytest.fixture(scope="module")
+def fine() -> Mesh:
+    return get_mesh("lv", 3000, "tetra")
+
+
+@pytest.fixture(scope="module")
+def hierarchy(fine: Mesh) -> MeshHierarchy:
+    return hierarchy_for_mesh(fine, 4, 20, None, WORKING)
+
+
+def test_a_finer_mesh_runs_on_clusters_a_coarser_one_on_itself(fine, hierarchy):
+    assert hierarchy.working is not None and hierarchy.mesh_nodes == fine.n_nodes
+    assert hierarchy.sizes[0] <= WORKING and hierarchy.working.working_nodes == hierarchy.sizes[0]
+    coarse = get_mesh("lv", 250, "tetra")
+    own = hierarchy_for_mesh(coarse, 4, 20, None, WORKING)
+    assert own.working is None and own.sizes[0] == coarse.n_nodes == own.mesh_nodes
+
+
+def test_a_simulation_pooled_onto_the_working_graph_and_expanded_back_keeps_its_pattern(fine, hierarchy):
+    u = Simulator(fine, config=SolverConfig(frames=20)).run(np.array([0, 1500]), threads=2).u
+    back = hierarchy.working.expand(hierarchy.working.pool(torch.from_numpy(u))).numpy()
+    assert back.shape == u.shape
+    assert spatial_cc(back, u) > 0.995
+
+
+def test_expansion_rows_are_weights_of_the_own_and_adjacent_clusters(fine, hierarchy):
+    w = hierarchy.working
+    dense = w.expansion.to_dense().numpy()
+    np.testing.assert_allclose(dense.sum(axis=1), 1.0, rtol=1e-5)
+    assert (dense >= 0).all()
+    own = dense[np.arange(fine.n_nodes), w.assign.numpy()]
+    assert (own > 0).all() and (own >= 0.5 * dense.max(axis=1)).mean() > 0.9  # mostly the own cluster leads
+
+
+def test_observations_are_the_means_of_each_clusters_observed_nodes(hierarchy):
+    w = hierarchy.working
+    n, k = w.mesh_nodes, w.working_nodes
+    observed = torch.zeros(n, dtype=torch.bool)
+    observed[::7] = True
+    obs = torch.randn(2, 3, n) * observed
+    pooled, seen = w.observations(obs, observed)
+    a = w.assign.numpy()
+    for cluster in (0, k // 2, k - 1):
+        members = np.flatnonzero((a == cluster) & observed.numpy())
+        assert bool(seen[cluster]) == bool(members.size)
+        expected = obs[..., members].mean(dim=-1) if members.size else torch.zeros(2, 3)
+        torch.testing.assert_close(pooled[..., cluster], expected)
+
+
+def test_the_hierarchy_with_its_map_round_trips_through_arrays_and_the_cache(fine, hierarchy, tmp_path):
+    again = MeshHierarchy.from_arrays(hierarchy.arrays())
+    assert again.sizes == hierarchy.sizes
+    torch.testing.assert_close(again.working.assign, hierarchy.working.assign)
+    torch.testing.assert_close(again.working.expansion.to_dense(), hierarchy.working.expansion.to_dense())
+    first = hierarchy_for_mesh(fine, 4, 20, tmp_path, WORKING)
+    cached = hierarchy_for_mesh(fine, 4, 20, tmp_path, WORKING)
+    torch.testing.assert_close(cached.working.assign, first.working.assign)
+    assert hierarchy_for_mesh(fine, 4, 20, tmp_path, None).working is None  # another cache entry
+
+
+def test_points_in_no_cell_take_the_cluster_of_their_nearest_node():
+    mesh = get_mesh("lv", 400, "tetra")
+    extra = mesh.points[[5, 17]] + 0.1
+    padded = Mesh(np.vstack([mesh.points, extra]), mesh.cells, name="unused")
+    h = hierarchy_for_mesh(padded, 4, 20, None, 500)
+    assert h.mesh_nodes == mesh.n_nodes + 2 and h.sizes[0] == mesh.n_nodes  # the used nodes, each its own
+    assign = h.working.assign.numpy()
+    assert assign[-2] == assign[5] and assign[-1] == assign[17]
+
+
+def test_a_model_on_a_working_graph_predicts_and_learns_on_the_mesh_nodes(fine, hierarchy):
+    config = ModelConfig(
+        channels=(4, 8, 8), hidden=16, latent=8, levels=4, coarsest=20, coarse_blocks=1, working_nodes=WORKING
+    )
+    model = build_model(config, 6)
+    sites = torch.tensor([3, 2000])
+    observed = torch.zeros(fine.n_nodes, dtype=torch.bool)
+    observed[::5] = True
+    obs = torch.rand(2, 6, fine.n_nodes) * observed
+    posterior = model.embed(obs, observed, hierarchy)
+    u = model.generate(sites, hierarchy, posterior.mu)
+    assert u.shape == (2, 6, fine.n_nodes)
+    u.square().mean().backward()
+    assert all(p.grad is not None for p in model.decoder.parameters() if p.requires_grad)
