@@ -22,13 +22,14 @@ demo: $(STAMP)
 	$(BIN)/simgen status report/demo/demo.zarr
 	$(BIN)/learner train specs/train-demo.toml --fresh
 	$(BIN)/learner evaluate report/demo/train/best.pt report/demo/demo.zarr --out report/demo/eval
-	# a patient's path with the shipped model, no training (docs/your-heart.md)
-	$(BIN)/simgen simulate report/demo/your-heart/recordings --mesh real:tof-biv --nodes 1000 \
-		--tissue scar-septal-basal --sites 0,713,460,681 --observe electrodes --noise 0.02
-	$(BIN)/learner personalize anatomies --observations report/demo/your-heart/recordings/observations.npz \
-		--out report/demo/your-heart/heart.pt
-	$(BIN)/learner predict report/demo/your-heart/heart.pt --sites 818,631 --out report/demo/your-heart/prediction.npz \
-		--vtk report/demo/your-heart/vtk --png report/demo/your-heart/prediction.png
+	# a patient's path with the shipped model, no training (docs/your-heart.md): a mesh as it is, sites by region
+	$(BIN)/simgen mesh report/demo/your-heart/heart.vtu --mesh real:tof-biv --nodes 4000
+	$(BIN)/simgen simulate report/demo/your-heart/recordings --mesh report/demo/your-heart/heart.vtu \
+		--tissue scar-septal-basal --site-region aha-6,aha-10,aha-16,rv-free-wall --observe electrodes --noise 0.02
+	$(BIN)/learner personalize anatomies --mesh report/demo/your-heart/heart.vtu \
+		--observations report/demo/your-heart/recordings/observations.npz --out report/demo/your-heart/heart.pt
+	$(BIN)/learner predict report/demo/your-heart/heart.pt --site-region aha-7,apex \
+		--out report/demo/your-heart/prediction.npz --vtk report/demo/your-heart/vtk --png report/demo/your-heart/prediction.png
 
 test: $(STAMP)
 	$(BIN)/pytest -q
@@ -36,10 +37,13 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m bench.solver --out report/bench
 	$(BIN)/python -m bench.conduction --out report/bench
+	$(BIN)/python -m bench.convergence --out report/bench
 	$(BIN)/python -m bench.real_hearts --out report/bench
 	$(BIN)/python -m bench.build --out report/bench
 	$(BIN)/python -m bench.store_read --out report/bench
 	$(BIN)/python -m bench.surrogate --out report/bench
+	$(BIN)/python -m bench.resolution --out report/bench
+	$(BIN)/python -m bench.predict --out report/bench
 	$(BIN)/python -m bench.scaling --out report/bench
 
 clean:

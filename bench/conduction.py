@@ -1,9 +1,9 @@
 """Conduction-velocity verification table, published in docs/method.md ("Verification of the solver").
 
 Planar front speed against ``sqrt(2kD)(1/2 - a)`` on strips (triangles) and
-slabs (tetrahedra) under refinement, at the default resolution of the default
-LV mesh (D = 100 mm^2/tu, h = its mean edge), and the default LV's activation
-times against a 4x finer LV mesh.
+slabs (tetrahedra) under refinement and at the default resolution of the default
+LV mesh (D = 100 mm^2/tu, h = its mean edge); APD50. Whole hearts under mesh
+refinement: bench/convergence.py.
 
     python -m bench.conduction [--out DIR]
 """
@@ -14,12 +14,11 @@ import argparse
 import time
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from bench.common import add_out_argument, write_out
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.slab import slab, strip
-from simgen.solver.simulate import Simulator, SolverConfig
+from simgen.solver.simulate import SolverConfig
 from simgen.solver.verification import action_potential_duration, speed_error
 
 
@@ -48,47 +47,21 @@ def planar_rows() -> list[dict]:
     return rows
 
 
-def lv_refinement(n_sites: int = 8) -> dict:
-    """Activation times on the default LV vs a 4x finer LV at the nearest nodes."""
-    coarse, fine = lv_ellipsoid(2000, "tetra"), lv_ellipsoid(8000, "tetra")
-    sites = np.random.default_rng(0).choice(coarse.nodes("epicardium"), n_sites, replace=False)
-    fine_sites = cKDTree(fine.points).query(coarse.points[sites])[1]
-    # same physical stimulus patch on both meshes
-    cfg = SolverConfig(stimulus_radius=Simulator(coarse).stimulus_radius)
-    t_coarse = Simulator(coarse, config=cfg).run(sites, threads=2).activation
-    t_fine = Simulator(fine, config=cfg).run(fine_sites, threads=2).activation
-    nearest = cKDTree(fine.points).query(coarse.points)[1]
-    diff = t_coarse - t_fine[:, nearest]
-    total_c, total_f = np.nanmax(t_coarse, axis=1), np.nanmax(t_fine, axis=1)
-    return {
-        "coarse nodes": coarse.n_nodes,
-        "fine nodes": fine.n_nodes,
-        "mean |dt| / total activation": float(np.nanmean(np.abs(diff)) / np.mean(total_f)),
-        "total activation ratio coarse/fine": float(np.mean(total_c / total_f)),
-    }
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_out_argument(parser, "conduction")
     args = parser.parse_args()
     rows = planar_rows()
     apd = action_potential_duration(strip(10.0, 0.5, 0.25), x=5.0)
-    lv = lv_refinement()
     lines = ["| mesh | h | D | h/sqrt(D) | a | speed error vs sqrt(2kD)(1/2-a) |", "|---|---|---|---|---|---|"]
     lines += [
         f"| {r['mesh']} | {r['h']} | {r['D']:g} | {r['h/sqrt(D)']} | {r['a']} | {r['speed error %']:+.1f} % |"
         for r in rows
     ]
-    lines += ["", f"APD50 at a = 0.15: {apd:.1f} time units ({apd * 12.9:.0f} ms); expected about 23.", ""]
-    lines += [
-        f"Default LV ({lv['coarse nodes']} nodes) vs {lv['fine nodes']} nodes: mean |activation-time difference| "
-        f"= {100 * lv['mean |dt| / total activation']:.1f} % of the total activation time; total activation "
-        f"time ratio {lv['total activation ratio coarse/fine']:.3f}."
-    ]
+    lines += ["", f"APD50 at a = 0.15: {apd:.1f} time units ({apd * 12.9:.0f} ms); expected about 23."]
     table = "\n".join(lines)
     print(table)
-    write_out(args.out, "conduction", table + "\n", {"planar": rows, "apd50": apd, "lv": lv}, indent=2)
+    write_out(args.out, "conduction", table + "\n", {"planar": rows, "apd50": apd}, indent=2)
 
 
 if __name__ == "__main__":

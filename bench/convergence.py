@@ -47,7 +47,7 @@ import numpy as np
 
 from bench.common import add_out_argument, machine, machine_line, write_out
 from learner.metrics import frame_cc
-from shared.capture import activated_fraction, started_wave
+from shared.capture import started_wave
 from shared.interpolation import interpolation_matrix
 from shared.mesh import Mesh
 from shared.units import MS_PER_TIME_UNIT
@@ -146,7 +146,7 @@ def heart_rows(source: str, args: argparse.Namespace) -> list[dict]:
                 "sites": len(run.sites),
             }
             if nodes == finest:
-                row.update(capture=int(started_wave(activated_fraction(run.activation)).sum()), flips=0)
+                row.update(capture=int(run.started_wave.sum()), flips=0)
             else:
                 row.update(compare(mesh, run, fine_mesh, reference))
             rows.append(row)

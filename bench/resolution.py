@@ -59,7 +59,7 @@ def resolution_row(model: str, source: str, nodes: int, positions: np.ndarray, a
     observed = np.zeros(mesh.n_nodes, bool)
     observed[Sock().indices(mesh)] = True
     settings = {s.name: s for s in default_settings()}
-    ccs, errors, msqe, personalise_s, predict_s, working = [], [], [], [], [], None
+    ccs, errors, msqe, personalise_s, predict_s, working, by_tissue = [], [], [], [], [], None, {}
     for t, tissue in enumerate(args.tissue):
         truth = Simulator(mesh, tissue_fields(mesh, settings[tissue])).run(sites, threads=2, centres=positions)
         noisy = observe(truth.u, observed, NOISE, np.random.default_rng([args.seed, t]))
@@ -77,6 +77,7 @@ def resolution_row(model: str, source: str, nodes: int, positions: np.ndarray, a
             u = heart.predict([sites[left]]).u[0]
             predict_s.append(time.perf_counter() - start)
             ccs.append(spatial_cc(u, truth.u[left]))
+            by_tissue.setdefault(tissue, []).append(ccs[-1])
             msqe.append(mse(u, truth.u[left]))
             errors.append(activation_error_ms(u, truth.activation[left], truth.times)[0])
             working = heart.hierarchy.sizes[0]
@@ -88,6 +89,7 @@ def resolution_row(model: str, source: str, nodes: int, positions: np.ndarray, a
         "folds": len(ccs),
         "cc": float(np.mean(ccs)),
         "cc_std": float(np.std(ccs)),
+        "cc_by_tissue": {tissue: float(np.mean(values)) for tissue, values in by_tissue.items()},
         "mse": float(np.mean(msqe)),
         "activation_error_ms": float(np.nanmean(errors)),
         "personalize_first_s": personalise_s[0],

@@ -268,8 +268,8 @@ def personalize(
     observations: Annotated[
         Path | None,
         typer.Option(
-            help=".npz (instead of --store): sites (K,) int node ids or site_xyz (K, 3) mm; obs (K, T, N) float "
-            "u = (V + 80) / 100, V in mV; observed (N,) bool; times (T,) float in time units of 12.9 ms (the shipped "
+            help=".npz (instead of --store): obs (K, T, N) float u = (V + 80) / 100, V in mV; sites (K,) int node ids "
+            "or site_xyz (K, 3) mm; observed (N,) bool; times (T,) float in time units of 12.9 ms (the shipped "
             "model: T = 55, 0.6, 1.2, ..., 33.0); the mesh's points (N, 3) float mm and cells (M, 4|3) int "
             "(docs/formats.md, examples/observations.npz)."
         ),

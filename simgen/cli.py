@@ -94,6 +94,7 @@ def mesh(
     region labels (AHA segments, RV free wall) as point data: what sites by region need."""
     try:
         m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
+        out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, _labels(m).arrays() if heart else None)
     except (InputError, OSError) as exc:
         _fail(exc, out)
@@ -257,10 +258,11 @@ def _sites(
     """The stimulation nodes of ``m`` and the points their stimuli are centred on, from ``--sites`` (the
     file's node ids), ``--site-xyz`` (each point itself) and ``--site-region`` (:mod:`shared.sites`)."""
     from shared.sites import nearest_nodes, parse_points, parse_regions, region_nodes
+    from simgen.solver.stimulus import check_sites
 
     nodes, centres = [], []
     if ids is not None or (xyz is None and regions is None):
-        given = m.from_file(parse_ids(ids or "0", "--sites"))
+        given = check_sites(m, m.from_file(parse_ids(ids or "0", "--sites")))
         nodes.append(given)
         centres.append(m.points[given])
     if xyz is not None:

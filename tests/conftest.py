@@ -84,7 +84,8 @@ TINY_STORE_SPEC = {
     ],
     "tissue": ["healthy", "scar-apex", "scar-anterior-mid"],
     "sites": {"count": 12},
-    "solver": {"frames": 12, "output_interval": 2.0},
+    # a patch of about 1.5 edges of these ~9 mm-edge meshes: the 10 mm default holds a site and its nearest ring
+    "solver": {"frames": 12, "output_interval": 2.0, "stimulus_radius": 14.0},
     "output": {"chunk_sites": 4, "sock_electrodes": 40},
 }
 

@@ -1,5 +1,5 @@
-"""One vocabulary across the simgen and learner commands (``--sites`` node ids, ``--site-index`` site indices),
-and the file formats described in ``--help``."""
+"""One vocabulary across the simgen and learner commands (``--sites`` node ids, ``--site-index`` site indices,
+``--site-xyz`` points, ``--site-region`` regions), and the file formats described in ``--help``."""
 
 from __future__ import annotations
 
@@ -32,7 +32,14 @@ def _help(param: click.Parameter) -> str:
 
 
 #: Every parameter about stimulation sites, by name, and a phrase its help must hold.
-SITE_PARAMS = {"sites": "node id", "site_index": "site ind", "sites_per_setting": "sites per"}
+SITE_PARAMS = {
+    "sites": "node id",
+    "site_index": "site ind",
+    "sites_per_setting": "sites per",
+    "site_xyz": "x,y,z in mm",
+    "site_region": "aha-1",
+    "site_tolerance": "mm",
+}
 
 
 def _problem(param: click.Parameter) -> str:
@@ -45,6 +52,10 @@ def _problem(param: click.Parameter) -> str:
         return "--sites takes node ids only"
     if param.name == "site_index" and param.opts not in (["--site-index"], ["site_index"]):
         return "site indices are --site-index (or the SITE_INDEX argument)"
+    if param.name in ("site_xyz", "site_region", "site_tolerance") and param.opts != [
+        f"--{param.name.replace('_', '-')}"
+    ]:
+        return "sites by position are --site-xyz, --site-region and --site-tolerance"
     return ""
 
 

@@ -35,10 +35,10 @@ from shared.errors import InputError, MeshError
 from shared.graph import edge_length_graph, undirected_edges
 from shared.mesh import Mesh
 
-__all__ = ["Graph", "MeshHierarchy", "build_hierarchy", "cluster_graph", "hierarchy_for_mesh"]
+__all__ = ["Graph", "MeshHierarchy", "build_hierarchy", "cluster_graph", "working_clusters", "hierarchy_for_mesh"]
 
 #: Bump when the clustering changes, so cached hierarchies are rebuilt.
-ALGORITHM_VERSION = 1
+ALGORITHM_VERSION = 2
 #: Lloyd relaxations after farthest-point seeding.
 LLOYD_ITERATIONS = 3
 _FILE_FORMAT = 1
@@ -393,6 +393,25 @@ def build_hierarchy(
     return MeshHierarchy(tuple(graphs), tuple(assign))
 
 
+def working_clusters(
+    points: NDArray[np.float64], edges: NDArray[np.int64], k: int
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
+    """A mesh's working graph of ``k`` clusters: ``(assign, positions, edges)`` (:mod:`learner.graph.working`).
+
+    Seeds by farthest-point sampling in graph distance, each node in the
+    cluster of its nearest seed; a working node sits at its seed, a mesh node.
+    Unlike the hierarchy's coarser levels (Lloyd-relaxed, at the members'
+    mean) it keeps the seeds where farthest-point sampling puts them: on a
+    thin wall mostly on its two surfaces, as the nodes of a coarse mesh are,
+    whether a cluster holds 2 nodes or 40. Centred clusters sit mid-wall on a
+    fine mesh and on the surfaces of a coarse one, a different graph.
+    """
+    adj = edge_length_graph(points, edges)
+    seeds = _farthest_point_seeds(adj, k)
+    assign = _voronoi(adj, seeds)  # every seed is its own cluster's: none is empty
+    return assign, points[seeds], undirected_edges(assign[edges], k)
+
+
 def cluster_graph(
     points: NDArray[np.float64], edges: NDArray[np.int64], k: int
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
@@ -480,7 +499,7 @@ def _hierarchy(mesh: Mesh, levels: int, coarsest: int, working_nodes: int | None
     if len(used) <= working_nodes:  # the mesh's own nodes (a few unused ones apart): the graph itself
         assign, centres, working = np.arange(len(used)), points, edges
     else:
-        assign, centres, working = cluster_graph(points, edges, working_nodes)
+        assign, centres, working = working_clusters(points, edges, working_nodes)
     if len(used) < mesh.n_nodes:
         unused = np.flatnonzero(index < 0)
         index[unused] = cKDTree(points).query(mesh.points[unused])[1]

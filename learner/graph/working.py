@@ -4,11 +4,12 @@ A surrogate learns filters on graphs of a given density. A mesh much finer
 than that (a patient's own mesh of 20,000 nodes, against the ~1,000 the model
 knows) would change what every layer sees, and its accuracy with it. So the
 model runs on a *working graph* of at most ``W`` nodes: the mesh's nodes
-clustered into ``W`` connected clusters by graph-Voronoi clustering
-(:func:`~learner.graph.hierarchy.cluster_graph`), one working node per
-cluster at its members' mean position, two working nodes joined where any
-mesh edge joins their clusters. Whatever the mesh's resolution, the working
-graph of one heart is about the same graph.
+clustered into ``W`` connected clusters around seeds spread by
+farthest-point sampling (:func:`~learner.graph.hierarchy.working_clusters`),
+one working node per cluster at its seed, two working nodes joined where any
+mesh edge joins their clusters. The seeds lie where a coarse mesh's nodes
+lie (mostly on the wall's two surfaces), so whatever the mesh's resolution
+the working graph of one heart is about the same graph.
 
 :class:`WorkingMap` carries values between the mesh and the working graph:
 

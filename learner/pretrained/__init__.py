@@ -63,7 +63,7 @@ def load(name: str, device: str | torch.device = "cpu"):
     """The shipped model ``name``, ready to personalise: a :class:`~learner.models.surrogate.MetaPNS` in eval mode.
 
     Its config (``model.config`` of :func:`info`) gives the mesh-hierarchy recipe:
-    ``learner.graph.hierarchy.hierarchy_for_mesh(mesh, levels, coarsest)``.
+    ``learner.graph.hierarchy.hierarchy_for_mesh(mesh, levels, coarsest, None, working_nodes)``.
     """
     from learner.train.trainer import load_model
 
@@ -115,8 +115,10 @@ def export(
         "hierarchy": {
             "levels": config["model"]["levels"],
             "coarsest": config["model"]["coarsest"],
-            "builder": "learner.graph.hierarchy.hierarchy_for_mesh(mesh, levels, coarsest): graph-Voronoi "
-            "clustering of the mesh's edge graph, built for each new mesh",
+            "working_nodes": config["model"].get("working_nodes"),
+            "builder": "learner.graph.hierarchy.hierarchy_for_mesh(mesh, levels, coarsest, None, working_nodes): "
+            "a mesh of more than working_nodes nodes seen as that many clusters (learner.graph.working), then "
+            "graph-Voronoi clustering, built for each new mesh",
         },
         "config": config,
         "splits": ckpt.get("splits", {}),

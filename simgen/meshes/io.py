@@ -4,8 +4,10 @@ Node sets travel as point-data masks (1 = member): the standard sets of
 :data:`shared.mesh.NODE_SETS` under their own names (so files from other
 tools that mark, e.g., ``epicardium`` are understood), any other set under
 ``nodeset:<name>``; ``node_set_arrays`` names other masks of a file as sets.
-``surface`` is always recomputed on load. meshio formats cannot carry the
-long axis; pass ``axis=`` to :func:`load_mesh` when needed.
+``surface`` is always recomputed on load. meshio formats carry no field data,
+so the long axis travels as three point-data vectors, the same at every node
+(:data:`AXIS_ARRAYS`: apex, base centre, angle-0 direction), read back when
+``axis=`` gives none.
 
 Coordinates are converted to millimetres (:mod:`simgen.meshes.units`;
 :func:`save_mesh` writes the constant point-data array ``mm_per_unit``) and
@@ -31,7 +33,10 @@ from simgen.meshes.topology import boundary_faces
 from simgen.meshes.units import UNIT_KEY, file_units, mm_per_unit
 from simgen.meshes.validate import validate_mesh
 
-__all__ = ["load_mesh", "save_mesh"]
+__all__ = ["AXIS_ARRAYS", "load_mesh", "save_mesh"]
+
+#: Point-data vectors (the same at every node) that carry a mesh's long axis in its file.
+AXIS_ARRAYS = ("axis_apex", "axis_base", "axis_reference")
 
 _PREFIX = "nodeset:"
 _IGNORED = {"vertex", "line", "line3"}  # lower-dimensional markers (e.g. gmsh physical groups)
@@ -99,6 +104,8 @@ def load_mesh(
         cells = orient_triangles(points, cells, where)
     node_sets = {key: np.flatnonzero(mask[kept]) for key, mask in masks.items()}
     node_sets["surface"] = np.arange(len(points)) if cells.shape[1] == 3 else np.unique(boundary_faces(cells))
+    if axis is None:
+        axis = _file_axis(raw, scale, path)
     file_index = None
     if len(kept) < len(raw.points):  # nodes in no cell were dropped: keep the way back to the file's ids
         file_index = np.full(len(raw.points), -1, np.int64)
@@ -135,6 +142,9 @@ def save_mesh(mesh: Mesh, path: str | PathLike, point_data: Mapping[str, NDArray
         mask = np.zeros(mesh.n_nodes, dtype=np.uint8)
         mask[idx] = 1
         data[key if key in NODE_SETS else _PREFIX + key] = mask
+    if mesh.axis is not None:
+        for name, value in zip(AXIS_ARRAYS, (mesh.axis.apex, mesh.axis.base, mesh.axis.reference)):
+            data[name] = np.tile(np.asarray(value, np.float64), (mesh.n_nodes, 1))
     data.update(point_data or {})
     raw = meshio.Mesh(mesh.points, [(mesh.cell_type, mesh.cells)], point_data=data)
     try:
@@ -195,3 +205,14 @@ def _mask(values: NDArray, n: int, key: str, path: Path) -> NDArray[np.bool_]:
     if values.shape != (n,) or values.dtype.kind not in "biuf" or not np.isin(values, (0, 1)).all():
         raise MeshError(f"{path}: point data {key!r} is not a 0/1 node mask of length {n}")
     return values.astype(bool)
+
+
+def _file_axis(raw: meshio.Mesh, scale: float, path: Path) -> LongAxis | None:
+    """The long axis a file carries in its :data:`AXIS_ARRAYS` (coordinates in the file's units), else ``None``."""
+    if not all(name in raw.point_data for name in AXIS_ARRAYS):
+        return None
+    rows = [np.asarray(raw.point_data[name], np.float64).reshape(len(raw.points), -1) for name in AXIS_ARRAYS]
+    if any(r.shape[1] != 3 or not np.isfinite(r).all() or np.ptp(r, axis=0).max() > 1e-6 for r in rows):
+        raise MeshError(f"{path}: point data {list(AXIS_ARRAYS)} must each be one finite 3-vector at every node")
+    apex, base, reference = (r[0] for r in rows)
+    return LongAxis(apex * scale, base * scale, reference)

@@ -138,10 +138,10 @@ def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mes
     keeps its results whatever the defaults of the code that resumes it.
     Subjects recorded before a setting existed ran its legacy value: forward
     Euler (:func:`~shared.reader.read_integrator`) and edge-path patches of
-    :data:`LEGACY_EDGES` mean edge lengths.
+    the spec's radius, or of :data:`LEGACY_EDGES` mean edge lengths.
     """
     record = subject_attrs(store, subject_id).get("solver") or {}
-    radius = record.get("stimulus_radius")
+    radius = record.get("stimulus_radius", solver.stimulus_radius)
     return dataclasses.replace(
         solver,
         integrator=read_integrator(store, subject_id),

@@ -62,7 +62,7 @@ def tiny_config(store: Path, out: Path, kind: str = "metapns", model: dict | Non
     )
 
 
-@pytest.fixture(name="tiny_config")
+@pytest.fixture(name="tiny_config", scope="session")
 def tiny_config_fixture():
     """The :func:`tiny_config` factory."""
     return tiny_config

@@ -72,7 +72,7 @@ def test_a_wave_is_more_than_a_fifth_of_the_nodes_activated():
     activation = np.full((3, 100), np.nan)
     activation[0] = 1.0  # every node
     activation[1, :3] = 0.0  # the stimulus patch alone
-    activation[2, :int(100 * CAPTURE_SHARE) + 1] = 2.0
+    activation[2, : int(100 * CAPTURE_SHARE) + 1] = 2.0
     np.testing.assert_allclose(activated_fraction(activation), [1.0, 0.03, 0.21])
     assert started_wave(activated_fraction(activation)).tolist() == [True, False, True]
     obs = np.zeros((2, 4, 10), np.float32)

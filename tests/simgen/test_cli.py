@@ -176,3 +176,69 @@ def test_add_subject_and_regenerate_commands(tmp_path):
     unknown = runner.invoke(app, ["regenerate", str(store), "--subjects", "nobody"])
     assert unknown.exit_code == 2 and "nobody" in text(unknown)
     assert runner.invoke(app, ["verify", str(store), "--sample", "6"]).exit_code == 0
+
+
+def test_a_mesh_file_is_used_as_it_is_and_results_come_back_on_its_node_ids(tmp_path):
+    """A file with a node in no cell at id 5: simgen drops it to simulate, and answers on the file's ids."""
+    import meshio
+
+    from simgen.meshes import get_mesh
+
+    lv = get_mesh("lv", 400)
+    points = np.insert(lv.points, 5, lv.points.mean(axis=0), axis=0)
+    cells = np.where(lv.cells >= 5, lv.cells + 1, lv.cells)
+    path = tmp_path / "heart.vtu"
+    meshio.write(path, meshio.Mesh(points, [("tetra", cells)]))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(out), "--mesh", str(path), "--sites", "10,300"])
+    assert result.exit_code == 0, result.output
+    data = np.load(out / "simulation.npz")
+    assert data["u"].shape == (2, 55, len(points)) and data["sites"].tolist() == [10, 300]
+    assert np.isnan(data["u"][:, :, 5]).all() and np.isfinite(data["u"][:, :, 6:]).all()
+    np.testing.assert_allclose(data["site_xyz"], points[[10, 300]])
+    # node 10 of the file is node 9 of the mesh simulated: the activation there is 0, the stimulus's own
+    assert data["activation"][0, 10] == 0.0
+    result = runner.invoke(app, ["simulate", str(out), "--mesh", str(path), "--sites", "5"])
+    assert result.exit_code == 2 and "in no cell" in text(result)
+    surface = tmp_path / "surface.vtu"
+    meshio.write(
+        surface,
+        meshio.Mesh(get_mesh("lv", 400, "triangle").points, [("triangle", get_mesh("lv", 400, "triangle").cells)]),
+    )
+    result = runner.invoke(app, ["simulate", str(out), "--mesh", str(surface), "--kind", "tetra"])
+    assert result.exit_code == 2 and "give a node count to resample it" in text(result)
+
+
+def test_simulate_names_every_site_that_starts_no_wave(tmp_path):
+    from simgen.meshes import get_mesh
+    from simgen.tissue import default_settings, tissue_fields
+
+    mesh = get_mesh("lv", 1000)
+    fields = tissue_fields(mesh, {s.name: s for s in default_settings()}["scar-septal-basal"])
+    core = np.flatnonzero(fields.label == 2)
+    inside = int(core[np.argmin(np.linalg.norm(mesh.points[core] - mesh.points[core].mean(axis=0), axis=1))])
+    args = ["simulate", str(tmp_path), "--nodes", "1000", "--tissue", "scar-septal-basal", "--sites", f"3,{inside}"]
+    result = runner.invoke(app, args, terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert f"site {inside} starts no propagating wave" in text(result) and "site 3 starts" not in text(result)
+    fraction = np.load(tmp_path / "simulation.npz")["activated_fraction"]
+    assert fraction[0] > 0.5 > 0.05 > fraction[1]
+
+
+def test_sites_by_position_and_region(tmp_path):
+    from simgen.meshes import get_mesh
+
+    mesh = get_mesh("biv", 1000)
+    point = mesh.points[321] + 0.4
+    xyz = ",".join(f"{c:.4f}" for c in point)
+    args = ["simulate", str(tmp_path), "--mesh", "biv", "--nodes", "1000", "--site-xyz", xyz, "--site-region"]
+    result = runner.invoke(app, [*args, "aha-4,rv-free-wall:endo"])
+    assert result.exit_code == 0, result.output
+    data = np.load(tmp_path / "simulation.npz")
+    assert data["sites"][0] == 321 and len(data["sites"]) == 3
+    np.testing.assert_allclose(data["site_xyz"][0], point, atol=1e-4)  # the stimulus is centred on the point
+    out = tmp_path / "biv.vtu"
+    assert runner.invoke(app, ["mesh", str(out), "--mesh", "biv", "--nodes", "1000"]).exit_code == 0
+    again = runner.invoke(app, ["simulate", str(tmp_path / "b"), "--mesh", str(out), "--site-region", "aha-4"])
+    assert again.exit_code == 0, again.output
+    assert np.load(tmp_path / "b" / "simulation.npz")["sites"][0] == data["sites"][1]  # the file keeps its frame

@@ -42,18 +42,17 @@ def _frame_mean_mse(trainer: Trainer) -> float:
     ids=["default", "shipped-gate"],
 )
 def test_every_seed_learns_past_the_input_ignoring_level(tiny_store, tiny_config, tmp_path, model, train):
-    """Three seeds, 40 epochs of 4 steps: no loss spike, and each gets well below the per-frame mean predictor.
+    """Three seeds, 60 epochs of 4 steps: no loss spike, and each gets well below the per-frame mean predictor.
 
-    In units of that predictor's validation error, the best validation of
-    seeds 0-2 is 0.22, 0.24 and 0.33 (0.31, 0.44 and 0.44 with the reference
-    transition, summed loss and initialisation; docs/training.md); one
-    validation subject of 4 targets is noisy, so epochs 25-40 are averaged.
-    The shipped configs' capture gate (``model.capture_gate``, ``capture_evidence`` and ``train.gate_loss``) is
-    held to the same bounds.
+    In units of that predictor's validation error, the best validation stays
+    under 0.4 and the last four validations under 0.5 on average (one
+    validation subject of 4 targets is noisy). The shipped configs' capture
+    gate (``model.capture_gate``, ``capture_evidence`` and ``train.gate_loss``)
+    is held to the same bounds.
     """
     for seed in (0, 1, 2):
         out = tmp_path / f"seed{seed}"
-        cfg = tiny_config(tiny_store, out, model=model, epochs=40, lr=3e-3, seed=seed, validate_every=5, **train)
+        cfg = tiny_config(tiny_store, out, model=model, epochs=60, lr=3e-3, seed=seed, validate_every=5, **train)
         trainer = Trainer(cfg, progress=False)
         ignoring = _frame_mean_mse(trainer)
         result = trainer.fit()

@@ -10,7 +10,7 @@ from shared.errors import MeshError
 from shared.mesh import LongAxis, Mesh
 from simgen.meshes.biventricular import biv_ellipsoid
 from simgen.meshes.ellipsoid import lv_ellipsoid
-from simgen.meshes.io import load_mesh, save_mesh
+from simgen.meshes.io import AXIS_ARRAYS, load_mesh, save_mesh
 from simgen.meshes.topology import boundary_faces
 
 TET = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
@@ -56,12 +56,25 @@ def test_stl_keeps_geometry(tmp_path):
 
 
 def test_name_and_axis(tmp_path):
-    path = save_mesh(lv_ellipsoid(600), tmp_path / "subject07.vtu")
+    """The long axis travels as three constant point-data vectors; ``axis=`` replaces it."""
+    mesh = lv_ellipsoid(600)
+    path = save_mesh(mesh, tmp_path / "subject07.vtu")
     assert load_mesh(path).name == "subject07"
-    assert load_mesh(path).axis is None
+    read = load_mesh(path).axis
+    for name in ("apex", "base", "reference"):
+        np.testing.assert_allclose(getattr(read, name), getattr(mesh.axis, name))
     axis = LongAxis(apex=np.zeros(3), base=np.array([0.0, 0, 1]), reference=np.array([1.0, 0, 0]))
     loaded = load_mesh(path, name="lv", axis=axis)
     assert loaded.name == "lv" and loaded.axis is axis
+    plain = tmp_path / "plain.vtu"
+    meshio.write(plain, meshio.Mesh(mesh.points, [("tetra", mesh.cells)]))
+    assert load_mesh(plain).axis is None
+    bad = meshio.Mesh(
+        mesh.points, [("tetra", mesh.cells)], point_data={n: np.random.rand(mesh.n_nodes, 3) for n in AXIS_ARRAYS}
+    )
+    meshio.write(tmp_path / "bad.vtu", bad)
+    with pytest.raises(MeshError, match="one finite 3-vector at every node"):
+        load_mesh(tmp_path / "bad.vtu")
 
 
 def test_surface_is_recomputed(tmp_path):

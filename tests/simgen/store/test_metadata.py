@@ -154,6 +154,8 @@ def test_subjects_simulate_with_the_stimulus_they_recorded_whatever_the_defaults
     assert (old.integrator, old.stimulus_radius, old.region) == ("euler", 8.1, "geodesic")
     oldest = recorded({"dt": 0.02, "steps_per_frame": 30})
     assert oldest.stimulus_radius == pytest.approx(1.5 * mesh.mean_edge_length()) and oldest.region == "geodesic"
+    spec_radius = recorded_solver(str(tmp_path / "old.zarr"), "lv-healthy", SolverConfig(stimulus_radius=6.0), mesh)
+    assert spec_radius.stimulus_radius == 6.0  # a spec that set the radius ran it
     new = recorded({"integrator": "imex", "stimulus_radius": 10.0, "stimulus_region": "ball", "dt": 0.05})
     assert new == replace(SolverConfig(frames=4), integrator="imex", stimulus_radius=10.0, stimulus_region="ball")
 
@@ -173,3 +175,28 @@ def test_verify_recomputes_with_the_recorded_stimulus(tmp_path, reference_store)
     report = verify_store(str(store), sample=100)
     assert report.chunks_recomputed and report.problems
     assert all("lv-healthy" in str(p) and "recomputation" in str(p) for p in report.problems), report.problems
+
+
+def test_builds_record_which_simulations_start_a_wave_and_status_and_card_count_them(reference_store):
+    from typer.testing import CliRunner
+
+    from shared.capture import activated_fraction, started_wave
+    from simgen.cli import app
+    from simgen.store.card import dataset_card
+    from simgen.store.inspect import store_status
+
+    root = zarr.open_group(str(reference_store), mode="r")
+    total = 0
+    for row in store_status(reference_store):
+        group = root[f"subjects/{row.subject_id}"]
+        recorded = group.attrs["capture"]["activated_fraction"]
+        np.testing.assert_allclose(recorded, activated_fraction(group["activation"][...]), atol=1e-4)
+        assert row.no_wave == int((~started_wave(recorded)).sum())
+        total += row.no_wave
+    sites = sum(r.sites for r in store_status(reference_store))
+    assert f"| simulations that start no wave (stimulus in a scar core) | {total} of {sites} " in dataset_card(
+        reference_store
+    )
+    assert root.attrs["simulation"]["scar_border"] == "boundary"
+    result = CliRunner().invoke(app, ["status", str(reference_store)], terminal_width=200)
+    assert f"{total} of {sites} simulations start no propagating wave" in " ".join(result.output.split())

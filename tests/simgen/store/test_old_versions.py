@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +19,15 @@ from simgen.store.spec import MeshEntry
 from simgen.store.verify import verify_store
 
 
+#: The solver table of a version-1 store: edge-path stimulus patches (the reference spec's frames).
+OLD_SOLVER = {"frames": 8, "stimulus_radius": 12.0, "stimulus_region": "geodesic"}
+
+
 @pytest.fixture
-def old_store(reference_store, tmp_path, as_version_1) -> Path:
-    """The reference build, downgraded to schema version 1."""
+def old_store(tiny_spec, tmp_path, as_version_1) -> Path:
+    """The reference spec built with the edge-path stimulus that stores of version 1 ran, downgraded to version 1."""
     store = tmp_path / "old.zarr"
-    shutil.copytree(reference_store, store)
+    build(tiny_spec(solver=OLD_SOLVER), store, workers=1)
     as_version_1(store)
     return store
 
@@ -58,8 +61,8 @@ def test_version_1_store_is_not_written(old_store, tmp_path, tiny_spec):
         ):
             edit()
     with pytest.raises(StoreMismatch, match=f"schema version 1, this simgen writes version {SCHEMA_VERSION}.*--force"):
-        build(tiny_spec(), old_store, workers=1)
-    assert build(tiny_spec(), old_store, workers=1, force=True).tasks_run == 4  # rebuilt at the current version
+        build(tiny_spec(solver=OLD_SOLVER), old_store, workers=1)
+    assert build(tiny_spec(solver=OLD_SOLVER), old_store, workers=1, force=True).tasks_run == 4  # rebuilt at the current version
     assert check_store(old_store)["schema_version"] == SCHEMA_VERSION and verify_store(old_store, sample=0).ok
 
 
