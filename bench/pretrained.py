@@ -2,9 +2,10 @@
 
 Evaluates a shipped model (``--model``, a name of ``learner models`` or a checkpoint) on
 
-* (a) the test hearts of ``--store`` (``specs/anatomies.toml``): the model's own test split (whole sampled
-  anatomies held out of training, every tissue setting of each), one context set of 1-5 surface-observed
-  simulations (noise 0.02, as in training) and ``--targets`` targets per subject (``learner evaluate``);
+* (a) the test hearts of ``--store`` (the model's training store: ``specs/pretrained.toml`` for ``anatomies``):
+  the model's own test split (whole sampled anatomies held out of training, every tissue setting of each),
+  one context set of 1-5 surface-observed simulations (noise 0.02, as in training) and ``--targets`` targets
+  per subject (``learner evaluate``);
 * (b) the real heart of ``--real`` (``specs/realdata.toml``: the shipped MRI biventricle ``real:tof-biv``,
   3 tissue settings, 8 epicardial pacing sites) through the 247-electrode sock with noise 0.02, leaving one
   site out in turn (``learner.benchmark.real_data``), beside the noise-free truth (the metric's ceiling);
@@ -16,9 +17,9 @@ Writes ``pretrained.md`` and ``pretrained.json`` to ``--out``; the table is the 
 
 Run::
 
-    simgen build specs/anatomies.toml --store data/anatomies.zarr --workers 2
+    simgen build specs/pretrained.toml --store data/pretrained.zarr --workers 2
     simgen build specs/realdata.toml --store data/realdata.zarr
-    .venv/bin/python -m bench.pretrained --store data/anatomies.zarr --real data/realdata.zarr
+    .venv/bin/python -m bench.pretrained --store data/pretrained.zarr --real data/realdata.zarr
 """
 
 from __future__ import annotations

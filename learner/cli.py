@@ -264,6 +264,14 @@ def personalize(
     store: Annotated[Path | None, typer.Option(help="Store holding the subject's simulations.")] = None,
     subject: Annotated[str | None, typer.Option(help="Subject id in --store.")] = None,
     sites: Annotated[str, typer.Option(help="Comma-separated stimulation node ids of the context set.")] = "",
+    site_xyz: Annotated[
+        str | None,
+        typer.Option(
+            "--site-xyz",
+            help="Context sites of --store as points x,y,z in mm, ';' between points: each the subject's simulated "
+            "site nearest it, within --site-tolerance.",
+        ),
+    ] = None,
     observe: Annotated[str, typer.Option(help="Observed node set (surface, epicardium, electrodes, ...).")] = "surface",
     observations: Annotated[
         Path | None,
@@ -290,6 +298,7 @@ def personalize(
     from learner.personalized import NoWaveWarning
     from learner.personalized import personalize as run
     from learner.refine import Refinement
+    from shared.sites import parse_points
 
     try:
         if mesh is not None and observations is None:
@@ -298,9 +307,11 @@ def personalize(
             given = read_mesh_file(mesh) if mesh is not None else (None, None)
             obs = observations_from_file(observations, *given, tolerance=site_tolerance)
         elif store is not None and subject is not None:
-            obs = observations_from_store(store, subject, parse_ids(sites, "--sites"), observe)
+            points = parse_points(site_xyz) if site_xyz is not None else None
+            ids = parse_ids(sites, "--sites") if sites else []
+            obs = observations_from_store(store, subject, ids, observe, points, site_tolerance)
         else:
-            raise InputError("give either --observations FILE or --store, --subject and --sites")
+            raise InputError("give either --observations FILE or --store, --subject and --sites (or --site-xyz)")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", NoWaveWarning)
             heart = run(checkpoint, obs, out, device, Refinement(steps=refine_steps))

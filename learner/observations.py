@@ -80,12 +80,24 @@ class Observations:
             raise InputError(f"region labels cover {self.labels.n_nodes} nodes, the mesh has {n}")
 
 
-def observations_from_store(store: str | Path, subject: str, sites: list[int], observe: str) -> Observations:
-    """Observe ``subject``'s simulations at stimulation nodes ``sites`` through node set ``observe``."""
+def observations_from_store(
+    store: str | Path,
+    subject: str,
+    sites: list[int],
+    observe: str,
+    xyz: np.ndarray | None = None,
+    tolerance: float = SITE_TOLERANCE,
+) -> Observations:
+    """Observe ``subject``'s simulations at stimulation nodes ``sites`` through node set ``observe``; points
+    ``xyz`` (K, 3) in mm add the simulated site nearest each, within ``tolerance`` mm."""
     view = StoreView(store)
     view.check_subject(subject)
     mesh_id = view.mesh_of[subject]
     stored = view.sites(mesh_id)
+    if xyz is not None:
+        sites = [*sites, *nearest_nodes(view.mesh(mesh_id).points, xyz, tolerance, stored, "simulated site").tolist()]
+    if not sites:
+        raise InputError(f"give the context sites of subject {subject!r}: node ids or points")
     unknown = sorted(set(int(s) for s in sites) - set(stored.tolist()))
     if unknown:
         raise InputError(f"subject {subject!r} has no simulation stimulated at node(s) {unknown}")

@@ -133,11 +133,15 @@ def _split_region(name: str, option: str = "region") -> tuple[str, str]:
 
 
 def nearest_nodes(
-    points: ArrayLike, xyz: ArrayLike, tolerance: float = SITE_TOLERANCE, candidates: ArrayLike | None = None
+    points: ArrayLike,
+    xyz: ArrayLike,
+    tolerance: float = SITE_TOLERANCE,
+    candidates: ArrayLike | None = None,
+    what: str = "node",
 ) -> NDArray[np.int64]:
     """The node nearest each point of ``xyz`` (K, 3) among ``points`` (N, 3), or among node ids
-    ``candidates``; :class:`StimulusError` naming the point and its distance when the nearest node lies
-    farther than ``tolerance`` mm."""
+    ``candidates`` (``what`` names them in errors); :class:`StimulusError` naming the point and its
+    distance when the nearest lies farther than ``tolerance`` mm."""
     points, xyz = np.asarray(points, np.float64), np.atleast_2d(np.asarray(xyz, np.float64))
     pool = np.arange(len(points)) if candidates is None else np.asarray(candidates, np.int64)
     if xyz.shape[1:] != (3,) or not np.isfinite(xyz).all():
@@ -149,7 +153,7 @@ def nearest_nodes(
     if far.size:
         k = int(far[0])
         raise StimulusError(
-            f"no node within {tolerance:g} mm of site point {np.round(xyz[k], 2).tolist()}: the nearest lies "
+            f"no {what} within {tolerance:g} mm of site point {np.round(xyz[k], 2).tolist()}: the nearest lies "
             f"{gap[k]:.1f} mm away; give a point on the mesh (coordinates in mm) or a larger tolerance"
         )
     return pool[nearest]
@@ -176,8 +180,14 @@ def region_nodes(labels: SiteLabels | None, points: ArrayLike, regions: Sequence
         if not patch.size and region in ("apex", "aha-17") and inside.any() and on.any():
             patch = np.flatnonzero(on)  # a cap beyond the cavity's tip: the surface's node nearest the cap
             centre = points[inside].mean(axis=0)
-        elif not patch.size:
+        elif not inside.any():
             raise StimulusError(f"region {name!r} holds no node of this mesh (a left ventricle has no rv-free-wall)")
+        elif not patch.size:
+            other = SURFACES[1 - SURFACES.index(surface)]
+            raise StimulusError(
+                f"region {name!r} has no {surface}cardial node on this mesh (in a biventricle the septal segments "
+                f"2, 3, 8, 9 and 14 face the cavities, not the epicardium): name '{region}:{other}'"
+            )
         else:
             centre = points[patch].mean(axis=0)
         sites.append(int(patch[np.argmin(np.linalg.norm(points[patch] - centre, axis=1))]))

@@ -17,7 +17,7 @@ from simgen.cli import app as simgen
 
 runner = CliRunner()
 TISSUE = ["--tissue", "scar-septal-basal"]
-RECORDED, NEW = "aha-6,aha-10,aha-16,rv-free-wall", "aha-7,apex"
+RECORDED, NEW = "aha-1,aha-6,aha-10,aha-16", "aha-7,apex"
 
 
 def run(app, *args: str) -> str:
@@ -52,7 +52,7 @@ def test_a_patients_mesh_as_it_is_from_recorded_maps_to_new_pacing_sites(tmp_pat
         "--out",
         str(tmp_path / "heart.pt"),
     )
-    assert f"working graph of 500 clusters of the {nodes}-node mesh" in out
+    assert f"working graph of 500 clusters of the {nodes}-node mesh" in out and "personalised on 4 recording" in out
     pred, vtk, png = tmp_path / "prediction.npz", tmp_path / "vtk", tmp_path / "prediction.png"
     out = run(
         learner,
@@ -76,7 +76,8 @@ def test_a_patients_mesh_as_it_is_from_recorded_maps_to_new_pacing_sites(tmp_pat
     run(simgen, "simulate", str(truth), *mesh, "--site-region", NEW)
     simulated = np.load(truth / "simulation.npz")
     np.testing.assert_array_equal(simulated["sites"], predicted["sites"])  # one region, one node, both tools
-    assert spatial_cc(predicted["u"], simulated["u"]) > 0.8  # measured: 0.86
+    cc = spatial_cc(predicted["u"], simulated["u"])
+    assert cc > 0.75, cc  # measured: 0.80
 
     # the same sites by position
     points = ";".join(",".join(f"{c:.3f}" for c in p) for p in simulated["site_xyz"])

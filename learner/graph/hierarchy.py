@@ -35,10 +35,21 @@ from shared.errors import InputError, MeshError
 from shared.graph import edge_length_graph, undirected_edges
 from shared.mesh import Mesh
 
-__all__ = ["Graph", "MeshHierarchy", "build_hierarchy", "cluster_graph", "working_clusters", "hierarchy_for_mesh"]
+__all__ = [
+    "Graph",
+    "MeshHierarchy",
+    "build_hierarchy",
+    "cluster_graph",
+    "midpoint_graph",
+    "working_clusters",
+    "hierarchy_for_mesh",
+]
 
 #: Bump when the clustering changes, so cached hierarchies are rebuilt.
-ALGORITHM_VERSION = 2
+ALGORITHM_VERSION = 3
+#: A mesh of fewer nodes than this per working node is clustered on its midpoint-refined graph
+#: (:func:`working_clusters`); the shipped model's training meshes hold 10-20.
+REFINE_BELOW = 8
 #: Lloyd relaxations after farthest-point seeding.
 LLOYD_ITERATIONS = 3
 _FILE_FORMAT = 1
@@ -394,7 +405,7 @@ def build_hierarchy(
 
 
 def working_clusters(
-    points: NDArray[np.float64], edges: NDArray[np.int64], k: int
+    points: NDArray[np.float64], edges: NDArray[np.int64], k: int, cells: NDArray[np.int64] | None = None
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """A mesh's working graph of ``k`` clusters: ``(assign, positions, edges)`` (:mod:`learner.graph.working`).
 
@@ -405,11 +416,43 @@ def working_clusters(
     thin wall mostly on its two surfaces, as the nodes of a coarse mesh are,
     whether a cluster holds 2 nodes or 40. Centred clusters sit mid-wall on a
     fine mesh and on the surfaces of a coarse one, a different graph.
+
+    With ``cells``, a mesh of fewer than :data:`REFINE_BELOW` nodes per
+    cluster is clustered on its midpoint-refined graph
+    (:func:`midpoint_graph`), whose seeds spread as on a finer mesh of the
+    same shape (on a mesh of 2 nodes per cluster the seeds would be every
+    other node); its nodes keep their clusters, and a cluster may then hold
+    midpoints only.
     """
+    n = len(points)
+    if cells is not None and n < REFINE_BELOW * k:
+        fine_points, fine_edges = midpoint_graph(points, edges, cells)
+        assign, positions, working = working_clusters(fine_points, fine_edges, k)
+        return assign[:n], positions, working
     adj = edge_length_graph(points, edges)
     seeds = _farthest_point_seeds(adj, k)
     assign = _voronoi(adj, seeds)  # every seed is its own cluster's: none is empty
     return assign, points[seeds], undirected_edges(assign[edges], k)
+
+
+def midpoint_graph(
+    points: NDArray[np.float64], edges: NDArray[np.int64], cells: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The graph of a mesh refined once: ``(points, edges)`` with each edge's midpoint added after the
+    nodes (in the order of :func:`undirected_edges`), each midpoint joined to its edge's two ends and to
+    the other midpoints of every cell holding its edge."""
+    n = len(points)
+    und = undirected_edges(edges, n)
+    codes = und[:, 0] * n + und[:, 1]  # sorted: undirected_edges returns unique sorted pairs
+    first, second = np.triu_indices(cells.shape[1], k=1)  # each cell's edges as pairs of its corners
+    ends = np.sort(np.stack([cells[:, first], cells[:, second]], axis=2), axis=2)
+    mid = n + np.searchsorted(codes, ends[..., 0] * n + ends[..., 1])  # (M, edges per cell) midpoint ids
+    m = np.arange(len(und)) + n
+    links = [np.stack([und[:, 0], m], 1), np.stack([und[:, 1], m], 1)]
+    p, q = np.triu_indices(mid.shape[1], k=1)
+    links.append(np.stack([mid[:, p], mid[:, q]], axis=2).reshape(-1, 2))
+    fine_points = np.concatenate([points, 0.5 * (points[und[:, 0]] + points[und[:, 1]])])
+    return fine_points, undirected_edges(np.concatenate(links), len(fine_points))
 
 
 def cluster_graph(
@@ -499,7 +542,7 @@ def _hierarchy(mesh: Mesh, levels: int, coarsest: int, working_nodes: int | None
     if len(used) <= working_nodes:  # the mesh's own nodes (a few unused ones apart): the graph itself
         assign, centres, working = np.arange(len(used)), points, edges
     else:
-        assign, centres, working = working_clusters(points, edges, working_nodes)
+        assign, centres, working = working_clusters(points, edges, working_nodes, index[mesh.cells])
     if len(used) < mesh.n_nodes:
         unused = np.flatnonzero(index < 0)
         index[unused] = cKDTree(points).query(mesh.points[unused])[1]

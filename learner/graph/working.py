@@ -9,7 +9,10 @@ farthest-point sampling (:func:`~learner.graph.hierarchy.working_clusters`),
 one working node per cluster at its seed, two working nodes joined where any
 mesh edge joins their clusters. The seeds lie where a coarse mesh's nodes
 lie (mostly on the wall's two surfaces), so whatever the mesh's resolution
-the working graph of one heart is about the same graph.
+the working graph of one heart is about the same graph. A mesh of fewer than
+8 nodes per cluster is clustered on its graph refined once (edge midpoints
+added), so its seeds spread as on a finer mesh instead of taking every other
+node.
 
 :class:`WorkingMap` carries values between the mesh and the working graph:
 

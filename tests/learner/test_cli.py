@@ -11,6 +11,7 @@ import torch
 from typer.testing import CliRunner
 
 from learner.cli import app
+from learner.store_view import StoreView
 from shared.reader import read_sites
 
 runner = CliRunner()
@@ -113,11 +114,14 @@ def test_personalize_then_predict_with_vtk(trained, tiny_store):
             "--subject",
             "lv-scar-apex",
             "--sites",
-            f"{sites[0]},{sites[3]}",
+            f"{sites[0]}",
+            "--site-xyz",
+            ",".join(f"{v + 0.5:.3f}" for v in StoreView(tiny_store).mesh("lv").points[sites[3]]),
         ],
     )
     assert result.exit_code == 0, result.output
-    assert torch.load(person, weights_only=True)["kind"] == "personalized"
+    saved = torch.load(person, weights_only=True)
+    assert saved["kind"] == "personalized" and saved["context_sites"].tolist() == [sites[0], sites[3]]
     out = trained / "pred.npz"
     result = runner.invoke(
         app,
@@ -171,7 +175,8 @@ def test_refined_personalisation_fits_the_context_better(trained, tiny_store):
     [
         (["--subject", "nobody", "--sites", "1"], "unknown subject"),
         (["--subject", "lv-healthy", "--sites", "999999"], "no simulation stimulated at node"),
-        (["--subject", "lv-healthy", "--sites", ""], "--sites: give at least one integer"),
+        (["--subject", "lv-healthy", "--sites", ""], "give the context sites of subject 'lv-healthy'"),
+        (["--subject", "lv-healthy", "--site-xyz", "1e4,0,0"], "no simulated site within 5 mm of site point"),
     ],
 )
 def test_personalize_refuses_bad_input(trained, tiny_store, args, message):

@@ -105,3 +105,18 @@ def test_observation_files_take_points_for_sites_and_carry_region_labels(tmp_pat
     np.savez(tmp_path / "twice.npz", **twice)
     with pytest.raises(InputError, match="recorded more than once"):
         observations_from_file(tmp_path / "twice.npz")
+
+
+def test_a_triangle_surface_of_any_size_is_personalised_and_predicted_on_its_nodes(checkpoint, tiny_store):
+    from simgen.meshes import get_mesh
+    from simgen.solver.simulate import Simulator, SolverConfig
+
+    surface = get_mesh("lv", 1500, "triangle")
+    config = SolverConfig(frames=12, output_interval=2.0)
+    truth = Simulator(surface, config=config).run(np.array([0, 400, 900]), threads=2)
+    observed = np.zeros(surface.n_nodes, bool)
+    observed[::3] = True
+    context = Observations(surface, truth.sites[:2], truth.u[:2] * observed, observed, truth.times)
+    heart = personalize(checkpoint, context)
+    assert heart.hierarchy.working is not None and heart.hierarchy.mesh_nodes == surface.n_nodes
+    assert heart.predict([900]).u.shape == (1, 12, surface.n_nodes)

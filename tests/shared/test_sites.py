@@ -66,6 +66,9 @@ def test_labels_travel_as_arrays_and_a_mesh_without_them_names_the_remedy(biv):
     lv = get_mesh("lv", 500)
     with pytest.raises(StimulusError, match="no node of this mesh"):
         region_nodes(site_labels(lv), lv.points, ["rv-free-wall"])
+    assert not labels.epicardium[labels.segment == 8].any()  # a biventricle's septum faces the cavities only
+    with pytest.raises(StimulusError, match="'aha-8:endo'"):
+        region_nodes(labels, biv.points, ["aha-8"])
 
 
 def test_a_wave_is_more_than_a_fifth_of_the_nodes_activated():

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from learner.config import ModelConfig
-from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
+from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh, midpoint_graph, working_clusters
 from learner.metrics import spatial_cc
 from learner.models.surrogate import build_model
 from shared.mesh import Mesh
@@ -33,6 +33,35 @@ def test_a_finer_mesh_runs_on_clusters_a_coarser_one_on_itself(fine, hierarchy):
     coarse = get_mesh("lv", 250, "tetra")
     own = hierarchy_for_mesh(coarse, 4, 20, None, WORKING)
     assert own.working is None and own.sizes[0] == coarse.n_nodes == own.mesh_nodes
+
+
+def test_the_midpoint_graph_adds_each_edges_midpoint_joined_to_its_ends_and_its_cells_midpoints():
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], float)
+    cells = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])  # two tetrahedra sharing the face 1-2-3
+    edges = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3], [1, 4], [2, 4], [3, 4]])
+    fine, links = midpoint_graph(points, edges, cells)
+    assert len(fine) == 5 + 9
+    np.testing.assert_allclose(fine[5 + 3], [0.5, 0.5, 0])  # the midpoint of edge 1-2, the 4th sorted edge
+    pairs = {tuple(e) for e in links.tolist()}
+    assert {(1, 8), (2, 8)} <= pairs and (0, 8) not in pairs  # joined to its own edge's ends only
+    assert (5, 8) in pairs and (5, 13) not in pairs  # midpoints of one cell joined, of two cells apart not
+    assert len(links) == 9 * 2 + 2 * 15 - 3  # ends, then 15 pairs per cell less the shared face's 3
+
+
+def test_a_coarse_mesh_is_clustered_as_a_fine_mesh_of_the_same_heart():
+    """Under 8 nodes per cluster the seeds are spread on the midpoint-refined graph: the working graph of
+    a 1,000-node LV then has the edge lengths of the 5,000-node LV's (farthest-point seeds on the coarse
+    nodes alone sit about 6% farther apart), and its nodes keep their clusters."""
+    fine_mesh, coarse = get_mesh("lv", 5000, "tetra"), get_mesh("lv", 1000, "tetra")
+
+    def mean_edge(mesh: Mesh, cells) -> float:
+        assign, positions, edges = working_clusters(mesh.points, mesh.edges(), WORKING, cells)
+        assert assign.shape == (mesh.n_nodes,) and len(positions) == WORKING
+        return float(np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1).mean())
+
+    reference = mean_edge(fine_mesh, fine_mesh.cells)
+    assert abs(mean_edge(coarse, coarse.cells) / reference - 1) < 0.03
+    assert mean_edge(coarse, None) / reference - 1 > 0.04
 
 
 def test_a_simulation_pooled_onto_the_working_graph_and_expanded_back_keeps_its_pattern(fine, hierarchy):

@@ -18,7 +18,6 @@ from simgen.store.runner import build
 from simgen.store.spec import MeshEntry
 from simgen.store.verify import verify_store
 
-
 #: The solver table of a version-1 store: edge-path stimulus patches (the reference spec's frames).
 OLD_SOLVER = {"frames": 8, "stimulus_radius": 12.0, "stimulus_region": "geodesic"}
 
@@ -62,7 +61,8 @@ def test_version_1_store_is_not_written(old_store, tmp_path, tiny_spec):
             edit()
     with pytest.raises(StoreMismatch, match=f"schema version 1, this simgen writes version {SCHEMA_VERSION}.*--force"):
         build(tiny_spec(solver=OLD_SOLVER), old_store, workers=1)
-    assert build(tiny_spec(solver=OLD_SOLVER), old_store, workers=1, force=True).tasks_run == 4  # rebuilt at the current version
+    rebuilt = build(tiny_spec(solver=OLD_SOLVER), old_store, workers=1, force=True)  # at the current version
+    assert rebuilt.tasks_run == 4
     assert check_store(old_store)["schema_version"] == SCHEMA_VERSION and verify_store(old_store, sample=0).ok
 
 
