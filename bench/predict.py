@@ -14,7 +14,7 @@ On a shipped real heart (``--heart``, default ``real:tof-biv``) meshed at
 
 Run::
 
-    .venv/bin/python -m bench.predict --out report/bench     # ~3 min on 2 cores (the meshes cached)
+    .venv/bin/python -m bench.predict --out report/bench     # ~40 s on 2 cores (the meshes cached)
 
 Meshes are cached in ``--cache`` (shared with bench/convergence.py).
 """
