@@ -51,6 +51,7 @@ from learner.metrics import frame_cc
 from shared.capture import started_wave
 from shared.interpolation import interpolation_matrix
 from shared.mesh import Mesh
+from shared.sites import nearest_nodes
 from shared.units import MS_PER_TIME_UNIT
 from simgen.meshes import get_mesh
 from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX
@@ -126,7 +127,7 @@ def heart_rows(source: str, args: argparse.Namespace) -> list[dict]:
             config_here = config
             if args.legacy:
                 config_here = SolverConfig(stimulus_radius=1.5 * mesh.mean_edge_length(), stimulus_region="geodesic")
-            sites = np.array([int(np.argmin(np.linalg.norm(mesh.points - p, axis=1))) for p in positions])
+            sites = nearest_nodes(mesh.points, positions, np.inf)  # the node nearest each pacing point
             start = time.perf_counter()
             sim = Simulator(mesh, tissue_fields(mesh, settings[tissue]), config_here)
             centres = None if args.legacy else positions  # the legacy patch starts at a node

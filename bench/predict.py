@@ -36,6 +36,7 @@ from bench.convergence import cached_mesh, pacing_positions
 from learner.observations import Observations
 from learner.personalized import personalize
 from shared.observation import observe
+from shared.sites import nearest_nodes
 from simgen.observe import Sock
 from simgen.solver.simulate import Simulator
 
@@ -47,7 +48,7 @@ def timings(nodes: int, args: argparse.Namespace, folder: Path) -> dict:
     """One resolution's row (module docstring)."""
     mesh = cached_mesh(args.heart, nodes, args.cache)[0]
     positions = pacing_positions(mesh, 12)
-    sites = np.array([int(np.argmin(np.linalg.norm(mesh.points - p, axis=1))) for p in positions])
+    sites = nearest_nodes(mesh.points, positions, np.inf)  # the node nearest each pacing point
     observed = np.zeros(mesh.n_nodes, bool)
     observed[Sock().indices(mesh)] = True
     truth = Simulator(mesh).run(sites[:4], threads=2)

@@ -47,6 +47,7 @@ from learner.observations import Observations
 from learner.personalized import NoWaveWarning, personalize
 from shared.interpolation import interpolation_matrix
 from shared.observation import observe
+from shared.sites import nearest_nodes
 from simgen.observe import Sock
 from simgen.solver.simulate import Simulator
 from simgen.tissue import default_settings, tissue_fields
@@ -63,7 +64,7 @@ def resolution_row(
 
     ``finest`` maps each tissue to the finest mesh's ``(mesh, u)``; the finest row fills it."""
     mesh = cached_mesh(source, nodes, args.cache)[0]
-    sites = np.array([int(np.argmin(np.linalg.norm(mesh.points - p, axis=1))) for p in positions])
+    sites = nearest_nodes(mesh.points, positions, np.inf)  # the node nearest each pacing point
     observed = np.zeros(mesh.n_nodes, bool)
     observed[Sock().indices(mesh)] = True
     settings = {s.name: s for s in default_settings()}
