@@ -25,7 +25,7 @@ demo: $(STAMP)
 	# a patient's path with the shipped model, no training (docs/your-heart.md): a mesh as it is, sites by region
 	$(BIN)/simgen mesh report/demo/your-heart/heart.vtu --mesh real:tof-biv --nodes 4000
 	$(BIN)/simgen simulate report/demo/your-heart/recordings --mesh report/demo/your-heart/heart.vtu \
-		--tissue scar-septal-basal --site-region aha-1,aha-6,aha-10,aha-16 --observe electrodes --noise 0.02
+		--tissue scar-septal-basal --site-region aha-1,aha-6,aha-10,aha-16 --observe electrodes --noise 2
 	$(BIN)/learner personalize anatomies --mesh report/demo/your-heart/heart.vtu \
 		--observations report/demo/your-heart/recordings/observations.npz --out report/demo/your-heart/heart.pt
 	$(BIN)/learner predict report/demo/your-heart/heart.pt --site-region aha-7,apex \

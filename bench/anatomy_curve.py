@@ -18,8 +18,9 @@ Run::
     .venv/bin/python -m bench.anatomy_curve --config specs/train-anatomies.toml --real data/realdata.zarr \\
         --counts 2 8 32 --pns 32 --steps 1280 --runs runs/anatomy-curve --out report/anatomy-curve
 
-Writes ``anatomy_curve.json``, ``anatomy_curve.md`` and ``anatomy_curve.png`` to ``--out``; the table
-and figure are published in docs/anatomies.md.
+Writes ``anatomy_curve.json``, ``anatomy_curve.md`` and ``anatomy_curve.png`` to ``--out``;
+``--publish`` writes the table into the block ``anatomy_curve`` of docs/results.md (the figure is
+``docs/anatomy_curve.png``).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import math
 import time
 from pathlib import Path
 
-from bench.common import write_out
+from bench.common import add_publish_argument, check_publish, publish_out, write_out
 from bench.unseen_anatomies import real_heart, unseen_procedural
 from learner.config import LearnerConfig, load_config
 from learner.data.split import SplitSpec, split_subjects
@@ -136,7 +137,9 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=Path("runs/anatomy-curve"))
     parser.add_argument("--out", type=Path, default=Path("report/anatomy-curve"))
     parser.add_argument("--only", choices=("train", "report"), help="train (no evaluation) or evaluate only")
+    add_publish_argument(parser, "anatomy_curve")
     args = parser.parse_args()
+    check_publish(args.publish)
 
     base = load_config(args.config)
     models = [(n, "metapns") for n in args.counts] + [(n, "pns") for n in args.pns]
@@ -164,9 +167,11 @@ def main() -> None:
         rows.append(row)
         print(kind, count, json.dumps({k: row["unseen"]["target"][k]["mean"] for k in ("mse", "cc_spatial", "dc")}))
     n_test = len(ckpt["splits"]["test"])
-    write_out(args.out, "anatomy_curve", markdown(rows, args.steps, n_test), {"steps": args.steps, "models": rows})
+    table = markdown(rows, args.steps, n_test)
+    write_out(args.out, "anatomy_curve", table, {"steps": args.steps, "models": rows})
     curve_figure(rows, args.out / "anatomy_curve.png")
-    print(markdown(rows, args.steps, n_test))
+    publish_out(args.publish, "anatomy_curve", table)
+    print(table)
 
 
 if __name__ == "__main__":

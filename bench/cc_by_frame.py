@@ -16,6 +16,9 @@ deviation (below ``--flat``, default 0.01: a nearly uniform frame). It writes
   frames and the mean CC of either kind of frame;
 * ``cc_by_frame.png``: the mean target CC of each frame index, healthy and scarred subjects apart.
 
+``--publish`` writes the table into the block ``cc_by_frame`` of docs/results.md (the figure is
+``docs/cc_by_frame.png``).
+
 Run::
 
     .venv/bin/python -m bench.cc_by_frame --store data/anatomies.zarr \\
@@ -30,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from torch import Tensor
 
-from bench.common import add_out_argument, write_out
+from bench.common import add_out_argument, add_publish_argument, check_publish, publish_out, write_out
 from learner.data.episodes import Episode
 from learner.evaluate import EvalSetting, EvalSpec, Method, NeuralMethod, evaluate_methods, load_model
 from learner.metrics import frame_cc
@@ -115,7 +118,9 @@ def main() -> None:
     parser.add_argument("--targets", type=int, default=10, help="targets per context set")
     parser.add_argument("--flat", type=float, default=0.01, help="truth spatial std below which a frame is flat")
     add_out_argument(parser, "cc_by_frame", Path("report/cc-by-frame"))
+    add_publish_argument(parser, "cc_by_frame")
     args = parser.parse_args()
+    check_publish(args.publish)
 
     results: dict[str, dict] = {}
     for item in args.model:
@@ -140,6 +145,7 @@ def main() -> None:
             )
     table = "\n".join(lines) + "\n"
     write_out(args.out, "cc_by_frame", table, results)
+    publish_out(args.publish, "cc_by_frame", table)
     figure({n: {g: s for g, s in gs.items() if g != "all"} for n, gs in results.items()}, args.out / "cc_by_frame.png")
     print(table)
 

@@ -24,7 +24,8 @@ Run::
 
     .venv/bin/pip install pyamg && OMP_NUM_THREADS=1 .venv/bin/python -m bench.preconditioners   # ~4 min
 
-``--out DIR`` writes preconditioners.md (the tables) and preconditioners.json (raw numbers).
+``--out DIR`` writes preconditioners.md (the tables) and preconditioners.json (raw numbers);
+``--publish`` writes the tables into the block ``preconditioners`` of docs/results.md.
 """
 
 from __future__ import annotations
@@ -37,7 +38,17 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import cg
 
-from bench.common import add_out_argument, best_of, growth_exponent, machine, machine_line, write_out
+from bench.common import (
+    add_out_argument,
+    add_publish_argument,
+    best_of,
+    check_publish,
+    growth_exponent,
+    machine,
+    machine_line,
+    publish_out,
+    write_out,
+)
 from shared.mesh import Mesh
 from simgen.meshes import get_mesh
 from simgen.solver.simulate import Simulator, SolverConfig, assemble, healthy_fields
@@ -181,7 +192,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--solver-repeat", type=int, default=2, help="timed growth runs; best kept (default 2)")
     parser.add_argument("--repeat", type=int, default=5, help="timed solves per preconditioner; best kept (default 5)")
     add_out_argument(parser, "preconditioners")
+    add_publish_argument(parser, "preconditioners")
     args = parser.parse_args(argv)
+    check_publish(args.publish)
     start = time.perf_counter()
     meshes = [(n, get_mesh("lv", n, kind="tetra")) for n in sorted(args.nodes)]
     growth = []
@@ -194,6 +207,7 @@ def main(argv: list[str] | None = None) -> None:
     text = "\n\n".join([header, growth_table(growth, args.sites), amg_table(amg)]) + "\n"
     print(text)
     write_out(args.out, "preconditioners", text, {**machine(), "total_s": total, "growth": growth, "amg": amg})
+    publish_out(args.publish, "preconditioners", text)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,8 @@ Run::
     .venv/bin/python -m bench.real_hearts --out report/bench            # ~10 min on 2 cores
     .venv/bin/python -m bench.real_hearts --nodes 1000 2000 --quick     # real meshes and small LVs only
 
-``--out DIR`` writes real_hearts.md (the tables) and real_hearts.json (raw numbers).
+``--out DIR`` writes real_hearts.md (the tables) and real_hearts.json (raw numbers); ``--publish``
+writes the tables into the block ``real_hearts`` of docs/results.md.
 """
 
 from __future__ import annotations
@@ -40,7 +41,16 @@ import time
 import numba
 import numpy as np
 
-from bench.common import add_out_argument, growth_exponent, machine, machine_line, write_out
+from bench.common import (
+    add_out_argument,
+    add_publish_argument,
+    check_publish,
+    growth_exponent,
+    machine,
+    machine_line,
+    publish_out,
+    write_out,
+)
 from shared.mesh import Mesh
 from simgen.meshes import get_mesh
 from simgen.meshes.io import load_mesh
@@ -168,7 +178,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--repeat", type=int, default=5, help="timed rounds over the integrators; best kept (default 5)")
     p.add_argument("--quick", action="store_true", help="procedural meshes up to 2k nodes only")
     add_out_argument(p, "real_hearts")
+    add_publish_argument(p, "real_hearts")
     args = p.parse_args(argv)
+    check_publish(args.publish)
     if args.quick:
         args.nodes = [n for n in args.nodes if n <= 2000] or [1000]
     load_before = os.getloadavg()[0]
@@ -192,6 +204,7 @@ def main(argv: list[str] | None = None) -> None:
     text = header + "\n" + markdown(rows) + "\n" + "\n".join(comparisons(rows, args)) + "\n"
     print(text)
     write_out(args.out, "real_hearts", text, {**machine(), "total_s": total, "rows": rows}, indent=2)
+    publish_out(args.publish, "real_hearts", text)
 
 
 if __name__ == "__main__":

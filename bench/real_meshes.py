@@ -6,7 +6,8 @@ AHA segments and simulate one activation from the epicardial node nearest the ap
 draw node sets, segments and activation map into ``docs/real-<name>.png``
 ([docs/anatomies.md](../docs/anatomies.md)). Prints a Markdown table: nodes before and
 after, symmetric Hausdorff distance between the file's surface and the resampled one,
-node-set sizes, seconds to load and resample, the solver's time step.
+node-set sizes, seconds to load and resample, the solver's time step; ``--publish`` writes it
+into the block ``real_meshes`` of docs/results.md.
 
 Run::
 
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import machine_line
+from bench.common import add_publish_argument, check_publish, machine_line, publish_out
 from simgen.meshes import get_mesh
 from simgen.meshes.io import load_mesh
 from simgen.meshes.resample import hausdorff_distance
@@ -40,15 +41,18 @@ def main() -> None:
     parser.add_argument("--nodes", type=int, default=2000)
     parser.add_argument("--kind", choices=("tetra", "triangle"), default="tetra")
     parser.add_argument("--out", type=Path, default=Path("docs"), help="folder for the real-<name>.png figures")
+    add_publish_argument(parser, "real_meshes")
     args = parser.parse_args()
+    check_publish(args.publish)
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"Machine: {machine_line()}\n")
-    print(
+    lines = [
         f"| mesh | nodes in file | nodes ({args.kind}) | Hausdorff (mm) | "
         + " | ".join(SETS)
-        + " | load + resample (s) | dt |"
-    )
-    print("|---" * (len(SETS) + 6) + "|")
+        + " | load + resample (s) | dt |",
+        "|---" * (len(SETS) + 6) + "|",
+    ]
+    print("\n".join(lines))
     for name in REAL_MESHES:
         source = REAL_PREFIX + name
         start = time.perf_counter()
@@ -70,10 +74,12 @@ def main() -> None:
             f"{source}: {mesh.n_nodes} nodes ({args.kind}), stimulus at the apex",
         )
         sizes = " | ".join(str(len(mesh.node_sets.get(s, []))) for s in SETS)
-        print(
+        lines.append(
             f"| `{source}` | {original.n_nodes} | {mesh.n_nodes} | {distance:.2f} | {sizes} | {seconds:.1f} | "
             f"{simulator.dt:.3g} |"
         )
+        print(lines[-1], flush=True)
+    publish_out(args.publish, "real_meshes", "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -32,8 +32,9 @@ and its largest differences from numba (u, activation times in steps).
 Run: ``.venv/bin/python -m bench.solver [--quick] [--out DIR]`` (DIR gets solver.md and solver.json);
 ``--backend numba torch --device cuda --nodes 2000 10000 50000 --naive-sites 0`` on a GPU machine;
 ``--integrator euler rkc --real real:tof-biv --nodes 1000 --batch 8 --threads 1 --naive-sites 0``.
-The numba table is published in docs/performance.md ("Solver speed"), the torch one and the
-integrators' in docs/solver-backends.md, each with its machine and command.
+The numba table is published in docs/performance.md ("Solver speed"); ``--publish SECTION`` writes
+the tables into the block SECTION of docs/results.md (``solver.torch-cpu``: torch against numba on
+the CPU), with the command and the machine.
 """
 
 from __future__ import annotations
@@ -46,7 +47,16 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from bench.common import add_out_argument, best_of, machine, machine_line, write_out
+from bench.common import (
+    add_out_argument,
+    add_publish_argument,
+    best_of,
+    check_publish,
+    machine,
+    machine_line,
+    publish_out,
+    write_out,
+)
 from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.heart import load_heart
@@ -325,7 +335,9 @@ def main(argv: list[str] | None = None) -> None:
         "--real", nargs="+", metavar="NAME", help="shipped real meshes (real:tof-biv) at each --nodes size (1000)"
     )
     add_out_argument(p, "solver")
+    add_publish_argument(p, "solver.torch-cpu")
     args = p.parse_args(argv)
+    check_publish(args.publish)
 
     if args.real:
         meshes = [(n, "tetra", name) for name in args.real for n in args.nodes or [1000]]
@@ -360,6 +372,7 @@ def main(argv: list[str] | None = None) -> None:
         header += "WARNING: other processes may have been using the CPUs; timings (2 threads above all) may be slow.\n"
     table = header + "\n" + markdown(rows) + "\n"
     print(table)
+    publish_out(args.publish, "solver", table)
     if args.out:
         meta = {
             **machine(),

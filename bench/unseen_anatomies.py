@@ -18,7 +18,8 @@ The real heart's table is also written fold by fold, beside the noise-free truth
 
 Models trained on other stores (e.g. the 3 fixed meshes of ``specs/default.toml``) are evaluated on
 the same subjects, so the table compares them side by side. Writes ``unseen_anatomies.json`` and
-``unseen_anatomies.md`` to ``--out``; the table is published in docs/anatomies.md.
+``unseen_anatomies.md`` to ``--out``; ``--publish [SECTION]`` writes the tables into the block SECTION
+(default ``unseen_anatomies``; ``unseen_anatomies.refined`` for the refined runs) of docs/results.md.
 
 Run::
 
@@ -34,7 +35,7 @@ import json
 import time
 from pathlib import Path
 
-from bench.common import add_out_argument, write_out
+from bench.common import add_out_argument, add_publish_argument, check_publish, publish_out, write_out
 from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
 from learner.evaluate import EvalSetting, EvalSpec, evaluate, load_method
 from learner.refine import Refinement
@@ -159,7 +160,9 @@ def main() -> None:
         "minutes per model on one core of the 2-core VM)",
     )
     add_out_argument(parser, "unseen_anatomies", Path("report/unseen-anatomies"))
+    add_publish_argument(parser, "unseen_anatomies")
     args = parser.parse_args()
+    check_publish(args.publish)
 
     splits = load_checkpoint(args.split_from, kind="model")["splits"]
     test = splits["test"]
@@ -192,6 +195,7 @@ def main() -> None:
     if args.baseline_subjects:
         table += subset_markdown(results, args.baseline_subjects)
     write_out(args.out, "unseen_anatomies", table, {"test": test, **results})
+    publish_out(args.publish, "unseen_anatomies", table)
     print(table)
 
 

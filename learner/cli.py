@@ -28,7 +28,12 @@ console = Console()
 SeedOpt = Annotated[int, typer.Option(min=0, help="Random seed.")]
 DeviceOpt = Annotated[str, typer.Option(help="auto (CUDA where available), cpu, cuda or cuda:N.")]
 RefineOpt = Annotated[
-    int, typer.Option(min=0, help="Gradient steps refining c on each context set (0: the encoder's mean).")
+    int,
+    typer.Option(
+        min=0,
+        help="Most gradient steps refining c on each context set (0: the encoder's mean); the count is chosen by "
+        "leaving each recording out in turn.",
+    ),
 ]
 
 
@@ -321,7 +326,14 @@ def personalize(
         if issubclass(warning.category, NoWaveWarning):
             console.print(f"[yellow]{warning.message}[/yellow]", soft_wrap=True)
     history = heart.refine_objective
-    refined = f", refined in {refine_steps} steps (objective {history[0]:.4g} -> {history[-1]:.4g})" if history else ""
+    refined = ""
+    if refine_steps:
+        refined = (
+            f", refined in {heart.refine_steps_taken} of up to {refine_steps} steps (objective {history[0]:.4g} -> "
+            f"{history[-1]:.4g}, the count chosen on held-out recordings)"
+            if history
+            else ", not refined (no step improved the held-out recordings, or a single recording)"
+        )
     console.print(
         f"personalised on {len(obs.sites) - len(heart.dropped)} recording(s) in {1000 * heart.embed_seconds:.1f} ms"
         f"{refined}; {heart.graph_summary()} -> {out}",
@@ -337,10 +349,18 @@ def predict(
     site_region: SiteRegionOpt = None,
     site_tolerance: SiteToleranceOpt = SITE_TOLERANCE,
     out: Annotated[
-        Path, typer.Option(help=".npz with sites, times and u (site, time, node), activated_fraction, started_wave.")
+        Path,
+        typer.Option(
+            help=".npz: sites, times_ms, v_mv (site, time, node) in mV, activation_ms, activated_fraction, "
+            "started_wave, the mesh (points, cells) and, with --samples, spread_mv and activation_spread_ms."
+        ),
     ] = Path("prediction.npz"),
-    vtk: Annotated[Path | None, typer.Option(help="Folder for one .vtu per site (ParaView).")] = None,
-    png: Annotated[Path | None, typer.Option(help="PNG of the predicted activation maps, one row per site.")] = None,
+    vtk: Annotated[
+        Path | None, typer.Option(help="Folder for a ParaView time series per site (site-<node>.pvd).")
+    ] = None,
+    png: Annotated[
+        Path | None, typer.Option(help="PNG of the predicted activation maps (and their spread), one row per site.")
+    ] = None,
     samples: Annotated[
         int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
     ] = 0,
@@ -362,15 +382,7 @@ def predict(
         pred = heart.predict(heart.sites(ids, points, regions, site_tolerance), samples=samples)
     except InputError as exc:
         _fail(exc)
-    arrays = {
-        "sites": pred.sites,
-        "times": pred.times,
-        "u": pred.u,
-        "activated_fraction": pred.activated,
-        "started_wave": pred.started_wave,
-    }
-    if pred.spread is not None:
-        arrays["spread"] = pred.spread
+    arrays = pred.arrays()
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         np.savez(out, **arrays)
@@ -392,13 +404,47 @@ def predict(
             paths = write_vtk(pred, vtk)
         except OSError as exc:
             _fail(exc, vtk)
-        console.print(f"wrote {len(paths)} .vtu file(s) to {vtk}")
+        console.print(f"wrote {len(paths)} time series ({', '.join(p.name for p in paths)}) to {vtk}")
     if png is not None:
         try:
             png.parent.mkdir(parents=True, exist_ok=True)
             console.print(f"wrote {plot_prediction(pred, png)}")
         except (OSError, ValueError) as exc:
             _fail(exc, png)
+
+
+@app.command()
+def compare(
+    prediction: Annotated[Path, typer.Argument(help="Prediction file (`learner predict --out`).")],
+    simulation: Annotated[Path, typer.Argument(help="Simulation file of the same heart (`simgen simulate`).")],
+    png: Annotated[
+        Path | None, typer.Option(help="PNG: simulated and predicted activation maps side by side, one scale.")
+    ] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="JSON of the metrics per site and overall.")] = None,
+) -> None:
+    """Score a prediction against a simulation: MSE, spatial and temporal CC, DC, activation error (ms) per site."""
+    from rich.table import Table
+
+    from learner.compare import compare_files, plot_comparison
+
+    try:
+        result = compare_files(prediction, simulation)
+    except InputError as exc:
+        _fail(exc)
+    columns = (("mse", "MSE", ".4f"), ("cc_spatial", "spatial CC", ".3f"), ("cc_temporal", "temporal CC", ".3f"))
+    columns += (("dc", "DC", ".3f"), ("act_error_ms", "activation error (ms)", ".1f"))
+    table = Table("site", *(title for _, title, _ in columns))
+    for site, row in zip(result.sites, result.per_site):
+        table.add_row(str(int(site)), *(format(row[key], fmt) for key, _, fmt in columns))
+    table.add_row("mean", *(format(result.overall[key]["mean"], fmt) for key, _, fmt in columns), style="bold")
+    console.print(table)
+    try:
+        for path, write in ((json_out, result.write_json), (png, lambda p: plot_comparison(result, p))):
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                console.print(f"wrote {write(path)}")
+    except OSError as exc:
+        _fail(exc)
 
 
 @app.command()

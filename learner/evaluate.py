@@ -193,7 +193,7 @@ class NeuralMethod(Method):
         self._evidence = SiteEvidence.of(ep)
         self._c = posterior.mu
         if self.refine.steps:
-            self._c, _ = refine_context(
+            self._c, _, _ = refine_context(
                 self.model,
                 posterior,
                 ep.context_obs,

@@ -11,65 +11,80 @@ by region.
 
 from __future__ import annotations
 
+import warnings
 import zipfile
 import zlib
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from learner.activation_maps import ApTemplate
 from learner.data.episodes import load_episode
 from learner.store_view import StoreView
 from shared.errors import InputError, StimulusError
 from shared.mesh import Mesh
 from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes
-from shared.units import U_RANGE
+from shared.units import MS_PER_TIME_UNIT, MV_RANGE, U_RANGE, from_millivolts
 
 __all__ = [
     "OBSERVATION_ARRAYS",
     "Observations",
+    "UnmappedWarning",
+    "resample_frames",
     "observations_from_store",
     "observations_from_file",
     "read_mesh_file",
 ]
 
 
+class UnmappedWarning(UserWarning):
+    """Nodes of an activation-time map left out because not every recording maps them."""
+
+
 @dataclass
 class Observations:
-    """A subject's context set: stimulation nodes, observed sequences and where they were observed.
+    """A subject's context set: stimulation nodes, recordings and where they were recorded.
 
-    ``labels``: the mesh's region labels where known (sites by region).
+    The recordings are potential sequences ``obs`` (K, T, N) of the
+    dimensionless ``u`` at frame ``times`` (model time units), or activation
+    times ``activation`` (K, N) in model time units (``+inf``: mapped, never
+    activated), which :meth:`at_frames` renders as potentials
+    (:mod:`learner.activation_maps`). ``labels``: the mesh's region labels
+    where known (sites by region).
     """
 
     mesh: Mesh
     sites: np.ndarray  # (K,) stimulation node ids
-    obs: np.ndarray  # (K, T, N) observed values (anything at unobserved nodes is ignored)
+    obs: np.ndarray | None  # (K, T, N) observed u (anything at unobserved nodes is ignored); None with activation
     observed: np.ndarray  # (N,) bool
     times: np.ndarray  # (T,) model time units
     subject: str = ""
     labels: SiteLabels | None = None
+    activation: np.ndarray | None = None  # (K, N) model time units, +inf never activated; instead of obs
 
     def __post_init__(self) -> None:
-        k, t, n = self.obs.shape
-        if k < 1:
+        if (self.obs is None) == (self.activation is None):
+            raise InputError("give the recordings as potentials (obs) or as activation times, not both or neither")
+        k, n = len(self.sites), len(self.mesh.points)
+        recorded = self.obs if self.obs is not None else self.activation
+        if len(recorded) < 1 or k < 1:
             raise InputError("context size must be >= 1: give at least one observed simulation")
-        if n != len(self.mesh.points) or self.observed.shape != (n,) or len(self.sites) != k or len(self.times) != t:
+        frames = (len(self.times),) if self.obs is not None else ()
+        if recorded.shape != (k, *frames, n) or self.observed.shape != (n,):
             raise InputError(
-                f"observations do not fit together: obs {self.obs.shape}, observed {self.observed.shape}, "
-                f"sites {len(self.sites)}, times {len(self.times)}, mesh nodes {len(self.mesh.points)}"
+                f"observations do not fit together: {'obs' if self.obs is not None else 'activation'} "
+                f"{recorded.shape}, observed {self.observed.shape}, sites {k}, times {len(self.times)}, "
+                f"mesh nodes {n}"
             )
         if not self.observed.any():
             raise InputError("no observed node: observed is false everywhere, so no sequence is observed anywhere")
-        seen = self.obs[:, :, self.observed]
-        if not np.isfinite(seen).all():
-            raise InputError("observations contain NaN or inf at observed nodes")
-        lo, hi = float(seen.min()), float(seen.max())
-        if lo < U_RANGE[0] or hi > U_RANGE[1]:
-            raise InputError(
-                f"observations range from {lo:.4g} to {hi:.4g} at observed nodes, outside [{U_RANGE[0]:g}, "
-                f"{U_RANGE[1]:g}]: the model's values are the dimensionless potential u (rest 0, peak about 1; "
-                "V = 100 u - 80 mV), so give u, not millivolts or scaled values"
-            )
+        if self.obs is not None:
+            self._check_potentials()
+            self.obs = np.where(self.observed, self.obs, 0.0).astype(np.float32)  # unobserved: NaN or anything
+        elif np.isnan(self.activation[:, self.observed]).any() or (self.activation[:, self.observed] < 0).any():
+            raise InputError("activation times must be >= 0 (or +inf: never activated) at every observed node")
         bad = [int(s) for s in self.sites if not 0 <= s < n]
         if bad:
             raise InputError(f"stimulation nodes {bad} are not nodes of the {n}-node mesh")
@@ -78,6 +93,64 @@ class Observations:
             raise InputError(f"stimulation node(s) {repeated} recorded more than once: give each site one recording")
         if self.labels is not None and self.labels.n_nodes != n:
             raise InputError(f"region labels cover {self.labels.n_nodes} nodes, the mesh has {n}")
+
+    def _check_potentials(self) -> None:
+        seen = self.obs[:, :, self.observed]
+        if not np.isfinite(seen).all():
+            raise InputError("observations contain NaN or inf at observed nodes")
+        lo, hi = float(seen.min()), float(seen.max())
+        if lo < U_RANGE[0] or hi > U_RANGE[1]:
+            raise InputError(
+                f"observations range from {lo:.4g} to {hi:.4g} at observed nodes, outside [{U_RANGE[0]:g}, "
+                f"{U_RANGE[1]:g}]: the model's values are the dimensionless potential u (rest 0, peak about 1; "
+                "V = 100 u - 80 mV), so give u as obs, or millivolts as obs_mv"
+            )
+
+    def at_frames(self, times: np.ndarray, template: Callable[[], ApTemplate]) -> Observations:
+        """These recordings as potentials at the model's frame ``times`` (model time units).
+
+        Activation times are rendered through ``template()`` (called only for
+        them); potentials at other frame times are resampled linearly
+        (:func:`resample_frames`).
+        """
+        times = np.asarray(times, np.float64)
+        if self.activation is not None:
+            obs = template().render(self.activation, times)
+        elif len(self.times) == len(times) and np.allclose(self.times, times, rtol=1e-3, atol=1e-6):
+            return self
+        else:
+            obs = resample_frames(self.obs, self.times, times)
+        return replace(self, obs=obs, times=times, activation=None)
+
+
+def _span_ms(times: np.ndarray) -> str:
+    """``first, second, ..., last ms`` of a time axis in model time units."""
+    t = [float(v) * MS_PER_TIME_UNIT for v in times]
+    listed = ", ".join(f"{v:.2f}" for v in t) if len(t) <= 3 else f"{t[0]:.2f}, {t[1]:.2f}, ..., {t[-1]:.2f}"
+    return f"{listed} ms"
+
+
+def resample_frames(obs: np.ndarray, times: np.ndarray, to: np.ndarray) -> np.ndarray:
+    """Sequences ``obs`` (K, T, N) at ``times`` (T,) resampled linearly to frame times ``to`` (T',).
+
+    The recording must span ``to`` up to one of its own frame intervals at
+    either end (there it holds its first or last value); anything shorter is
+    refused with the frame times expected.
+    """
+    times = np.asarray(times, np.float64)
+    if len(times) < 2 or np.any(np.diff(times) <= 0):
+        raise InputError(f"frame times must increase strictly (at least 2 frames), got {_span_ms(times)}")
+    step = float(np.max(np.diff(times)))
+    if times[0] > to[0] + step or times[-1] < to[-1] - step:
+        raise InputError(
+            f"recordings at {_span_ms(times)} do not cover the model's {len(to)} frames at {_span_ms(to)} "
+            f"({(to[1] - to[0]) * MS_PER_TIME_UNIT:.2f} ms apart, after the stimulus): record from at most "
+            f"{(to[0] + step) * MS_PER_TIME_UNIT:.1f} ms to at least {(to[-1] - step) * MS_PER_TIME_UNIT:.1f} ms"
+        )
+    right = np.clip(np.searchsorted(times, to, side="right"), 1, len(times) - 1)
+    left = right - 1
+    w = np.clip((to - times[left]) / (times[right] - times[left]), 0.0, 1.0)[None, :, None]
+    return ((1 - w) * obs[:, left, :] + w * obs[:, right, :]).astype(np.float32)
 
 
 def observations_from_store(
@@ -114,19 +187,26 @@ OBSERVATION_ARRAYS = {
     "cells": (2, "iu"),  # (M, 4) tetrahedra or (M, 3) triangles
     "sites": (1, "iu"),  # (K,) node ids, or
     "site_xyz": (2, "fiu"),  # (K, 3) points in mm
-    "obs": (3, "fiu"),  # (K, T, N)
+    "obs_mv": (3, "fiu"),  # (K, T, N) potentials in mV, or
+    "obs": (3, "fiu"),  # (K, T, N) the dimensionless u, or
+    "activation_ms": (2, "fiu"),  # (K, N) activation times in ms, NaN unmapped, +inf never activated
     "observed": (1, "biu"),  # (N,) 0/1
-    "times": (1, "fiu"),  # (T,)
+    "times_ms": (1, "fiu"),  # (T,) ms, or
+    "times": (1, "fiu"),  # (T,) model time units
 }
-#: Arrays a file may leave out: the sites are ``sites`` or ``site_xyz``; the mesh may come from a mesh file.
-_EITHER_SITES = ("sites", "site_xyz")
+#: Groups of arrays of which a file gives exactly one (``sites`` and ``site_xyz`` may both be given if they agree).
+ONE_OF = {
+    "sites": ("sites", "site_xyz"),
+    "recordings": ("obs_mv", "obs", "activation_ms"),
+    "frame times": ("times_ms", "times"),
+}
 _KINDS = {"f": "float", "i": "integer", "u": "integer", "b": "bool"}
 _UNREADABLE = (ValueError, EOFError, zipfile.BadZipFile, zlib.error)  # what np.load raises for bad bytes
 
 
-def _read_arrays(path: Path, optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
-    """The arrays of :data:`OBSERVATION_ARRAYS` (and region labels) from ``path``, each checked; ``optional``
-    ones may be absent, and one of ``sites`` and ``site_xyz`` must be there."""
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of :data:`OBSERVATION_ARRAYS` (and region labels) that ``path`` holds, each checked for its
+    number of dimensions and dtype kind."""
     try:
         data = np.load(path)
     except _UNREADABLE as exc:
@@ -135,12 +215,6 @@ def _read_arrays(path: Path, optional: tuple[str, ...] = ()) -> dict[str, np.nda
         raise InputError(f"{path} holds a single array, not an .npz archive of {list(OBSERVATION_ARRAYS)}")
     arrays = {}
     with data:
-        absent = set(optional) | set(_EITHER_SITES)
-        missing = [name for name in OBSERVATION_ARRAYS if name not in data.files and name not in absent]
-        if not set(_EITHER_SITES) & set(data.files):
-            missing.append("sites (or site_xyz)")
-        if missing:
-            raise InputError(f"{path} lacks array(s) {missing}")
         for name in [*OBSERVATION_ARRAYS, *SiteLabels.NAMES]:
             if name not in data.files:
                 continue
@@ -156,6 +230,61 @@ def _read_arrays(path: Path, optional: tuple[str, ...] = ()) -> dict[str, np.nda
                 )
             arrays[name] = array
     return arrays
+
+
+def _check_present(path: Path, a: dict[str, np.ndarray], mesh_given: bool) -> None:
+    """Refuse a file lacking an array it needs, or giving two of a :data:`ONE_OF` group."""
+    for group, names in ONE_OF.items():
+        given = [name for name in names if name in a]
+        if len(given) > 1 and group != "sites":
+            raise InputError(f"{path}: give one of {' and '.join(given)} ({group}), not both")
+    needed = ["sites", "recordings"]
+    if "activation_ms" not in a:
+        needed += ["frame times", "observed"]
+    if not mesh_given:
+        needed += ["points", "cells"]
+    missing = [" or ".join(ONE_OF.get(need, (need,))) for need in needed if not set(ONE_OF.get(need, (need,))) & set(a)]
+    if missing:
+        raise InputError(f"{path} lacks array(s) {missing}")
+
+
+def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The recordings of a checked file as :class:`Observations` fields: ``obs`` (u) and ``times`` (model time
+    units), or ``activation`` (model time units) with the nodes every recording maps as ``observed``."""
+    if "activation_ms" in a:
+        act = a["activation_ms"].astype(np.float64)
+        if (act < 0).any():
+            raise InputError(
+                f"{path}: activation_ms has {int((act < 0).sum())} negative time(s), down to {np.nanmin(act):.4g} ms: "
+                "give ms after the stimulus starts (NaN: unmapped, inf: mapped and never activated)"
+            )
+        mapped = ~np.isnan(act)
+        observed = mapped.all(axis=0) if "observed" not in a else a["observed"].astype(bool)
+        if "observed" in a and not mapped[:, observed].all():
+            raise InputError(f"{path}: activation_ms is NaN at nodes that observed marks as recorded")
+        partial = int((mapped.any(axis=0) & ~observed).sum())
+        if partial and "observed" not in a:
+            warnings.warn(
+                f"{partial} node(s) mapped in some recordings but not all are left out: the model reads the "
+                f"{int(observed.sum())} nodes every recording maps",
+                UnmappedWarning,
+                stacklevel=3,
+            )
+        return {"obs": None, "activation": act / MS_PER_TIME_UNIT, "observed": observed, "times": np.zeros(0)}
+    times = a["times"].astype(np.float64) if "times" in a else a["times_ms"] / MS_PER_TIME_UNIT
+    if not np.isfinite(times).all():
+        raise InputError(f"{path}: {'times' if 'times' in a else 'times_ms'} contains NaN or inf")
+    observed = a["observed"].astype(bool)
+    if "obs" in a:
+        return {"obs": a["obs"].astype(np.float32), "observed": observed, "times": times}
+    mv = a["obs_mv"][:, :, observed].astype(np.float64)
+    if mv.size and (not np.isfinite(mv).all() or mv.min() < MV_RANGE[0] or mv.max() > MV_RANGE[1]):
+        raise InputError(
+            f"{path}: obs_mv ranges from {np.min(mv):.4g} to {np.max(mv):.4g} at observed nodes (NaN or inf, or "
+            f"outside [{MV_RANGE[0]:g}, {MV_RANGE[1]:g}] mV): give the transmembrane potential in mV (rest -80, "
+            "peak about 20)"
+        )
+    return {"obs": from_millivolts(a["obs_mv"]).astype(np.float32), "observed": observed, "times": times}
 
 
 def read_mesh_file(path: str | Path) -> tuple[Mesh, SiteLabels | None]:
@@ -199,11 +328,12 @@ def observations_from_file(
     path = Path(path)
     if not path.is_file():
         raise InputError(f"observation file not found: {path}")
-    a = _read_arrays(path, optional=("points", "cells") if mesh is not None else ())
-    for name in ("points", "times", "site_xyz"):
+    a = _read_arrays(path)
+    _check_present(path, a, mesh is not None)
+    for name in ("points", "site_xyz"):
         if name in a and not np.isfinite(a[name]).all():
             raise InputError(f"{path}: {name} contains NaN or inf")
-    if not np.isin(a["observed"], (0, 1)).all():
+    if "observed" in a and not np.isin(a["observed"], (0, 1)).all():
         raise InputError(f"{path}: observed must hold 0/1 (or false/true) per node")
     if mesh is None:
         mesh = Mesh(points=a["points"], cells=a["cells"], name=path.stem)
@@ -220,6 +350,4 @@ def observations_from_file(
         raise InputError(f"{path}: {exc}") from None
     if "sites" in a and "site_xyz" in a and not np.array_equal(sites, nearest_nodes(mesh.points, a["site_xyz"], 1e9)):
         raise InputError(f"{path}: sites and site_xyz name different nodes; give one of them")
-    return Observations(
-        mesh, sites, a["obs"].astype(np.float32), a["observed"].astype(bool), a["times"], path.stem, labels
-    )
+    return Observations(mesh, sites, subject=path.stem, labels=labels, **_recordings(path, a))

@@ -25,20 +25,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from learner.activation_maps import ApTemplate, template_from_store
 from learner.config import config_from_mapping
 from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
+from learner.metrics import activation_times
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior, build_model
 from learner.observations import Observations
 from learner.refine import Refinement, refine_context
 from learner.runtime import resolve_device
+from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
 from shared.capture import recorded_fraction, started_wave
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes, region_nodes
-from shared.units import MS_PER_TIME_UNIT
+from shared.units import MS_PER_TIME_UNIT, to_millivolts
+from shared.vtk import write_time_series
 
 __all__ = ["NoWaveWarning", "Prediction", "PersonalizedHeart", "personalize", "predict", "write_vtk", "plot_prediction"]
 
@@ -62,11 +66,35 @@ class Prediction:
     spread: np.ndarray | None = None  # (S, T, N) std over samples of c, when samples > 1
     seconds: float = 0.0
     activated: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    activation_spread: np.ndarray | None = None  # (S, N) std of the activation time over samples (time units)
 
     @property
     def started_wave(self) -> np.ndarray:
         """(S,) whether the model predicts a propagating wave from each site (:mod:`shared.capture`)."""
         return started_wave(self.activated)
+
+    @property
+    def activation(self) -> np.ndarray:
+        """(S, N) predicted activation times in model time units (first crossing of ``u = 0.5``; NaN: never)."""
+        return np.stack([activation_times(u, self.times) for u in self.u])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The prediction file's arrays (docs/formats.md): physical units, the mesh with them."""
+        arrays = {
+            "sites": self.sites,
+            "site_xyz": self.mesh.points[self.sites],
+            "times_ms": np.asarray(self.times, np.float64) * MS_PER_TIME_UNIT,
+            "v_mv": to_millivolts(self.u).astype(np.float32),
+            "activation_ms": (self.activation * MS_PER_TIME_UNIT).astype(np.float32),
+            "activated_fraction": self.activated,
+            "started_wave": self.started_wave,
+            "points": self.mesh.points,
+            "cells": self.mesh.cells,
+        }
+        if self.spread is not None:
+            arrays["spread_mv"] = (100.0 * self.spread).astype(np.float32)
+            arrays["activation_spread_ms"] = (self.activation_spread * MS_PER_TIME_UNIT).astype(np.float32)
+        return arrays
 
 
 class PersonalizedHeart:
@@ -107,6 +135,11 @@ class PersonalizedHeart:
         return float(self._payload.get("embed_seconds", 0.0))
 
     @property
+    def refine_steps_taken(self) -> int:
+        """Refinement steps the held-out recordings chose (:func:`~learner.refine.refine_context`; 0: none)."""
+        return int(self._payload.get("refine_steps_taken", 0))
+
+    @property
     def refine_objective(self) -> list[float]:
         """The refinement's objective per step (empty without refinement)."""
         return list(self._payload.get("refine_objective", []))
@@ -139,17 +172,24 @@ class PersonalizedHeart:
         with torch.no_grad():
             u = self.model.generate(s, self.hierarchy, self.posterior.mu, evidence=self.evidence)
             seconds = time.perf_counter() - t0
-            spread = None
+            spread = act_spread = None
             if samples > 1:
                 g = torch.Generator().manual_seed(seed)
-                draws = [
-                    self.model.generate(s, self.hierarchy, self.posterior.sample(g), evidence=self.evidence)
-                    for _ in range(samples)
-                ]
-                spread = torch.stack(draws).std(dim=0).cpu().numpy()
+                draws = (
+                    torch.stack(
+                        [
+                            self.model.generate(s, self.hierarchy, self.posterior.sample(g), evidence=self.evidence)
+                            for _ in range(samples)
+                        ]
+                    )
+                    .cpu()
+                    .numpy()
+                )
+                spread = draws.std(axis=0)
+                act_spread = _activation_spread(draws, self.times)
         u = u.cpu().numpy()
         activated = (u.max(axis=1) >= 0.5).mean(axis=1)
-        return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated)
+        return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated, act_spread)
 
     def save(self, path: str | Path) -> Path:
         """Write the heart to ``path`` (a personalised surrogate file that :meth:`load` reads)."""
@@ -200,10 +240,32 @@ def _hierarchy(mesh: Mesh, model_config) -> MeshHierarchy:
     return hierarchy_for_mesh(mesh, model_config.levels, model_config.coarsest, None, model_config.working_nodes)
 
 
-def _span(times) -> str:
-    """``first, second, ..., last`` of a time axis."""
-    t = [float(v) for v in times]
-    return ", ".join(f"{v:g}" for v in t) if len(t) <= 3 else f"{t[0]:g}, {t[1]:g}, ..., {t[-1]:g}"
+def _model_times(ckpt: dict, config, observations: Observations) -> np.ndarray:
+    """The frame times (model time units) of a model: recorded with a shipped model, else its training
+    store's; a model with neither takes recordings as they come (their frame count is checked)."""
+    if ckpt.get("times") is not None:
+        return np.asarray(ckpt["times"], np.float64)
+    if Path(config.data.store).exists():
+        return StoreView(config.data.store).times
+    if observations.activation is not None:
+        raise InputError(
+            f"the model records no frame times and its training store {config.data.store} is not there: "
+            "activation-time maps need them; give potentials (obs) at the model's frames"
+        )
+    return observations.times
+
+
+def _template(ckpt: dict, config) -> ApTemplate:
+    """The action-potential template of a model (:mod:`learner.activation_maps`): shipped with its weights,
+    else computed from its training store's training subjects."""
+    if ckpt.get("ap_template") is not None:
+        return ApTemplate.from_dict(ckpt["ap_template"])
+    if not Path(config.data.store).exists():
+        raise InputError(
+            f"the model records no action-potential template and its training store {config.data.store} is not "
+            "there: activation-time maps cannot be read as potentials; give potentials (obs_mv or obs)"
+        )
+    return template_from_store(config.data.store, list(ckpt.get("splits", {}).get("train", [])))
 
 
 def personalize(
@@ -224,15 +286,9 @@ def personalize(
     model, config, ckpt = load_model(checkpoint, placed)
     if not isinstance(model, MetaPNS):
         raise InputError(f"{checkpoint} is a PNS model: it has no context embedding to personalise")
+    observations = observations.at_frames(_model_times(ckpt, config, observations), lambda: _template(ckpt, config))
     if observations.obs.shape[1] != model.frames:
         raise InputError(f"observations have {observations.obs.shape[1]} frames, the model expects {model.frames}")
-    expected = ckpt.get("times")  # a shipped model records its frame times
-    if expected is not None and not np.allclose(observations.times, expected, rtol=1e-3, atol=1e-6):
-        step = expected[1] - expected[0] if len(expected) > 1 else expected[0]
-        raise InputError(
-            f"observations are at times {_span(observations.times)}; the model expects {len(expected)} frames "
-            f"at {_span(expected)} ({step:g} time units = {step * MS_PER_TIME_UNIT:.2f} ms apart, after the stimulus)"
-        )
     activated = recorded_fraction(observations.obs, observations.observed)
     wave = started_wave(activated)
     dropped = [
@@ -259,9 +315,9 @@ def personalize(
     with torch.no_grad():
         post = model.embed(obs, observed, hier)
     evidence = SiteEvidence.from_context(obs, observed, sites)  # its sites on obs's device
-    objective = []
+    objective, taken = [], 0
     if refine.steps:
-        c, objective = refine_context(model, post, obs, observed, evidence.sites, hier, evidence, refine)
+        c, objective, taken = refine_context(model, post, obs, observed, evidence.sites, hier, evidence, refine)
         post = Posterior(c, post.logvar)
     payload = {
         "config": ckpt["config"],
@@ -271,6 +327,7 @@ def personalize(
         "context_activated": torch.as_tensor(activated),
         "dropped": dropped,
         "refine_steps": refine.steps,
+        "refine_steps_taken": taken,
         "refine_objective": objective,
         "embed_seconds": time.perf_counter() - t0,
         "observed": observed.cpu(),
@@ -300,35 +357,41 @@ def predict(
     return heart.predict(sites, samples, seed)
 
 
-def write_vtk(prediction: Prediction, folder: str | Path, threshold: float = 0.5) -> list[Path]:
-    """One ``.vtu`` per site with ``u`` per frame and the predicted activation time (ms) as point data."""
-    import meshio
+def _activation_spread(draws: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(S, N) standard deviation of the activation time over draws (D, S, T, N), over the draws that activate."""
+    act = np.stack([[activation_times(u, times) for u in draw] for draw in draws])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a node no draw activates: NaN
+        return np.nanstd(act, axis=0)
 
-    from learner.metrics import activation_times
 
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    cell_type = "tetra" if prediction.mesh.cells.shape[1] == 4 else "triangle"
+def write_vtk(prediction: Prediction, folder: str | Path) -> list[Path]:
+    """A ParaView time series per site (``site-<node>.pvd``, :func:`shared.vtk.write_time_series`): ``V_mV``
+    and ``u`` per frame (and ``spread_mV`` with draws), ``activation_ms`` (and ``activation_spread_ms``)."""
+    arrays = prediction.arrays()
     paths = []
-    for site, u in zip(prediction.sites, prediction.u):
-        data = {f"u_{t:03d}": u[t] for t in range(u.shape[0])}
-        data["activation_ms"] = activation_times(u, prediction.times, threshold) * MS_PER_TIME_UNIT
-        path = folder / f"site-{int(site)}.vtu"
-        meshio.write(path, meshio.Mesh(prediction.mesh.points, [(cell_type, prediction.mesh.cells)], point_data=data))
-        paths.append(path)
+    for i, site in enumerate(prediction.sites):
+        frames = {"V_mV": arrays["v_mv"][i], "u": prediction.u[i]}
+        static = {"activation_ms": arrays["activation_ms"][i]}
+        if prediction.spread is not None:
+            frames["spread_mV"] = arrays["spread_mv"][i]
+            static["activation_spread_ms"] = arrays["activation_spread_ms"][i]
+        mesh = prediction.mesh
+        times_ms = arrays["times_ms"]
+        paths.append(write_time_series(folder, f"site-{int(site)}", mesh.points, mesh.cells, times_ms, frames, static))
     return paths
 
 
-def plot_prediction(prediction: Prediction, path: str | Path, threshold: float = 0.5) -> Path:
-    """A PNG of the predicted activation-time maps (ms), one row per site, front and back views."""
-    from learner.metrics import activation_times
+def plot_prediction(prediction: Prediction, path: str | Path) -> Path:
+    """A PNG of the predicted activation-time maps (ms), one row per site marked with a star, front and back
+    views on one colour scale; with draws, the spread of the activation time beside each map."""
     from learner.plot import plot_activation_panels
 
-    rows = [
-        (
-            f"site {int(site)}",
-            [("predicted activation", activation_times(u, prediction.times, threshold) * MS_PER_TIME_UNIT)],
-        )
-        for site, u in zip(prediction.sites, prediction.u)
-    ]
-    return plot_activation_panels(prediction.mesh.points, rows, path)
+    arrays = prediction.arrays()
+    rows = []
+    for i, site in enumerate(prediction.sites):
+        cols = [("predicted activation", arrays["activation_ms"][i])]
+        if prediction.spread is not None:
+            cols.append(("spread", arrays["activation_spread_ms"][i], "spread"))
+        rows.append((f"site {int(site)}", cols))
+    return plot_activation_panels(prediction.mesh.points, rows, path, sites=list(arrays["site_xyz"]))

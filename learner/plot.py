@@ -12,46 +12,84 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
 __all__ = ["plot_activation_panels", "plot_context_curves", "plot_training_curves"]
 
-_VIEWS = ((12.0, 0.0), (12.0, 180.0))
+#: The two views of every map: (elevation, azimuth, name).
+_VIEWS = ((12.0, 0.0, "front"), (12.0, 180.0, "back"))
+#: Colour map and label of each scale a column can use; columns of one scale share its range.
+SCALES = {
+    "activation": ("turbo_r", "activation time (ms)"),
+    "spread": ("viridis", "spread over draws (ms)"),
+    "error": ("magma_r", "|prediction - truth| (ms)"),
+}
 
 
 def plot_activation_panels(
     points: NDArray,
-    rows: Sequence[tuple[str, Sequence[tuple[str, NDArray]]]],
+    rows: Sequence[tuple[str, Sequence[tuple[str, NDArray] | tuple[str, NDArray, str]]]],
     path: str | Path,
     vmax: float | None = None,
+    sites: Sequence[NDArray | None] | None = None,
 ) -> Path:
-    """A grid of activation-time maps: one row per case, one column per map, front and back views.
+    """A grid of maps on the mesh: one row per case, one column per map, each from the front and the back.
 
-    ``rows`` is ``[(row title, [(column title, activation ms per node), ...]), ...]``;
-    NaN (never activated) is drawn grey. All panels share one colour scale.
+    ``rows`` is ``[(row title, [(column title, values per node[, scale]), ...]), ...]``; a column's scale
+    (:data:`SCALES`, default ``"activation"``) sets its colours, and every column of one scale shares one
+    range (from 0 to ``vmax`` for activation times, else the largest value) and one colour bar. NaN (never
+    activated) is drawn grey; ``sites[r]`` (a point in mm) marks row ``r``'s paced site with a star.
     """
-    maps = [m for _, cols in rows for _, m in cols]
-    top = vmax if vmax is not None else float(np.nanmax([np.nanmax(m) if np.isfinite(m).any() else 0 for m in maps]))
+    columns = [(col[0], col[1], col[2] if len(col) > 2 else "activation") for _, cols in rows for col in cols]
+    top = {}
+    for _, values, scale in columns:
+        peak = float(np.nanmax(values)) if np.isfinite(values).any() else 0.0
+        top[scale] = max(top.get(scale, 0.0), peak)
+    if vmax is not None:
+        top["activation"] = vmax
+    size = float(np.clip(6000.0 / len(points), 1.0, 12.0))
     n_cols = max(len(cols) for _, cols in rows) * len(_VIEWS)
-    fig = Figure(figsize=(2.2 * n_cols, 2.4 * len(rows) + 0.6))
+    height = 2.8 * len(rows) + 1.0
+    fig = Figure(figsize=(max(2.6 * n_cols, 7.0), height))
     FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=0.0, right=1.0, top=1.0 - 0.5 / height, bottom=0.95 / height, wspace=0.0, hspace=0.15)
+    drawn = {}
     for r, (row_title, cols) in enumerate(rows):
-        for c, (col_title, values) in enumerate(cols):
-            for v, (elev, azim) in enumerate(_VIEWS):
+        for c, col in enumerate(cols):
+            col_title, values = col[0], np.asarray(col[1], np.float64)
+            scale = col[2] if len(col) > 2 else "activation"
+            for v, (elev, azim, view) in enumerate(_VIEWS):
                 ax = fig.add_subplot(len(rows), n_cols, r * n_cols + c * len(_VIEWS) + v + 1, projection="3d")
                 finite = np.isfinite(values)
-                ax.scatter(*points[~finite].T, s=2, c="0.75", depthshade=False)
-                sc = ax.scatter(
-                    *points[finite].T, s=3, c=values[finite], cmap="turbo_r", vmin=0, vmax=top, depthshade=False
+                ax.scatter(*points[~finite].T, s=size, c="0.8", depthshade=False)
+                cmap, _ = SCALES[scale]
+                drawn[scale] = ax.scatter(
+                    *points[finite].T,
+                    s=size,
+                    c=values[finite],
+                    cmap=cmap,
+                    vmin=0,
+                    vmax=top[scale] or 1.0,
+                    depthshade=False,
                 )
+                if sites is not None and sites[r] is not None:
+                    ax.scatter(*np.asarray(sites[r]).reshape(3, 1), s=160, marker="*", c="k", depthshade=False)
                 ax.view_init(elev, azim)
                 ax.set_axis_off()
                 ax.set_box_aspect(np.ptp(points, axis=0))
-                if v == 0:
-                    ax.set_title(f"{row_title}\n{col_title}" if c == 0 else col_title, fontsize=8)
-    fig.colorbar(sc, ax=fig.axes, shrink=0.6, label="activation time (ms)")
+                title = f"{col_title}, {view}"
+                ax.set_title(f"{row_title}\n{title}" if c == 0 and v == 0 else title, fontsize=9)
+    bar_height = 0.12 / height
+    for i, (scale, mappable) in enumerate(drawn.items()):  # one horizontal colour bar per scale, along the bottom
+        cax = fig.add_axes((0.3 + 0.36 * i, 0.42 / height, 0.3, bar_height))
+        fig.colorbar(mappable, cax=cax, orientation="horizontal", label=SCALES[scale][1])
+    handles = [Line2D([], [], ls="", marker="o", color="0.8", label="never activated")]
+    if sites is not None:
+        handles.append(Line2D([], [], ls="", marker="*", color="k", ms=12, label="paced site"))
+    fig.legend(handles=handles, loc="lower left", fontsize=9, frameon=False)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=120)
     return path
 
 

@@ -11,9 +11,11 @@ maximum a posteriori estimate of
 the amortised posterior acting as the prior that keeps ``c`` near the
 encoder's answer (semi-amortised inference: Kim et al. 2018,
 *Semi-Amortized Variational Autoencoders*; Marino et al. 2018, *Iterative
-Amortized Inference*). ``steps`` is the knob that matters: every observed
-value adds to the likelihood, so with thousands of them it outweighs the prior,
-and a fixed, small number of steps is what keeps ``c`` from fitting the noise.
+Amortized Inference*). Every observed value adds to the likelihood, so with
+thousands of them it outweighs the prior and ``c`` goes on to fit the noise
+and the recorded sites at the expense of the others: ``steps`` is a maximum,
+and the number taken is chosen by early stopping on recordings held out of the
+context set in turn (:func:`refine_context`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -29,7 +32,7 @@ from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior
 from shared.errors import InputError
 
-__all__ = ["Refinement", "refine_context"]
+__all__ = ["Refinement", "fit_context", "refine_context"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,55 @@ class Refinement:
                 raise InputError(f"refinement {name} must be a finite number > 0, got {value!r}")
 
 
+def fit_context(
+    model: MetaPNS,
+    mu: Tensor,
+    var: Tensor,
+    fit: tuple[Tensor, Tensor],
+    hierarchy: MeshHierarchy,
+    evidence: SiteEvidence | None,
+    mask: Tensor,
+    refinement: Refinement,
+    steps: int,
+    held_out: tuple[Tensor, Tensor] | None = None,
+) -> tuple[Tensor, list[float], list[float]]:
+    """Adam on ``c`` for ``steps`` steps on the recordings ``fit`` = (sites, observed values): the final ``c``,
+    the objective per step (``steps + 1`` entries) and, with ``held_out`` = (sites, values), the held-out
+    recordings' mean squared residual at each of the same ``c``."""
+    sites, target = fit
+    c = mu.clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([c], lr=refinement.lr)
+
+    def objective() -> Tensor:
+        residual = model.generate(sites, hierarchy, c, evidence=evidence)[..., mask] - target
+        return 0.5 * residual.pow(2).sum() / refinement.sigma**2 + 0.5 * ((c - mu).pow(2) / var).sum()
+
+    def held_out_error() -> list[float]:
+        if held_out is None:
+            return []
+        with torch.no_grad():
+            return [
+                float(
+                    (model.generate(held_out[0], hierarchy, c, evidence=evidence)[..., mask] - held_out[1])
+                    .pow(2)
+                    .mean()
+                )
+            ]
+
+    history, checked = [], []
+    with torch.enable_grad():
+        for _ in range(steps):
+            checked += held_out_error()
+            loss = objective()
+            history.append(float(loss.detach()))
+            (c.grad,) = torch.autograd.grad(loss, [c])  # the weights get no gradient
+            optimizer.step()
+        with torch.no_grad():
+            history.append(float(objective()))
+        checked += held_out_error()
+    return c.detach(), history, checked
+
+
 def refine_context(
     model: MetaPNS,
     posterior: Posterior,
@@ -58,31 +110,44 @@ def refine_context(
     hierarchy: MeshHierarchy,
     evidence: SiteEvidence | None,
     refinement: Refinement,
-) -> tuple[Tensor, list[float]]:
-    """The MAP ``c`` for context ``obs`` (K, T, N) stimulated at ``sites`` (K,), and the objective per step.
+) -> tuple[Tensor, list[float], int]:
+    """The MAP ``c`` for context ``obs`` (K, T, N) stimulated at ``sites`` (K,), its objective per step, and
+    the number of steps taken.
 
     Starts from ``posterior.mu`` and minimises the negative log posterior
     ``0.5 * sum(residual^2) / sigma^2 + 0.5 * sum((c - mu)^2 / var)`` over the
-    observed nodes; only ``c`` moves. The objective list has ``steps + 1``
-    entries, the last one at the returned ``c``.
+    observed nodes; only ``c`` moves. The number of steps is chosen on held-out
+    recordings (early stopping): each recording in turn is left out, ``c`` is
+    refined on the others for up to ``refinement.steps`` steps, and the step
+    count with the smallest mean error on the left-out recordings is then run
+    on all of them; 0 (the encoder's mean) where no step helps, and always with
+    a single recording, which has nothing to check against. The objective list
+    has ``taken + 1`` entries, the last one at the returned ``c``.
     """
     mu, var = posterior.mu.detach(), posterior.logvar.detach().exp()
     mask = observed.bool()
     target = obs[..., mask]
-    c = mu.clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([c], lr=refinement.lr)
-
-    def objective() -> Tensor:
-        residual = model.generate(sites, hierarchy, c, evidence=evidence)[..., mask] - target
-        return 0.5 * residual.pow(2).sum() / refinement.sigma**2 + 0.5 * ((c - mu).pow(2) / var).sum()
-
-    history = []
-    with torch.enable_grad():
-        for _ in range(refinement.steps):
-            loss = objective()
-            history.append(float(loss.detach()))
-            (c.grad,) = torch.autograd.grad(loss, [c])  # the weights get no gradient
-            optimizer.step()
-        with torch.no_grad():
-            history.append(float(objective()))
-    return c.detach(), history
+    k = len(sites)
+    if k < 2:
+        return mu.clone(), [], 0
+    curves = []
+    for left in range(k):
+        keep = torch.arange(k, device=sites.device) != left
+        _, _, checked = fit_context(
+            model,
+            mu,
+            var,
+            (sites[keep], target[keep.to(target.device)]),
+            hierarchy,
+            evidence,
+            mask,
+            refinement,
+            refinement.steps,
+            (sites[left : left + 1], target[left : left + 1]),
+        )
+        curves.append(checked)
+    taken = int(np.argmin(np.mean(curves, axis=0)))
+    if taken == 0:
+        return mu.clone(), [], 0
+    c, history, _ = fit_context(model, mu, var, (sites, target), hierarchy, evidence, mask, refinement, taken)
+    return c, history, taken

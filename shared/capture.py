@@ -53,3 +53,16 @@ def recorded_fraction(obs: ArrayLike, observed: ArrayLike, threshold: float = 0.
 def started_wave(fraction: ArrayLike) -> NDArray[np.bool_]:
     """Whether each activated share (:func:`activated_fraction`, :func:`recorded_fraction`) means a wave."""
     return np.asarray(fraction) > CAPTURE_SHARE
+
+
+#: Peak of ``u`` a node must reach for its crossing of 0.5 to count as an action potential in an activation map.
+ACTION_POTENTIAL_PEAK = 0.8
+
+
+def mapped_activation(activation: ArrayLike, peak: ArrayLike) -> NDArray[np.float64]:
+    """Activation times as a mapping system records them: ``activation`` where the node fires an action
+    potential (its peak ``u`` reaches :data:`ACTION_POTENTIAL_PEAK`), ``+inf`` where it never activates or only
+    follows its neighbours passively (a scar core's electrotonic bump that touches 0.5 without firing)."""
+    activation = np.asarray(activation, np.float64)
+    fired = np.isfinite(activation) & (np.asarray(peak) >= ACTION_POTENTIAL_PEAK)
+    return np.where(fired, activation, np.inf)

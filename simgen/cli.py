@@ -19,10 +19,11 @@ from shared.errors import InputError
 from shared.observation import node_mask
 from shared.observation import observe as observe_field
 from shared.sites import SITE_TOLERANCE
+from shared.vtk import write_time_series
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
-from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT
+from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
 
@@ -159,16 +160,34 @@ def simulate(
             "node set (surface, epicardium, endocardium, electrodes: the 247-electrode sock, or all)."
         ),
     ] = None,
+    record: Annotated[
+        str,
+        typer.Option(
+            help="What observations.npz records: 'potential' (obs_mv, mV, at times_ms) or 'activation' "
+            "(activation_ms: each observed node's activation time in ms, inf where it fires no action potential)."
+        ),
+    ] = "potential",
     noise: Annotated[
-        float, typer.Option(min=0, callback=finite, help="Gaussian noise std added to the observed values.")
+        float,
+        typer.Option(
+            min=0,
+            callback=finite,
+            help="Gaussian noise std added to the recordings: mV (potential) or ms (activation).",
+        ),
     ] = 0.0,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the observation noise.")] = 0,
+    vtk: Annotated[
+        Path | None,
+        typer.Option(help="Folder for a ParaView time series per site (site-<node>.pvd: V_mV, u, activation_ms)."),
+    ] = None,
 ) -> None:
-    """Simulate stimulation sites (node ids, points or regions) on one mesh + tissue and save u, activation
-    times and a figure; a mesh file without --nodes is used as it is, results on its own node ids."""
+    """Simulate stimulation sites (node ids, points or regions) on one mesh + tissue and save the potential (mV),
+    activation times (ms) and a figure; a mesh file without --nodes is used as it is, results on its own node ids."""
     from simgen.plot import plot_activation_maps
 
     try:
+        if record not in RECORDINGS:
+            raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
         m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe is None else _observed_nodes(m, observe)
@@ -180,22 +199,23 @@ def simulate(
         _fail(exc)
     act_ms = result.activation * MS_PER_TIME_UNIT
     file_sites = m.file_ids(site_ids)
+    times_ms = result.times * MS_PER_TIME_UNIT
     try:
         out.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(
             out / "simulation.npz",
-            u=m.to_file(result.u),
-            activation=m.to_file(result.activation),
-            times=result.times,
             sites=file_sites,
             site_xyz=centres,
+            times_ms=times_ms,
+            v_mv=to_millivolts(m.to_file(result.u)).astype(np.float32),
+            activation_ms=m.to_file(act_ms).astype(np.float32),
             activated_fraction=result.activated_fraction,
         )
         plot_activation_maps(
             m, act_ms, [f"{spec.name} site {s}" for s in file_sites], out / "activation.png", stim_nodes=site_ids
         )
         if observed is not None:
-            obs = observe_field(result.u, observed, noise, np.random.default_rng(seed))
+            rng = np.random.default_rng(seed)
             labels = _labels(m).arrays() if heart else {}
             np.savez_compressed(
                 out / "observations.npz",
@@ -203,11 +223,14 @@ def simulate(
                 cells=m.cells,
                 sites=result.sites,
                 site_xyz=centres,
-                obs=obs.astype(np.float32),
                 observed=observed,
-                times=result.times,
+                **_recording(result, observed, record, noise, rng),
                 **labels,
             )
+        if vtk is not None:
+            for site, u, act in zip(file_sites, result.u, act_ms):
+                frames = {"V_mV": to_millivolts(u), "u": u}
+                write_time_series(vtk, f"site-{int(site)}", m.points, m.cells, times_ms, frames, {"activation_ms": act})
     except OSError as exc:
         _fail(exc, out)
     where = sim.backend if sim.device is None else f"{sim.backend} on {sim.device}"
@@ -216,6 +239,23 @@ def simulate(
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
     _report_no_wave(site_ids, result.activated_fraction)
+
+
+#: What ``simulate --observe`` records: potentials or activation-time maps.
+RECORDINGS = ("potential", "activation")
+
+
+def _recording(result, observed: np.ndarray, record: str, noise: float, rng: np.random.Generator) -> dict:
+    """The recording arrays of an observation file (docs/formats.md): ``obs_mv`` and ``times_ms``, or
+    ``activation_ms`` as a mapping system records it (:func:`shared.capture.mapped_activation`), NaN unobserved."""
+    from shared.capture import mapped_activation
+
+    if record == "potential":
+        mv = np.where(observed, to_millivolts(observe_field(result.u, observed, noise / 100.0, rng)), np.nan)
+        return {"obs_mv": mv.astype(np.float32), "times_ms": result.times * MS_PER_TIME_UNIT}
+    mapped = mapped_activation(result.activation, result.u.max(axis=1)) * MS_PER_TIME_UNIT
+    noisy = np.maximum(mapped + rng.normal(0.0, noise, mapped.shape), 0.0) if noise else mapped
+    return {"activation_ms": np.where(observed, noisy, np.nan).astype(np.float32)}
 
 
 def _report_no_wave(sites: np.ndarray, fraction: np.ndarray) -> None:

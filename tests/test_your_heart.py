@@ -7,6 +7,8 @@ scar, 4 pacing regions, the 247-electrode sock, noise 0.02); nothing is trained.
 
 from __future__ import annotations
 
+import json
+
 import meshio
 import numpy as np
 from typer.testing import CliRunner
@@ -33,12 +35,11 @@ def test_a_patients_mesh_as_it_is_from_recorded_maps_to_new_pacing_sites(tmp_pat
     assert abs(nodes - 4000) < 400 and "aha_segment" in meshio.read(heart).point_data
 
     mesh = ["--mesh", str(heart), *TISSUE]
-    out = run(
-        simgen, "simulate", str(rec), *mesh, "--site-region", RECORDED, "--observe", "electrodes", "--noise", "0.02"
-    )
+    out = run(simgen, "simulate", str(rec), *mesh, "--site-region", RECORDED, "--observe", "electrodes", "--noise", "2")
     assert "starts no propagating wave" not in out
     observations = np.load(rec / "observations.npz")
-    assert observations["obs"].shape == (4, 55, nodes) and observations["observed"].sum() == 247
+    assert observations["obs_mv"].shape == (4, 55, nodes) and observations["observed"].sum() == 247
+    np.testing.assert_allclose(observations["times_ms"][[0, -1]], [7.74, 425.7])
     np.testing.assert_allclose(observations["points"], meshio.read(heart).points)  # the file's own nodes
 
     out = run(
@@ -69,15 +70,53 @@ def test_a_patients_mesh_as_it_is_from_recorded_maps_to_new_pacing_sites(tmp_pat
     )
     assert "peak memory" in out
     predicted = np.load(pred)
-    assert predicted["u"].shape == (2, 55, nodes) and predicted["started_wave"].all()
-    assert "activation_ms" in meshio.read(vtk / f"site-{predicted['sites'][0]}.vtu").point_data
+    assert predicted["v_mv"].shape == (2, 55, nodes) and predicted["started_wave"].all()
+    assert "activation_ms" in meshio.read(vtk / f"site-{predicted['sites'][0]}_0054.vtu").point_data
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-    run(simgen, "simulate", str(truth), *mesh, "--site-region", NEW)
+    run(simgen, "simulate", str(truth), *mesh, "--site-region", NEW, "--vtk", str(truth / "vtk"))
     simulated = np.load(truth / "simulation.npz")
     np.testing.assert_array_equal(simulated["sites"], predicted["sites"])  # one region, one node, both tools
-    cc = spatial_cc(predicted["u"], simulated["u"])
+    assert (truth / "vtk" / f"site-{predicted['sites'][0]}.pvd").is_file()
+    cc = spatial_cc(predicted["v_mv"], simulated["v_mv"])
     assert cc > 0.75, cc  # measured: 0.80
+    compared = tmp_path / "compare.json"
+    out = run(learner, "compare", str(pred), str(truth / "simulation.npz"), "--json", str(compared), "--png", str(png))
+    overall = json.loads(compared.read_text())["overall"]
+    assert abs(overall["cc_spatial"]["mean"] - cc) < 0.02 and "activation error (ms)" in out
+
+    # the same heart from activation-time maps of the endocardium (noise 3 ms), as a mapping system records them
+    maps = tmp_path / "maps"
+    run(
+        simgen,
+        "simulate",
+        str(maps),
+        *mesh,
+        "--site-region",
+        RECORDED,
+        "--observe",
+        "endocardium",
+        "--record",
+        "activation",
+        "--noise",
+        "3",
+    )
+    recorded = np.load(maps / "observations.npz")["activation_ms"]
+    assert recorded.shape == (4, nodes) and np.isnan(recorded).any() and np.isinf(recorded).any()
+    run(
+        learner,
+        "personalize",
+        "anatomies",
+        "--mesh",
+        str(heart),
+        "--observations",
+        str(maps / "observations.npz"),
+        "--out",
+        str(tmp_path / "maps.pt"),
+    )
+    run(learner, "predict", str(tmp_path / "maps.pt"), "--site-region", NEW, "--out", str(tmp_path / "maps.npz"))
+    from_maps = spatial_cc(np.load(tmp_path / "maps.npz")["v_mv"], simulated["v_mv"])
+    assert from_maps > 0.7, from_maps
 
     # the same sites by position
     points = ";".join(",".join(f"{c:.3f}" for c in p) for p in simulated["site_xyz"])
@@ -105,15 +144,22 @@ def test_the_path_refuses_bad_input_with_one_line(tmp_path):
     run(simgen, "simulate", str(tmp_path / "rec"), *lv, "--sites", "1,20", "--observe", "surface")
     full = np.load(tmp_path / "rec" / "observations.npz")
     bare, other = tmp_path / "bare.npz", tmp_path / "other.vtu"
-    np.savez(bare, **{k: full[k] for k in ("sites", "obs", "observed", "times")})
-    slow = tmp_path / "slow.npz"
-    np.savez(slow, **{k: full[k] for k in ("sites", "obs", "observed")}, times=2 * full["times"])
+    np.savez(bare, **{k: full[k] for k in ("sites", "obs_mv", "observed", "times_ms")})
+    short = tmp_path / "short.npz"  # recordings that stop at 200 ms
+    np.savez(
+        short,
+        **{k: full[k][:, :26] for k in ("obs_mv",)},
+        **{k: full[k] for k in ("sites", "observed")},
+        times_ms=full["times_ms"][:26],
+    )
     mesh = tmp_path / "lv.vtu"
     meshio.write(mesh, meshio.Mesh(full["points"], [("tetra", full["cells"])]))
     meshio.write(other, meshio.Mesh(full["points"] + 1.0, [("tetra", full["cells"])]))
     (tmp_path / "garbage.vtu").write_text("<VTKFile>not a mesh</VTKFile>\n")
     quiet = tmp_path / "quiet.npz"  # every recording the patch alone: no wave anywhere
-    np.savez(quiet, **{k: full[k] for k in ("points", "cells", "sites", "observed", "times")}, obs=0 * full["obs"])
+    np.savez(
+        quiet, **{k: full[k] for k in ("points", "cells", "sites", "observed", "times_ms")}, obs=0 * full["obs_mv"]
+    )
     personalize = ("personalize", "anatomies", "--out", str(tmp_path / "p.pt"))
     cases = {
         ("--mesh", str(mesh)): "--mesh is the mesh of --observations: give --observations FILE too",
@@ -121,7 +167,8 @@ def test_the_path_refuses_bad_input_with_one_line(tmp_path):
         ("--mesh", str(tmp_path / "none.vtu"), "--observations", str(bare)): "mesh file not found",
         ("--mesh", str(tmp_path / "garbage.vtu"), "--observations", str(bare)): "is not a readable mesh file",
         ("--mesh", str(other), "--observations", str(tmp_path / "rec" / "observations.npz")): "its points are not",
-        ("--mesh", str(mesh), "--observations", str(slow)): "observations are at times 1.2, 2.4, ..., 66; the model",
+        ("--mesh", str(mesh), "--observations", str(short)): "recordings at 7.74, 15.48, ..., 201.24 ms do not cover "
+        "the model's 55 frames at 7.74, 15.48, ..., 425.70 ms",
         ("--observations", str(quiet)): "none of the 2 recordings shows a propagating wave",
     }
     for args, message in cases.items():

@@ -32,6 +32,9 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 from torch.utils.data import IterableDataset, get_worker_info
 
+from learner.activation_maps import ApTemplate, template_from_store
+from learner.metrics import activation_times
+from shared.capture import mapped_activation
 from shared.errors import InputError, SchemaError
 from shared.observation import OBSERVATION_SETS, check_noise_std, check_observation_set, node_mask, observe
 from shared.reader import (
@@ -45,6 +48,7 @@ from shared.reader import (
     subject_array,
     subject_attrs,
 )
+from shared.units import MS_PER_TIME_UNIT
 
 __all__ = ["OBSERVATION_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode"]
 
@@ -71,6 +75,14 @@ class EpisodeSpec:
         ``0``: draw sites from the whole subject; ``k > 0``: only from ``k``
         random build chunks, so an episode touches at most ``k`` chunk files
         of ``u`` (in an unsharded store, decodes at most ``k`` whole chunks).
+    activation_maps
+        Share of episodes whose context is recorded as activation-time maps
+        instead of potentials (:mod:`learner.activation_maps`): each observed
+        node's activation time as a mapping system records it
+        (:func:`~shared.capture.mapped_activation`) with Gaussian noise of
+        ``activation_noise_ms``, rendered through the action-potential template.
+    activation_noise_ms
+        Standard deviation of the activation-time noise of those episodes, in ms.
     """
 
     context: tuple[int, int] = (1, 5)
@@ -78,6 +90,8 @@ class EpisodeSpec:
     observe: str | tuple[str, ...] = "surface"
     noise_std: float = 0.0
     chunks_per_episode: int = 0
+    activation_maps: float = 0.0
+    activation_noise_ms: float = 3.0
 
     def __post_init__(self) -> None:
         context = self.context
@@ -103,6 +117,10 @@ class EpisodeSpec:
         check_noise_std(self.noise_std)
         if not _is_int(self.chunks_per_episode) or self.chunks_per_episode < 0:
             raise InputError(f"chunks_per_episode must be an integer >= 0, got {self.chunks_per_episode!r}")
+        if not 0.0 <= self.activation_maps <= 1.0:
+            raise InputError(f"activation_maps is a share of episodes in [0, 1], got {self.activation_maps!r}")
+        if not (np.isfinite(self.activation_noise_ms) and self.activation_noise_ms >= 0):
+            raise InputError(f"activation_noise_ms must be a finite number >= 0, got {self.activation_noise_ms!r}")
 
     @property
     def observe_sets(self) -> tuple[str, ...]:
@@ -286,11 +304,16 @@ def _build_episode(
     observed: NDArray[np.bool_],
     noise_std: float,
     rng: np.random.Generator | None,
+    as_map: tuple[ApTemplate, float] | None = None,
 ) -> Episode:
+    """An episode of the given rows; ``as_map`` = (template, noise in ms) records its context as activation maps."""
     k = context_rows.size
     data = u.rows("u", np.concatenate([context_rows, target_rows]))  # checked: done, checksums, fingerprint, finite
     context_u, target_u = data[:k], data[k:]
-    obs = observe(context_u, observed, noise_std, rng)
+    if as_map is None:
+        obs = observe(context_u, observed, noise_std, rng)
+    else:
+        obs = recorded_map(context_u, times, observed, *as_map, rng)
     return Episode(
         subject_id=meta.subject_id,
         mesh_id=meta.mesh_id,
@@ -304,6 +327,17 @@ def _build_episode(
         context_rows=torch.from_numpy(context_rows),
         target_rows=torch.from_numpy(target_rows),
     )
+
+
+def recorded_map(
+    u: NDArray, times: NDArray, observed: NDArray[np.bool_], template: ApTemplate, noise_ms: float, rng
+) -> NDArray[np.float32]:
+    """Simulations ``u`` (K, T, N) recorded as activation-time maps at the ``observed`` nodes (noise ``noise_ms``
+    ms, :func:`~shared.capture.mapped_activation`) and read back as potentials through ``template``; 0 elsewhere."""
+    first = np.stack([activation_times(sequence, times) for sequence in u])
+    mapped = mapped_activation(first, u.max(axis=1))
+    noisy = np.maximum(mapped + rng.normal(0.0, noise_ms / MS_PER_TIME_UNIT, mapped.shape), 0.0)
+    return template.render(noisy, times) * observed
 
 
 def load_episode(
@@ -390,6 +424,7 @@ class EpisodeDataset(IterableDataset):
         seed: int,
         epoch: int = 0,
         episodes_per_subject: int = 1,
+        template: ApTemplate | None = None,
     ) -> None:
         super().__init__()
         if isinstance(subjects, str):
@@ -419,6 +454,9 @@ class EpisodeDataset(IterableDataset):
         unknown = [s for s in self.subjects if s not in known]
         if unknown:
             raise InputError(f"unknown subject(s) {', '.join(unknown)} in store {self.store}")
+        if spec.activation_maps and template is None:
+            template = template_from_store(self.store, self.subjects)
+        self.template = template
         mesh_cache: dict[str, tuple[NDArray, tuple[NDArray, ...]]] = {}
         self._meta = [_subject_meta(self.store, s, spec.observe_sets, mesh_cache) for s in self.subjects]
         for meta in self._meta:
@@ -550,4 +588,8 @@ class EpisodeDataset(IterableDataset):
         u, times = handles[i]
         masks = self._meta[i].observed  # one set, or draw one (after the sites: one-set episodes stay as they were)
         observed = masks[0] if len(masks) == 1 else masks[int(rng.integers(len(masks)))]
-        return _build_episode(self._meta[i], u, times, context_rows, target_rows, observed, self.spec.noise_std, rng)
+        spec = self.spec
+        as_map = None
+        if spec.activation_maps and rng.random() < spec.activation_maps:  # drawn only then: other episodes unchanged
+            as_map = (self.template, spec.activation_noise_ms)
+        return _build_episode(self._meta[i], u, times, context_rows, target_rows, observed, spec.noise_std, rng, as_map)

@@ -112,6 +112,7 @@ def export(
         "kind": config["model"]["kind"],
         "frames": int(ckpt["frames"]),
         "times": [round(float(t), 9) for t in view.times] if view is not None else None,
+        "ap_template": _template(store, ckpt, view),
         "hierarchy": {
             "levels": config["model"]["levels"],
             "coarsest": config["model"]["coarsest"],
@@ -142,3 +143,13 @@ def export(
     }
     (folder / CONFIG).write_text(json.dumps(document, indent=1) + "\n")
     return folder
+
+
+def _template(store: str, ckpt: dict, view) -> dict | None:
+    """The action-potential template of the training subjects (:mod:`learner.activation_maps`) as config.json
+    records it: the checkpoint's, else computed from the training store; None without either."""
+    from learner.activation_maps import template_from_store
+
+    if ckpt.get("ap_template") is not None or view is None:
+        return ckpt.get("ap_template")
+    return template_from_store(store, list(ckpt.get("splits", {}).get("train", []))).to_dict()

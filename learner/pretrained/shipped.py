@@ -125,5 +125,6 @@ def checkpoint(name: str, root: str | Path | None = None) -> dict[str, Any]:
         "frames": int(shipped.config["frames"]),
         "splits": shipped.config.get("splits", {}),
         **({"times": list(shipped.config["times"])} if shipped.config.get("times") else {}),
+        **({"ap_template": shipped.config["ap_template"]} if shipped.config.get("ap_template") else {}),
         "model": {k: v.float() for k, v in weights.items()},
     }

@@ -18,6 +18,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
+from learner.activation_maps import ApTemplate, template_from_store
 from learner.config import LearnerConfig, config_from_mapping
 from learner.data.episodes import Episode, EpisodeDataset
 from learner.data.split import split_subjects
@@ -111,6 +113,8 @@ class Trainer:
             "kind": "model",
             "config": self.config.to_dict(),
             "frames": self.view.frames,
+            "times": self.view.times.tolist(),
+            "ap_template": self.ap_template,
             "splits": self.splits,
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
@@ -120,6 +124,11 @@ class Trainer:
             "history": self.history,
             "best_validation": self.best,
         }
+
+    @cached_property
+    def ap_template(self) -> dict:
+        """The training subjects' action-potential template (:mod:`learner.activation_maps`), for activation maps."""
+        return template_from_store(self.config.data.store, self.splits["train"]).to_dict()
 
     def _warm_start(self, path: Path) -> dict[str, list[str]]:
         """Copy the parameters of matching name and shape from a trained checkpoint (fine-tuning).
@@ -165,8 +174,10 @@ class Trainer:
         """The episodes of ``subjects`` (built and store-checked once per subject list) set to ``epoch``."""
         key = tuple(subjects)
         if key not in self._datasets:
+            episodes = self.config.data.episodes
+            template = ApTemplate.from_dict(self.ap_template) if episodes.activation_maps else None
             self._datasets[key] = EpisodeDataset(
-                self.config.data.store, subjects, self.config.data.episodes, seed=self.config.train.seed
+                self.config.data.store, subjects, episodes, seed=self.config.train.seed, template=template
             )
         self._datasets[key].set_epoch(epoch)
         return self._datasets[key]

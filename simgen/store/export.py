@@ -1,30 +1,28 @@
 """Export one simulation of a store as a ParaView time series (meshio ``.vtu`` + ``.pvd``).
 
-One ``.vtu`` file per output frame carries the potential (``u`` and ``V_mV``)
+One ``.vtu`` file per output frame carries the potential (``V_mV`` and ``u``)
 and the static fields of the subject (``activation_ms``, ``a``, ``label``); a
-``.pvd`` collection lists the frames with their times in ms, so ParaView opens
-the whole series from that one file.
+``.pvd`` collection lists the frames with their times in ms
+(:func:`shared.vtk.write_time_series`).
 """
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import meshio
 import numpy as np
 import zarr
-from numpy.typing import NDArray
 
 from shared.errors import InputError
 from shared.integrity import SubjectReader
 from shared.reader import checked_subject_ids
 from shared.schema import subject_path
+from shared.vtk import write_time_series
 from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 from simgen.store.layout import check_store, read_mesh
 from simgen.store.location import store_location
 
-__all__ = ["export_vtk", "write_pvd"]
+__all__ = ["export_vtk"]
 
 
 def _subject_group(store: str, subject_id: str, attrs: dict) -> zarr.Group:
@@ -42,16 +40,6 @@ def _check_site(g: zarr.Group, subject_id: str, site_index: int) -> None:
         raise InputError(f"site index must be an integer, got {site_index!r}")
     if not 0 <= site_index < n_sites:
         raise InputError(f"site index {site_index} out of range for subject {subject_id!r}: use 0..{n_sites - 1}")
-
-
-def write_pvd(path: Path, files: list[str], times_ms: NDArray) -> None:
-    """Write a ParaView collection listing ``files`` (relative to ``path``) at ``times_ms``."""
-    root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
-    collection = ET.SubElement(root, "Collection")
-    for name, t in zip(files, times_ms):
-        ET.SubElement(collection, "DataSet", timestep=repr(float(t)), group="", part="0", file=name)
-    ET.indent(root)
-    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
 
 
 def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str | Path) -> Path:
@@ -93,15 +81,6 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
             f"subject {subject_id!r}: its tissue fields cannot be read ({exc}); `simgen verify {store}` "
             f"names the damage and `simgen repair {store}` restores it"
         ) from None
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stem = f"{subject_id}_site{site:04d}"
-    files = []
-    for frame, u_frame in enumerate(u):
-        name = f"{stem}_{frame:04d}.vtu"
-        point_data = {"u": u_frame, "V_mV": to_millivolts(u_frame).astype(np.float32), **static}
-        meshio.write(out_dir / name, meshio.Mesh(mesh.points, [(mesh.cell_type, mesh.cells)], point_data=point_data))
-        files.append(name)
-    pvd = out_dir / f"{stem}.pvd"
-    write_pvd(pvd, files, np.asarray(g["times"][...]) * MS_PER_TIME_UNIT)
-    return pvd
+    frames = {"V_mV": to_millivolts(u), "u": u}
+    times_ms = np.asarray(g["times"][...]) * MS_PER_TIME_UNIT
+    return write_time_series(out_dir, f"{subject_id}_site{site:04d}", mesh.points, mesh.cells, times_ms, frames, static)

@@ -11,7 +11,7 @@ from learner.data.episodes import load_episode
 from learner.evaluate import NeuralMethod
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS
-from learner.refine import Refinement, refine_context
+from learner.refine import Refinement, fit_context, refine_context
 from learner.store_view import StoreView
 from shared.errors import InputError
 
@@ -31,10 +31,22 @@ def setup(tiny_store, trained_like):
 def _refine(setup, refinement: Refinement):
     view, hier, ep, model = setup
     post = model.embed(ep.context_obs, ep.observed, hier)
-    c, history = refine_context(
+    c, history, taken = refine_context(
         model, post, ep.context_obs, ep.observed, ep.context_sites, hier, SiteEvidence.of(ep), refinement
     )
-    return post, c, history
+    return post, c, history, taken
+
+
+def _fit(setup, post, refinement: Refinement, steps: int, keep=None, held_out=None):
+    """:func:`fit_context` on the context recordings ``keep`` (default all), checked on ``held_out``."""
+    view, hier, ep, model = setup
+    m = ep.observed.bool()
+    target = ep.context_obs[..., m]
+    keep = slice(None) if keep is None else keep
+    check = None if held_out is None else (ep.context_sites[held_out], target[held_out])
+    mu, var = post.mu.detach(), post.logvar.detach().exp()
+    fit = (ep.context_sites[keep], target[keep])
+    return fit_context(model, mu, var, fit, hier, SiteEvidence.of(ep), m, refinement, steps, check)
 
 
 def _negative_log_posterior(setup, post, c, sigma: float) -> float:
@@ -49,14 +61,14 @@ def _negative_log_posterior(setup, post, c, sigma: float) -> float:
 
 
 def test_no_steps_keeps_the_encoders_mean(setup):
-    post, c, history = _refine(setup, Refinement(steps=0))
-    assert torch.equal(c, post.mu.detach())
-    assert len(history) == 1
+    post, c, history, taken = _refine(setup, Refinement(steps=0))
+    assert torch.equal(c, post.mu.detach()) and history == [] and taken == 0
 
 
 def test_steps_lower_the_negative_log_posterior_as_documented(setup):
     refinement = Refinement(steps=15, lr=0.05, sigma=0.2)
-    post, c, history = _refine(setup, refinement)
+    post = setup[3].embed(setup[2].context_obs, setup[2].observed, setup[1])
+    c, history, _ = _fit(setup, post, refinement, 15)
     assert len(history) == 16
     assert history[-1] < 0.9 * history[0]
     assert not torch.equal(c, post.mu.detach())
@@ -65,9 +77,33 @@ def test_steps_lower_the_negative_log_posterior_as_documented(setup):
     assert history[-1] == pytest.approx(_negative_log_posterior(setup, post, c, 0.2), rel=1e-4)
 
 
+def test_the_step_count_is_chosen_on_recordings_held_out_in_turn(setup):
+    refinement = Refinement(steps=12, lr=0.2, sigma=0.2)
+    post, c, history, taken = _refine(setup, refinement)
+    k = len(setup[2].context_sites)
+    curves = [_fit(setup, post, refinement, 12, torch.arange(k) != left, slice(left, left + 1))[2] for left in range(k)]
+    assert all(len(curve) == 13 for curve in curves)
+    assert taken == int(np.argmin(np.mean(curves, axis=0)))
+    if taken:
+        expected, objective, _ = _fit(setup, post, refinement, taken)
+        assert torch.allclose(c, expected) and history == pytest.approx(objective)
+    else:
+        assert torch.equal(c, post.mu.detach()) and history == []
+
+
+def test_a_single_recording_is_not_refined(setup):
+    view, hier, ep, model = setup
+    post = model.embed(ep.context_obs[:1], ep.observed, hier)
+    c, history, taken = refine_context(
+        model, post, ep.context_obs[:1], ep.observed, ep.context_sites[:1], hier, None, Refinement(steps=10)
+    )
+    assert torch.equal(c, post.mu.detach()) and history == [] and taken == 0
+
+
 def test_a_large_sigma_keeps_c_near_the_encoders_mean(setup):
-    post, tight, _ = _refine(setup, Refinement(steps=10, sigma=0.05))
-    _, loose, _ = _refine(setup, Refinement(steps=10, sigma=50.0))
+    post = setup[3].embed(setup[2].context_obs, setup[2].observed, setup[1])
+    tight = _fit(setup, post, Refinement(steps=10, sigma=0.05), 10)[0]
+    loose = _fit(setup, post, Refinement(steps=10, sigma=50.0), 10)[0]
     mu = post.mu.detach()
     assert (loose - mu).norm() < (tight - mu).norm()
 
@@ -81,18 +117,15 @@ def test_refinement_leaves_the_weights_alone(setup):
     assert all(p.grad is None for p in model.parameters())
 
 
-def test_a_refined_method_fits_its_context_better(setup, tiny_store):
+def test_a_refined_method_predicts_with_the_refined_c(setup):
     view, hier, ep, model = setup
-    mesh = view.mesh("lv")
-    sites = torch.cat([ep.context_sites, ep.target_sites])
-    errors = {}
-    for steps in (0, 20):
-        method = NeuralMethod(model, "m", refine=Refinement(steps=steps))
-        method.fit(ep, mesh, hier)
-        pred = method.predict(sites)
-        m = ep.observed.numpy()
-        errors[steps] = float(np.mean((pred[: len(ep.context_sites)][..., m] - ep.context_obs.numpy()[..., m]) ** 2))
-    assert errors[20] < errors[0]
+    refinement = Refinement(steps=12, lr=0.2)
+    _, c, _, _ = _refine(setup, refinement)
+    method = NeuralMethod(model, "m", refine=refinement)
+    method.fit(ep, view.mesh("lv"), hier)
+    with torch.no_grad():
+        expected = model.generate(ep.target_sites, hier, c, evidence=SiteEvidence.of(ep)).numpy()
+    np.testing.assert_allclose(method.predict(ep.target_sites), expected, atol=1e-5)
 
 
 @pytest.mark.parametrize(

@@ -46,7 +46,9 @@ def test_simulate_command_writes_outputs(tmp_path):
     )
     assert result.exit_code == 0, result.output
     data = np.load(tmp_path / "simulation.npz")
-    assert data["u"].shape[:2] == (2, 55)
+    assert data["v_mv"].shape[:2] == (2, 55) and -90 < data["v_mv"].min() < -70 < 0 < data["v_mv"].max() < 40
+    np.testing.assert_allclose(data["times_ms"][:2], [7.74, 15.48])
+    assert np.nanmax(data["activation_ms"]) > 50  # ms, not model time units
     assert (tmp_path / "activation.png").stat().st_size > 10_000
 
 
@@ -193,11 +195,11 @@ def test_a_mesh_file_is_used_as_it_is_and_results_come_back_on_its_node_ids(tmp_
     result = runner.invoke(app, ["simulate", str(out), "--mesh", str(path), "--sites", "10,300"])
     assert result.exit_code == 0, result.output
     data = np.load(out / "simulation.npz")
-    assert data["u"].shape == (2, 55, len(points)) and data["sites"].tolist() == [10, 300]
-    assert np.isnan(data["u"][:, :, 5]).all() and np.isfinite(data["u"][:, :, 6:]).all()
+    assert data["v_mv"].shape == (2, 55, len(points)) and data["sites"].tolist() == [10, 300]
+    assert np.isnan(data["v_mv"][:, :, 5]).all() and np.isfinite(data["v_mv"][:, :, 6:]).all()
     np.testing.assert_allclose(data["site_xyz"], points[[10, 300]])
     # node 10 of the file is node 9 of the mesh simulated: the activation there is 0, the stimulus's own
-    assert data["activation"][0, 10] == 0.0
+    assert data["activation_ms"][0, 10] == 0.0
     result = runner.invoke(app, ["simulate", str(out), "--mesh", str(path), "--sites", "5"])
     assert result.exit_code == 2 and "in no cell" in text(result)
     surface = tmp_path / "surface.vtu"

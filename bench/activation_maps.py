@@ -1,0 +1,176 @@
+"""Benchmark: personalising from activation-time maps against personalising from the potentials they came from.
+
+For every fold, a shipped model (``--model``, default ``anatomies``) is
+personalised twice on the same context recordings of the same nodes: once on
+the potential sequences (Gaussian noise 0.02 on ``u``, as in training) and once
+on the activation-time maps of the same simulations (the noise-free first
+crossing of ``u = 0.5`` plus Gaussian noise of ``--noise-ms`` ms, +inf where a
+recorded node never activates), which the model reads through its
+action-potential template (:mod:`learner.activation_maps`). Both predict the
+same unrecorded sites; the table gives the spatial CC and the activation-time
+error of each, and their difference (maps minus potentials).
+
+* Unseen hearts: the model's test split of ``--store`` (whole sampled anatomies
+  never trained on, every tissue setting), one context set of ``--context``
+  random sites per subject and ``--targets`` other sites.
+* Real heart: ``--real`` (``specs/realdata.toml``: ``real:tof-biv``, 3 tissue
+  settings, 8 pacing sites), each site left out in turn, the others that start
+  a wave as context.
+
+Each through ``--observe`` node sets (default the 247-electrode sock, the whole
+surface and the endocardium: what an electroanatomical map covers).
+
+Run::
+
+    .venv/bin/python -m bench.activation_maps --store data/pretrained.zarr --real data/realdata.zarr --out report/bench
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numpy as np
+
+from bench.common import add_out_argument, machine, machine_line, write_out
+from learner.data.episodes import load_episode
+from learner.metrics import activation_error_ms, spatial_cc
+from learner.observations import Observations
+from learner.personalized import NoWaveWarning, personalize
+from learner.store_view import StoreView
+from learner.train.checkpoint import load_checkpoint
+from shared.capture import mapped_activation, started_wave
+from shared.reader import read_activation
+from shared.units import MS_PER_TIME_UNIT
+
+NOISE_U = 0.02
+
+
+def activation_map(u: np.ndarray, activation: np.ndarray, observed: np.ndarray, noise_ms: float, rng) -> np.ndarray:
+    """Recorded activation times (K, N) in model time units: at ``observed`` nodes the activation times of
+    simulations ``u`` (K, T, N) as a mapping system records them (:func:`~shared.capture.mapped_activation`)
+    plus noise, NaN elsewhere."""
+    mapped = mapped_activation(activation, u.max(axis=1))
+    noisy = np.maximum(mapped + rng.normal(0.0, noise_ms / MS_PER_TIME_UNIT, mapped.shape), 0.0)
+    return np.where(observed[None, :], noisy, np.nan)
+
+
+def fold(model: str, store: str, subject: str, context: list[int], targets: list[int], observe: str, args, seed):
+    """Spatial CC and activation error (ms) of each target, from potentials and from activation maps."""
+    rng = np.random.default_rng(seed)
+    ep = load_episode(store, subject, context, targets, observe, NOISE_U, rng)
+    view = StoreView(store)
+    mesh = view.mesh(view.mesh_of[subject])
+    observed = ep.observed.numpy()
+    sites, times = ep.context_sites.numpy(), ep.times.numpy()
+    act = activation_map(ep.context_u.numpy(), read_activation(store, subject, context), observed, args.noise_ms, rng)
+    truth = ep.target_u.numpy()
+    true_act = read_activation(store, subject, targets)
+    out = {}
+    for route, obs in (
+        ("potentials", Observations(mesh, sites, ep.context_obs.numpy(), observed, times, subject)),
+        ("activation", Observations(mesh, sites, None, observed, times, subject, activation=act)),
+    ):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NoWaveWarning)
+            heart = personalize(model, obs, device="cpu")
+        pred = heart.predict(ep.target_sites.numpy()).u
+        out[route] = {
+            "cc": [spatial_cc(p, t) for p, t in zip(pred, truth)],
+            "error_ms": [activation_error_ms(p, a, times)[0] for p, a in zip(pred, true_act)],
+        }
+    return out
+
+
+def unseen_folds(args) -> list[tuple]:
+    """(subject, context rows, target rows) of each test subject of the model, drawn with a fixed seed."""
+    test = list(load_checkpoint(args.model, kind="model")["splits"]["test"])
+    view = StoreView(args.store)
+    rng = np.random.default_rng(args.seed)
+    folds = []
+    for subject in test[: args.subjects or None]:
+        rows = rng.permutation(len(view.sites(view.mesh_of[subject])))
+        folds.append((subject, sorted(rows[: args.context]), sorted(rows[args.context : args.context + args.targets])))
+    return folds
+
+
+def real_folds(args) -> list[tuple]:
+    """(subject, context rows, [left-out row]) of each real-heart subject and site that starts a wave."""
+    view = StoreView(args.real)
+    folds = []
+    for subject in view.subjects:
+        wave = started_wave(np.mean(np.isfinite(read_activation(args.real, subject)), axis=1))
+        rows = np.flatnonzero(wave)
+        folds += [(subject, [int(r) for r in rows if r != left], [int(left)]) for left in rows]
+    return folds
+
+
+def summary(results: list[dict]) -> dict:
+    """Means over every target of the folds, per route, and the difference of the CCs."""
+    row = {}
+    for route in ("potentials", "activation"):
+        cc = np.concatenate([r[route]["cc"] for r in results])
+        err = np.concatenate([r[route]["error_ms"] for r in results])
+        row[route] = {"cc": float(np.mean(cc)), "cc_std": float(np.std(cc)), "error_ms": float(np.nanmean(err))}
+    row["difference"] = row["activation"]["cc"] - row["potentials"]["cc"]
+    row["targets"] = int(sum(len(r["potentials"]["cc"]) for r in results))
+    return row
+
+
+def table(rows: list[dict]) -> list[str]:
+    lines = [
+        "| hearts | recorded nodes | targets | CC from potentials | CC from activation maps | difference "
+        "| activation error from potentials / maps (ms) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        p, a = r["potentials"], r["activation"]
+        lines.append(
+            f"| {r['hearts']} | {r['observe']} | {r['targets']} | {p['cc']:.3f} +- {p['cc_std']:.3f} "
+            f"| {a['cc']:.3f} +- {a['cc_std']:.3f} | {r['difference']:+.3f} "
+            f"| {p['error_ms']:.1f} / {a['error_ms']:.1f} |"
+        )
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", default="anatomies", help="shipped model name or checkpoint")
+    parser.add_argument("--store", required=True, help="the model's training store (its test split is used)")
+    parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
+    parser.add_argument("--observe", nargs="+", default=["electrodes", "surface", "endocardium"])
+    parser.add_argument("--noise-ms", type=float, default=3.0, help="activation-time noise std (ms)")
+    parser.add_argument("--context", type=int, default=4, help="context sites per unseen subject")
+    parser.add_argument("--targets", type=int, default=5, help="targets per unseen subject")
+    parser.add_argument("--subjects", type=int, default=0, help="first N test subjects only (0: all)")
+    parser.add_argument("--seed", type=int, default=0)
+    add_out_argument(parser, "activation_maps")
+    args = parser.parse_args()
+    start = time.perf_counter()
+    rows = []
+    for hearts, store, folds in (
+        ("unseen sampled", args.store, unseen_folds(args)),
+        ("real:tof-biv", args.real, real_folds(args)),
+    ):
+        for observe in args.observe:
+            results = [
+                fold(args.model, store, s, c, t, observe, args, [args.seed, i]) for i, (s, c, t) in enumerate(folds)
+            ]
+            rows.append({"hearts": hearts, "observe": observe, "folds": len(folds), **summary(results)})
+            print(table(rows[-1:])[-1], flush=True)
+    text = [
+        f"Machine: {machine_line()}. Model `{args.model}`; potentials with noise {NOISE_U} (u), activation maps "
+        f"with noise {args.noise_ms:g} ms; unseen hearts: {args.context} context and {args.targets} target sites "
+        "per test subject; real heart: leave one site out.",
+        "",
+        *table(rows),
+        "",
+        f"{time.perf_counter() - start:.0f} s in all.",
+    ]
+    print("\n".join(text))
+    write_out(args.out, "activation_maps", "\n".join(text) + "\n", {"machine": machine(), "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
