@@ -30,6 +30,17 @@ demo: $(STAMP)
 		--observations report/demo/your-heart/recordings/observations.npz --out report/demo/your-heart/heart.pt
 	$(BIN)/learner predict report/demo/your-heart/heart.pt --site-region aha-7,apex \
 		--out report/demo/your-heart/prediction.npz --vtk report/demo/your-heart/vtk --png report/demo/your-heart/prediction.png
+	$(BIN)/simgen simulate report/demo/your-heart/truth --mesh report/demo/your-heart/heart.vtu \
+		--tissue scar-septal-basal --site-region aha-7,apex --vtk report/demo/your-heart/truth/vtk
+	$(BIN)/learner compare report/demo/your-heart/prediction.npz report/demo/your-heart/truth/simulation.npz \
+		--png report/demo/your-heart/compare.png --json report/demo/your-heart/compare.json
+	# the same heart from endocardial activation-time maps, as a mapping system exports them
+	$(BIN)/simgen simulate report/demo/your-heart/maps --mesh report/demo/your-heart/heart.vtu \
+		--tissue scar-septal-basal --site-region aha-1,aha-6,aha-10,aha-16 --observe endocardium --record activation --noise 3
+	$(BIN)/learner personalize anatomies --mesh report/demo/your-heart/heart.vtu \
+		--observations report/demo/your-heart/maps/observations.npz --out report/demo/your-heart/maps.pt
+	$(BIN)/learner predict report/demo/your-heart/maps.pt --site-region aha-7,apex --out report/demo/your-heart/maps.npz
+	$(BIN)/learner compare report/demo/your-heart/maps.npz report/demo/your-heart/truth/simulation.npz
 
 test: $(STAMP)
 	$(BIN)/pytest -q

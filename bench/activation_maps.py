@@ -23,6 +23,8 @@ surface and the endocardium: what an electroanatomical map covers).
 Run::
 
     .venv/bin/python -m bench.activation_maps --store data/pretrained.zarr --real data/realdata.zarr --out report/bench
+
+``--publish`` writes the table into the block ``activation_maps`` of docs/results.md.
 """
 
 from __future__ import annotations
@@ -33,7 +35,15 @@ import warnings
 
 import numpy as np
 
-from bench.common import add_out_argument, machine, machine_line, write_out
+from bench.common import (
+    add_out_argument,
+    add_publish_argument,
+    check_publish,
+    machine,
+    machine_line,
+    publish_out,
+    write_out,
+)
 from learner.data.episodes import load_episode
 from learner.metrics import activation_error_ms, spatial_cc
 from learner.observations import Observations
@@ -146,7 +156,9 @@ def main() -> None:
     parser.add_argument("--subjects", type=int, default=0, help="first N test subjects only (0: all)")
     parser.add_argument("--seed", type=int, default=0)
     add_out_argument(parser, "activation_maps")
+    add_publish_argument(parser, "activation_maps")
     args = parser.parse_args()
+    check_publish(args.publish)
     start = time.perf_counter()
     rows = []
     for hearts, store, folds in (
@@ -170,6 +182,7 @@ def main() -> None:
     ]
     print("\n".join(text))
     write_out(args.out, "activation_maps", "\n".join(text) + "\n", {"machine": machine(), "rows": rows})
+    publish_out(args.publish, "activation_maps", "\n".join(text[:-2]))
 
 
 if __name__ == "__main__":

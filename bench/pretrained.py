@@ -25,6 +25,7 @@ Run::
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -48,6 +49,40 @@ def mean_predictor(store: str, train: list[str], test: list[str]) -> float:
         u = read_u(store, subject)
         errors.append(mse(np.broadcast_to(means[None, :, None], u.shape), u))
     return float(np.mean(errors))
+
+
+def card_metrics(result: dict) -> dict:
+    """The card's figures as config.json records them: mean and std of each metric per test set."""
+
+    def means(stats: dict) -> dict:
+        return {name: {"mean": round(v["mean"], 5), "std": round(v["std"], 5)} for name, v in stats.items()}
+
+    return {
+        "unseen_sampled_hearts": {"subjects": len(result["test"]), **means(result["unseen"]["target"])},
+        "mean_predictor_mse": round(result["mean_predictor_mse"], 5),
+        "real_heart_sock": {"subjects": result["real"]["subjects"], **means(result["real"]["target"])},
+        "real_heart_ceiling": means(result["real"]["ceiling"]),
+    }
+
+
+def record_card(model: str, result: dict) -> Path:
+    """Write the model's version (the package's), today's date and :func:`card_metrics` into its config.json."""
+    from datetime import date
+    from importlib.metadata import version
+
+    from learner.pretrained import CONFIG, info
+
+    path = info(model).folder / CONFIG
+    document = json.loads(path.read_text())
+    document["card"] = {
+        "version": version("metapns"),
+        "date": date.today().isoformat(),
+        "metrics": card_metrics(result),
+        "measured_on": result["machine"],
+        "command": "python -m bench.pretrained --store data/pretrained.zarr --real data/realdata.zarr --record-card",
+    }
+    path.write_text(json.dumps(document, indent=1) + "\n")
+    return path
 
 
 def _cell(stats: dict) -> str:
@@ -83,6 +118,11 @@ def main() -> None:
     parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
     parser.add_argument("--targets", type=int, default=10, help="targets per context set on the unseen hearts")
     parser.add_argument("--sites", type=int, default=8, help="pacing sites of the real heart (leave one out)")
+    parser.add_argument(
+        "--record-card",
+        action="store_true",
+        help="also record the metrics, version and date in the shipped model's config.json ('card')",
+    )
     add_out_argument(parser, "pretrained", Path("report/pretrained"))
     args = parser.parse_args()
 
@@ -117,6 +157,8 @@ def main() -> None:
     }
     table = markdown(result)
     write_out(args.out, "pretrained", table, result)
+    if args.record_card:
+        print(f"recorded the card's metrics in {record_card(args.model, result)}")
     print(table)
     print(f"unseen hearts {unseen_s:.0f} s, real heart {real_s:.0f} s on {result['machine']}")
 

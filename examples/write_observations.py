@@ -1,16 +1,19 @@
-"""Write an observation file (the ``--observations`` of ``learner personalize``) from recorded voltages.
+"""Write observation files (the ``--observations`` of ``learner personalize``) from recorded voltages.
 
 The recordings here are simulated: the Aliev-Panfilov potential on an LV of about 400 nodes
 with the scar of ``examples/scar.toml``, paced at 3 nodes, kept at the
 epicardial sock's 64 electrodes and given in mV with NaN at the nodes that were not
 recorded, as measured data would come. :func:`observation_arrays` is the part
 that applies to real data: it turns such voltages into the arrays of
-docs/formats.md#observation-file.
+docs/formats.md#observation-file; :func:`activation_arrays` turns them into an
+activation-time map (each electrode's first crossing of -30 mV, in ms), what a
+mapping system exports.
 
 Usage::
 
-    python examples/write_observations.py examples/observations.npz
+    python examples/write_observations.py examples/observations.npz --maps examples/activation_maps.npz
     learner personalize anatomies --observations examples/observations.npz --out heart.pt
+    learner personalize anatomies --observations examples/activation_maps.npz --out heart.pt
 """
 
 from __future__ import annotations
@@ -33,8 +36,10 @@ HERE = Path(__file__).resolve().parent
 SITES = (0, 150, 310)
 #: Electrodes of the epicardial sock (247 on meshes of 1,000 nodes and more).
 ELECTRODES = 64
-#: Frame times after the stimulus, in model time units (1 unit = 12.9 ms): 55 frames, 0.6 apart.
-TIMES = 0.6 * np.arange(1, 56)
+#: Frame times after the stimulus in ms: 55 frames, 7.74 ms apart.
+TIMES_MS = 7.74 * np.arange(1, 56)
+#: The voltage whose first upward crossing is a node's activation time (u = 0.5).
+ACTIVATION_MV = -30.0
 
 
 def recorded_millivolts(mesh: Mesh, sites: Sequence[int], seed: int = 0) -> np.ndarray:
@@ -51,23 +56,49 @@ def observation_arrays(mesh: Mesh, sites: Sequence[int], millivolts: np.ndarray)
     """The arrays of an observation file from (K, 55, N) voltages in mV, NaN where a node was not recorded."""
     return {
         "sites": np.asarray(sites, dtype=np.int64),
-        "obs": np.nan_to_num((millivolts + 80.0) / 100.0).astype(np.float32),  # u = (V + 80) / 100
+        "obs_mv": millivolts.astype(np.float32),  # NaN at the nodes not recorded: ignored
         "observed": np.isfinite(millivolts[0, 0]),
-        "times": TIMES,
+        "times_ms": TIMES_MS,
         "points": mesh.points,
         "cells": mesh.cells,
     }
 
 
-def main(argv: Sequence[str] | None = None) -> Path:
-    """Write the example observation file to the path given on the command line."""
+def activation_arrays(mesh: Mesh, sites: Sequence[int], millivolts: np.ndarray) -> dict[str, np.ndarray]:
+    """The arrays of an activation-time map: each recorded node's first upward crossing of :data:`ACTIVATION_MV`
+    (linear between frames) in ms, inf where it never crosses, NaN where it was not recorded."""
+    above = millivolts >= ACTIVATION_MV  # (K, T, N); NaN compares False
+    first = np.argmax(above, axis=1)  # (K, N)
+    k, n = np.indices(first.shape)
+    before = np.maximum(first - 1, 0)
+    v0, v1 = millivolts[k, before, n], millivolts[k, first, n]
+    t0, t1 = TIMES_MS[before], TIMES_MS[first]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        crossing = np.where(first > 0, t0 + (ACTIVATION_MV - v0) / (v1 - v0) * (t1 - t0), TIMES_MS[0])
+    times = np.where(above.any(axis=1), crossing, np.inf)
+    times[:, ~np.isfinite(millivolts[0, 0])] = np.nan
+    return {
+        "sites": np.asarray(sites, dtype=np.int64),
+        "activation_ms": times.astype(np.float32),
+        "points": mesh.points,
+        "cells": mesh.cells,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> tuple[Path, Path | None]:
+    """Write the example observation file (and, with ``--maps``, its activation-time maps)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("out", type=Path, help="the .npz to write")
-    out = parser.parse_args(argv).out
+    parser.add_argument("out", type=Path, help="the .npz of potentials to write")
+    parser.add_argument("--maps", type=Path, help="the .npz of activation-time maps to write")
+    args = parser.parse_args(argv)
     mesh = get_mesh("lv", 400)
-    np.savez_compressed(out, **observation_arrays(mesh, SITES, recorded_millivolts(mesh, SITES)))
-    print(f"wrote {out}: {len(SITES)} recordings on {mesh.n_nodes} nodes, {len(TIMES)} frames")
-    return out
+    millivolts = recorded_millivolts(mesh, SITES)
+    np.savez_compressed(args.out, **observation_arrays(mesh, SITES, millivolts))
+    print(f"wrote {args.out}: {len(SITES)} recordings on {mesh.n_nodes} nodes, {len(TIMES_MS)} frames")
+    if args.maps is not None:
+        np.savez_compressed(args.maps, **activation_arrays(mesh, SITES, millivolts))
+        print(f"wrote {args.maps}: {len(SITES)} activation-time maps of {ELECTRODES} electrodes")
+    return args.out, args.maps
 
 
 if __name__ == "__main__":

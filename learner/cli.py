@@ -32,7 +32,7 @@ RefineOpt = Annotated[
     typer.Option(
         min=0,
         help="Most gradient steps refining c on each context set (0: the encoder's mean); the count is chosen by "
-        "leaving each recording out in turn.",
+        "leaving up to 3 recordings out in turn.",
     ),
 ]
 

@@ -278,11 +278,11 @@ def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     if "obs" in a:
         return {"obs": a["obs"].astype(np.float32), "observed": observed, "times": times}
     mv = a["obs_mv"][:, :, observed].astype(np.float64)
-    if mv.size and (not np.isfinite(mv).all() or mv.min() < MV_RANGE[0] or mv.max() > MV_RANGE[1]):
+    if mv.size and (not np.isfinite(mv).all() or mv.min() < MV_RANGE[0] or mv.max() > MV_RANGE[1] or mv.min() > -50):
         raise InputError(
             f"{path}: obs_mv ranges from {np.min(mv):.4g} to {np.max(mv):.4g} at observed nodes (NaN or inf, or "
-            f"outside [{MV_RANGE[0]:g}, {MV_RANGE[1]:g}] mV): give the transmembrane potential in mV (rest -80, "
-            "peak about 20)"
+            f"outside [{MV_RANGE[0]:g}, {MV_RANGE[1]:g}] mV, or never near rest): give the transmembrane potential in "
+            "mV (rest -80, peak about 20), or u as obs"
         )
     return {"obs": from_millivolts(a["obs_mv"]).astype(np.float32), "observed": observed, "times": times}
 

@@ -72,3 +72,16 @@ def test_user_docs_read_as_reference():
     """No goal verdicts, no development history, no paths outside the project."""
     found = [f"{page.name}: {m.group(0)}" for page in PAGES for m in NOT_REFERENCE.finditer(page.read_text())]
     assert not found
+
+
+def test_licence_and_citation_agree_with_pyproject():
+    import tomllib
+
+    import yaml
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    citation = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    licence = project["license"] if isinstance(project["license"], str) else project["license"]["text"]
+    assert citation["license"] == licence == "MIT" and "MIT License" in (ROOT / "LICENSE").read_text()
+    assert citation["version"] == project["version"] and citation["cff-version"] == "1.2.0"
+    assert "Bayesian Meta-Learning" in citation["preferred-citation"]["title"]

@@ -37,13 +37,21 @@ def test_tissue_example_is_a_valid_setting_with_its_scars():
 def test_observation_example_is_valid_and_what_its_script_writes(tmp_path, capsys):
     import numpy as np
 
+    from learner.activation_maps import ApTemplate
     from learner.observations import observations_from_file
+    from learner.pretrained import info
 
     shipped = observations_from_file(EXAMPLES / "observations.npz")
     k, frames, n = shipped.obs.shape
     assert (k, frames) == (3, 55) and shipped.observed.sum() == 64 and len(shipped.mesh.points) == n
-    assert np.allclose(shipped.times, 0.6 * np.arange(1, 56))
+    assert np.allclose(shipped.times, 0.6 * np.arange(1, 56))  # 7.74 ms apart, in model time units
     assert 0.9 < shipped.obs[:, -20:, shipped.observed].max() < 1.2  # u: about 1 where excited, noise 0.02
-    written = _load("write_observations").main([str(tmp_path / "observations.npz")])
-    with np.load(EXAMPLES / "observations.npz") as a, np.load(written) as b:
-        assert sorted(a) == sorted(b) and all(np.array_equal(a[key], b[key]) for key in a)
+    maps = observations_from_file(EXAMPLES / "activation_maps.npz")
+    assert maps.activation.shape == (3, n) and np.array_equal(maps.observed, shipped.observed)
+    rendered = maps.at_frames(shipped.times, lambda: ApTemplate.from_dict(info("anatomies").config["ap_template"]))
+    assert np.abs(rendered.obs - shipped.obs)[:, :, shipped.observed].mean() < 0.1  # measured 0.08: scars shorten APs
+    args = [str(tmp_path / "observations.npz"), "--maps", str(tmp_path / "activation_maps.npz")]
+    written = _load("write_observations").main(args)
+    for name, path in zip(("observations.npz", "activation_maps.npz"), written):
+        with np.load(EXAMPLES / name) as a, np.load(path) as b:
+            assert sorted(a) == sorted(b) and all(np.array_equal(a[key], b[key], equal_nan=True) for key in a)

@@ -39,7 +39,7 @@ def _every_command(device: str, store, folder, toml: str) -> None:
     pred = folder / "pred.npz"
     result = runner.invoke(app, ["predict", str(person), "--sites", "0,7", "--out", str(pred), "--device", device])
     assert result.exit_code == 0, result.output
-    assert np.isfinite(np.load(pred)["u"]).all()
+    assert np.isfinite(np.load(pred)["v_mv"]).all()
 
 
 def test_every_command_runs_on_the_cpu(tiny_store, tiny_toml, tmp_path):

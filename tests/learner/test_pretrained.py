@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import importlib.metadata
 import json
 import shutil
 
@@ -11,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from learner import pretrained
+from learner.activation_maps import ApTemplate
 from learner.cli import app
 from learner.evaluate import EvalSpec, evaluate
 from learner.metrics import mse
@@ -58,6 +60,13 @@ def test_the_shipped_model_is_safetensors_weights_with_config_and_card():
     card = shipped.card.read_text()
     for fact in (config["training"]["store_spec_hash"], config["training"]["spec"], "Intended use", "Licence"):
         assert fact in card
+    # the card's figures, version and date, machine-readable beside the weights and the same as the card's table
+    metrics = config["card"]["metrics"]
+    assert config["card"]["version"] == importlib.metadata.version("metapns") and config["card"]["date"]
+    for figure in (metrics["unseen_sampled_hearts"]["cc_spatial"]["mean"], metrics["real_heart_sock"]["mse"]["mean"]):
+        assert f"{figure:.3f}"[:5] in card or f"{figure:.4f}" in card
+    template = ApTemplate.from_dict(config["ap_template"])
+    assert template.u[0] == pytest.approx(0.0, abs=1e-3) and template.u.max() > 0.95  # rest, then an action potential
 
 
 def test_load_returns_a_ready_metapns_and_the_name_is_a_checkpoint():

@@ -244,3 +244,23 @@ def test_sites_by_position_and_region(tmp_path):
     again = runner.invoke(app, ["simulate", str(tmp_path / "b"), "--mesh", str(out), "--site-region", "aha-4"])
     assert again.exit_code == 0, again.output
     assert np.load(tmp_path / "b" / "simulation.npz")["sites"][0] == data["sites"][1]  # the file keeps its frame
+
+
+def test_simulate_records_activation_maps_and_writes_a_time_series(tmp_path):
+    args = ["simulate", str(tmp_path), "--nodes", "1000", "--tissue", "scar-septal-basal", "--sites", "3,400"]
+    result = runner.invoke(app, [*args, "--observe", "surface", "--record", "activation", "--vtk", str(tmp_path / "v")])
+    assert result.exit_code == 0, result.output
+    recorded = np.load(tmp_path / "observations.npz")
+    simulated = np.load(tmp_path / "simulation.npz")
+    maps, observed = recorded["activation_ms"], recorded["observed"]
+    assert "obs_mv" not in recorded and np.isnan(maps[:, ~observed]).all() and not np.isnan(maps[:, observed]).any()
+    fired = simulated["v_mv"].max(axis=1) >= 0.8 * 100 - 80  # an action potential, not a scar core's bump
+    np.testing.assert_allclose(
+        maps[:, observed][fired[:, observed]], simulated["activation_ms"][:, observed][fired[:, observed]],
+        rtol=1e-6,
+    )
+    assert np.isinf(maps[:, observed][~fired[:, observed]]).all() and np.isinf(maps).any()
+    pvd = (tmp_path / "v" / "site-3.pvd").read_text()
+    assert pvd.count("<DataSet") == 55 and (tmp_path / "v" / "site-400_0054.vtu").is_file()
+    bad = runner.invoke(app, [*args, "--observe", "surface", "--record", "lat"], terminal_width=200)
+    assert bad.exit_code == 2 and "--record: 'lat' is not one of potential, activation" in text(bad)
