@@ -256,7 +256,8 @@ def test_simulate_records_activation_maps_and_writes_a_time_series(tmp_path):
     assert "obs_mv" not in recorded and np.isnan(maps[:, ~observed]).all() and not np.isnan(maps[:, observed]).any()
     fired = simulated["v_mv"].max(axis=1) >= 0.8 * 100 - 80  # an action potential, not a scar core's bump
     np.testing.assert_allclose(
-        maps[:, observed][fired[:, observed]], simulated["activation_ms"][:, observed][fired[:, observed]],
+        maps[:, observed][fired[:, observed]],
+        simulated["activation_ms"][:, observed][fired[:, observed]],
         rtol=1e-6,
     )
     assert np.isinf(maps[:, observed][~fired[:, observed]]).all() and np.isinf(maps).any()
