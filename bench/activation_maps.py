@@ -18,7 +18,8 @@ error of each, and their difference (maps minus potentials).
   a wave as context.
 
 Each through ``--observe`` node sets (default the 247-electrode sock, the whole
-surface and the endocardium: what an electroanatomical map covers).
+surface and the endocardium: what an electroanatomical map covers), and each
+row also split into healthy and scarred subjects.
 
 Run::
 
@@ -130,14 +131,14 @@ def summary(results: list[dict]) -> dict:
 
 def table(rows: list[dict]) -> list[str]:
     lines = [
-        "| hearts | recorded nodes | targets | CC from potentials | CC from activation maps | difference "
+        "| hearts | tissue | recorded nodes | targets | CC from potentials | CC from activation maps | difference "
         "| activation error from potentials / maps (ms) |",
-        "|---|---|---:|---:|---:|---:|---:|",
+        "|---|---|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         p, a = r["potentials"], r["activation"]
         lines.append(
-            f"| {r['hearts']} | {r['observe']} | {r['targets']} | {p['cc']:.3f} +- {p['cc_std']:.3f} "
+            f"| {r['hearts']} | {r['tissue']} | {r['observe']} | {r['targets']} | {p['cc']:.3f} +- {p['cc_std']:.3f} "
             f"| {a['cc']:.3f} +- {a['cc_std']:.3f} | {r['difference']:+.3f} "
             f"| {p['error_ms']:.1f} / {a['error_ms']:.1f} |"
         )
@@ -169,8 +170,13 @@ def main() -> None:
             results = [
                 fold(args.model, store, s, c, t, observe, args, [args.seed, i]) for i, (s, c, t) in enumerate(folds)
             ]
-            rows.append({"hearts": hearts, "observe": observe, "folds": len(folds), **summary(results)})
-            print(table(rows[-1:])[-1], flush=True)
+            healthy = [subject.endswith("-healthy") for subject, _, _ in folds]
+            for tissue in ("all", "healthy", "scarred"):
+                keep = [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")]
+                rows.append(
+                    {"hearts": hearts, "tissue": tissue, "observe": observe, "folds": len(keep), **summary(keep)}
+                )
+                print(table(rows[-1:])[-1], flush=True)
     text = [
         f"Machine: {machine_line()}. Model `{args.model}`; potentials with noise {NOISE_U} (u), activation maps "
         f"with noise {args.noise_ms:g} ms; unseen hearts: {args.context} context and {args.targets} target sites "

@@ -63,6 +63,7 @@ def main() -> None:
     parser.add_argument("--model", default="anatomies", help="shipped model name or checkpoint")
     parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
     parser.add_argument("--steps", type=int, nargs="+", default=[10, 30], help="--refine-steps values")
+    parser.add_argument("--folds", type=int, default=0, help="the first N folds of each subject only (0: all)")
     parser.add_argument("--seed", type=int, default=0)
     add_out_argument(parser, "refinement")
     add_publish_argument(parser, "refinement")
@@ -72,7 +73,12 @@ def main() -> None:
     ways = ["none", *(f"held-out {n}" for n in args.steps), *(f"fixed {n}" for n in args.steps)]
     scores = {way: {"cc": [], "error_ms": [], "taken": [], "seconds": []} for way in ways}
     start = time.perf_counter()
-    for i, (subject, context, left) in enumerate(real_folds(args)):
+    folds, per_subject = [], {}
+    for subject, context, left in real_folds(args):
+        per_subject[subject] = per_subject.get(subject, 0) + 1
+        if not args.folds or per_subject[subject] <= args.folds:
+            folds.append((subject, context, left))
+    for i, (subject, context, left) in enumerate(folds):
         ep = load_episode(
             args.real, subject, context, left, "electrodes", NOISE_U, np.random.default_rng([args.seed, i])
         )

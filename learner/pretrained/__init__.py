@@ -35,6 +35,7 @@ from learner.pretrained.shipped import (
     WEIGHTS,
     ShippedModel,
     checkpoint,
+    config_digest,
     file_sha256,
     info,
     names,
@@ -102,8 +103,6 @@ def export(
     view = StoreView(store) if Path(store).exists() else None
     weights = {k: v.detach().to("cpu", torch.float32).contiguous().clone() for k, v in ckpt["model"].items()}
     folder.mkdir(parents=True, exist_ok=True)
-    save_file(weights, str(folder / WEIGHTS), metadata={"format": "pt", "model": folder.name})
-    (folder / WEIGHTS).chmod(0o644)
     attrs = view.attrs if view is not None else {}
     document = {
         "format": FORMAT,
@@ -133,13 +132,16 @@ def export(
             "epoch": int(ckpt.get("epoch", 0)),  # the epoch after which the checkpoint was written
             "validation_target_mse": ckpt.get("best_validation"),  # best so far (best.pt: this epoch's)
         },
-        "weights": {
-            "file": WEIGHTS,
-            "dtype": "float32",
-            "parameters": int(sum(v.numel() for v in weights.values())),
-            "sha256": file_sha256(folder / WEIGHTS),
-        },
         "licence": "MIT",
+    }
+    metadata = {"format": "pt", "model": folder.name, "config_sha256": config_digest(document)}
+    save_file(weights, str(folder / WEIGHTS), metadata=metadata)
+    (folder / WEIGHTS).chmod(0o644)
+    document["weights"] = {
+        "file": WEIGHTS,
+        "dtype": "float32",
+        "parameters": int(sum(v.numel() for v in weights.values())),
+        "sha256": file_sha256(folder / WEIGHTS),
     }
     (folder / CONFIG).write_text(json.dumps(document, indent=1) + "\n")
     return folder

@@ -28,6 +28,8 @@ __all__ = [
     "checkpoint",
     "resolve_reference",
     "file_sha256",
+    "config_digest",
+    "UNSIGNED",
 ]
 
 #: The folder holding one sub-folder per shipped model.
@@ -101,23 +103,47 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+#: config.json entries outside the digest that the weights file records: the weights' own SHA-256 and the
+#: card's measured figures (written after export).
+UNSIGNED = ("weights", "card")
+
+
+def config_digest(config: dict[str, Any]) -> str:
+    """SHA-256 of config.json's content bar :data:`UNSIGNED` (canonical JSON: sorted keys, no spaces)."""
+    signed = {key: value for key, value in config.items() if key not in UNSIGNED}
+    return hashlib.sha256(json.dumps(signed, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
 def checkpoint(name: str, root: str | Path | None = None) -> dict[str, Any]:
     """The shipped model as a checkpoint dict of kind ``"model"``, as :func:`~learner.train.trainer.load_model` reads.
 
-    The weights are read with :func:`safetensors.torch.load_file` after their
-    SHA-256 is checked against config.json, and cast to float32.
+    The model is checked whole: the weights' SHA-256 against config.json, config.json's content against
+    the digest the weights file records (:func:`config_digest`), every weight finite. The weights are
+    read with :func:`safetensors.torch.load_file` and cast to float32.
     """
-    from safetensors import SafetensorError
+    import torch
+    from safetensors import SafetensorError, safe_open
     from safetensors.torch import load_file
 
     shipped = info(name, root)
-    recorded = shipped.config["weights"]["sha256"]
+    recorded = shipped.config.get("weights", {}).get("sha256", "")
     if file_sha256(shipped.weights) != recorded:
         raise InputError(f"{shipped.weights} is damaged: its SHA-256 differs from config.json's {recorded[:12]}...")
     try:
         weights = load_file(shipped.weights)
+        with safe_open(shipped.weights, "pt") as handle:
+            signed = (handle.metadata() or {}).get("config_sha256")
     except (SafetensorError, OSError) as exc:
         raise InputError(f"{shipped.weights} is not a readable safetensors file: {exc}") from None
+    if signed != config_digest(shipped.config):
+        raise InputError(
+            f"{shipped.folder / CONFIG} does not match {WEIGHTS}: its content (bar {', '.join(UNSIGNED)}) differs "
+            f"from the digest the weights record ({(signed or 'none')[:12]}...); restore the file or export the model "
+            "again (`learner export`)"
+        )
+    bad = [key for key, value in weights.items() if not torch.isfinite(value).all()]
+    if bad:
+        raise InputError(f"{shipped.weights}: {len(bad)} weight tensor(s) hold NaN or inf, first {bad[0]!r}")
     return {
         "kind": "model",
         "shipped": name,

@@ -412,5 +412,9 @@ def load_model(path: str | Path, device: torch.device | str = "cpu") -> tuple[PN
     ckpt = load_checkpoint(path, kind="model")
     config = config_from_mapping(ckpt["config"])
     model = build_model(config.model, ckpt["frames"])
-    model.load_state_dict(ckpt["model"])
+    try:
+        model.load_state_dict(ckpt["model"])
+    except RuntimeError as exc:  # missing, unexpected or misshapen tensors
+        first = next((line.strip() for line in str(exc).splitlines()[1:] if line.strip()), str(exc))
+        raise InputError(f"{path}: its weights do not fit the model its config describes ({first[:200]})") from None
     return model.to(device).eval(), config, ckpt

@@ -120,6 +120,46 @@ def test_damaged_weights_are_refused(tmp_path, monkeypatch):
         pretrained.info("other")
 
 
+def _rewritten(folder, tensors: dict | None = None, config: dict | None = None) -> None:
+    """Rewrite a shipped folder's weights (with the digest of ``config``) and config.json, hashes updated:
+    what a careless or hostile edit that also fixes the recorded SHA-256 leaves."""
+    from safetensors.torch import load_file, save_file
+
+    weights, path = folder / pretrained.WEIGHTS, folder / pretrained.CONFIG
+    document = config or json.loads(path.read_text())
+    save_file(
+        tensors or load_file(weights), str(weights), metadata={"config_sha256": pretrained.config_digest(document)}
+    )
+    document["weights"]["sha256"] = pretrained.file_sha256(weights)
+    path.write_text(json.dumps(document))
+
+
+def test_the_model_is_checked_whole_config_weights_and_values(tmp_path, monkeypatch):
+    from safetensors.torch import load_file
+
+    folder = tmp_path / NAME
+    shutil.copytree(pretrained.info(NAME).folder, folder)
+    monkeypatch.setattr(shipped_models, "SHIPPED_DIR", tmp_path)
+    config = json.loads((folder / pretrained.CONFIG).read_text())
+    edited = {**config, "frames": 54}  # an edit of config.json after export
+    (folder / pretrained.CONFIG).write_text(json.dumps(edited))
+    with pytest.raises(InputError, match="config.json does not match model.safetensors: its content"):
+        pretrained.load(NAME)
+    card = {**config, "card": {**config["card"], "date": "2030-01-01"}}  # the card's figures are not signed
+    (folder / pretrained.CONFIG).write_text(json.dumps(card))
+    pretrained.load(NAME)
+    tensors = load_file(folder / pretrained.WEIGHTS)
+    first = sorted(tensors)[0]
+    _rewritten(folder, {**tensors, first: tensors[first] * float("nan")}, config)
+    with pytest.raises(InputError, match=f"1 weight tensor\\(s\\) hold NaN or inf, first '{first}'"):
+        pretrained.load(NAME)
+    wider = json.loads(json.dumps(config))
+    wider["config"]["model"]["latent"] = 32  # a config that describes another model than the weights
+    _rewritten(folder, tensors, wider)
+    with pytest.raises(InputError, match="its weights do not fit the model its config describes"):
+        load_model(NAME)
+
+
 def test_export_writes_what_load_reads(tiny_store, tiny_toml, tmp_path, monkeypatch):
     cfg = tmp_path / "train.toml"
     cfg.write_text(tiny_toml(tiny_store, train="epochs = 1"))
