@@ -360,6 +360,10 @@ CASES: dict[str, dict[str, Case]] = {
         "workers negative": Case(build("good", "--workers", "-2"), usage("--workers")),
         "retries -1": Case(build("good", "--retries", "-1"), usage("--retries")),
         "threads 0": Case(("simgen", "simulate", "{d}/o", "--threads", "0"), usage("--threads")),
+        "unknown recording kind": Case(
+            ("simgen", "simulate", "{d}/o", "--nodes", "300", "--observe", "surface", "--record", "lat"),
+            ("--record: 'lat' is not one of potential, activation",),
+        ),
         "nodes 0": Case(("simgen", "mesh", "{d}/m.vtu", "--nodes", "0"), usage("--nodes")),
         "demo sites 0": Case(
             ("simgen", "demo", "--out", "{d}/demo", "--sites-per-setting", "0"), usage("--sites-per-setting")
@@ -412,6 +416,12 @@ CASES: dict[str, dict[str, Case]] = {
         "evaluate noise -1": Case(("learner", "evaluate", "{d}/model.pt", "{s}", "--noise", "-1"), usage("--noise")),
         "samples 1": Case((*PREDICT, "--samples", "1"), usage("--samples", "one draw gives no spread")),
         "samples -1": Case((*PREDICT, "--samples", "-1"), usage("--samples")),
+        "compare a missing prediction": Case(
+            ("learner", "compare", "{d}/missing.npz", "{d}/obs.npz"), ("prediction file not found",)
+        ),
+        "compare what is not a prediction": Case(
+            ("learner", "compare", "{d}/obs.npz", "{d}/obs.npz"), ("obs.npz is not a prediction file: it lacks",)
+        ),
         "predict site out of range": Case(
             ("learner", "predict", "{d}/personalized.pt", "--sites", "999"), ("stimulation nodes [999]",)
         ),
@@ -447,7 +457,7 @@ CASES: dict[str, dict[str, Case]] = {
         "not an npz": Case((*PERSONALIZE, "{d}/garbage.pt"), ("garbage.pt is not an .npz archive",)),
         "a single .npy array": Case((*PERSONALIZE, "{d}/single.npy"), ("holds a single array",)),
         "truncated npz": Case((*PERSONALIZE, "{d}/obs-truncated.npz"), ("obs-truncated.npz",)),
-        "missing arrays": Case((*PERSONALIZE, "{d}/obs-no-times.npz"), ("lacks array(s) ['times']",)),
+        "missing arrays": Case((*PERSONALIZE, "{d}/obs-no-times.npz"), ("lacks array(s) ['times_ms or times']",)),
         "obs of strings": Case((*PERSONALIZE, "{d}/obs-strings.npz"), ("obs must be a 3-D array of float or integer",)),
         "obs 2-D": Case((*PERSONALIZE, "{d}/obs-2d.npz"), ("obs must be a 3-D array", "got 2-D")),
         "float cells": Case((*PERSONALIZE, "{d}/obs-float-cells.npz"), ("cells must be a 2-D array of integer",)),
@@ -462,8 +472,18 @@ CASES: dict[str, dict[str, Case]] = {
             (*PERSONALIZE, "{d}/obs-x1000.npz"), ("observations range from 0.", "to 99", "outside [-0.5, 1.5]")
         ),
         "obs in millivolts": Case(
-            (*PERSONALIZE, "{d}/obs-millivolts.npz"), ("observations range from -79.9", "give u, not millivolts")
+            (*PERSONALIZE, "{d}/obs-millivolts.npz"), ("observations range from -79.9", "or millivolts as obs_mv")
         ),
+        "obs_mv given as u": Case(
+            (*PERSONALIZE, "{d}/obs-mv-as-u.npz"), ("obs_mv ranges from 0", "or never near rest")
+        ),
+        "obs and obs_mv": Case((*PERSONALIZE, "{d}/obs-both.npz"), ("give one of obs_mv and obs (recordings)",)),
+        "times and times_ms": Case((*PERSONALIZE, "{d}/obs-two-clocks.npz"), ("give one of times_ms and times",)),
+        "frame times not increasing": Case((*PERSONALIZE, "{d}/obs-backwards.npz"), ("must increase strictly",)),
+        "negative activation time": Case(
+            (*PERSONALIZE, "{d}/obs-negative-lat.npz"), ("activation_ms has 1 negative time(s), down to -4",)
+        ),
+        "duplicate site": Case((*PERSONALIZE, "{d}/obs-duplicate-site.npz"), ("recorded more than once",)),
         "neither file nor store": Case(PERSONALIZE[:-1], ("give either --observations FILE or --store",)),
         "unknown subject in a store": Case(
             (
@@ -551,6 +571,8 @@ def write_observations(d: Path, mesh) -> None:
     nan_obs[1, 2, mesh.nodes("surface")[0]] = np.nan
     nan_points = good["points"].copy()
     nan_points[3, 1] = np.nan
+    lat = np.full((2, n), 30.0)
+    lat[1, 4] = -4.0
     variants = {
         "obs": {},
         "obs-no-times": {"times": None},
@@ -566,6 +588,12 @@ def write_observations(d: Path, mesh) -> None:
         "obs-bad-cells": {"cells": np.where(good["cells"] == 0, n + 7, good["cells"])},
         "obs-x1000": {"obs": good["obs"] * 1000},
         "obs-millivolts": {"obs": 100 * good["obs"] - 80},
+        "obs-mv-as-u": {"obs": None, "obs_mv": good["obs"]},
+        "obs-both": {"obs_mv": 100 * good["obs"] - 80},
+        "obs-two-clocks": {"times_ms": 7.74 * np.arange(1, 7)},
+        "obs-backwards": {"times": 0.6 * np.array([1, 2, 4, 3, 5, 6])},
+        "obs-negative-lat": {"obs": None, "times": None, "observed": None, "activation_ms": lat},
+        "obs-duplicate-site": {"sites": np.array([5, 5])},
     }
     for name, patch in variants.items():
         arrays = {k: v for k, v in {**good, **patch}.items() if v is not None}
