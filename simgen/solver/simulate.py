@@ -110,9 +110,9 @@ class SolverConfig:
 
     ``backend`` (:data:`~simgen.solver.backends.BACKENDS`, see
     :class:`Simulator`) chooses the code that integrates, not the model:
-    ``None`` means ``"numba"`` and, unlike a value that is set, is left out of
-    a build spec's hash, so that stores built before the setting existed
-    resume.
+    ``None`` means ``"numba"`` (``"numba"`` given is stored as ``None``) and is
+    left out of a build spec's hash, so that stores built before the setting
+    existed resume.
 
     ``integrator`` (:data:`INTEGRATORS`) changes the results: ``"euler"``
     (forward Euler at the stable step), ``"rkc"`` (RKC2 at the accuracy step
@@ -122,7 +122,8 @@ class SolverConfig:
     meshes of a few thousand nodes), else IMEX
     (:func:`~simgen.solver.timestep.cheaper_integrator`). With ``rkc``,
     ``imex`` and ``auto`` ``dt`` may exceed the Euler limit. ``None`` means
-    ``"auto"`` and, like ``backend``, stays out of a spec's hash; a store
+    ``"auto"`` (``"auto"`` given is stored as ``None``) and, like ``backend``,
+    stays out of a spec's hash; a store
     records the integrator that ran on each subject, and a subject without
     that record (stores written before it existed) runs forward Euler.
     """
@@ -162,6 +163,9 @@ class SolverConfig:
             raise ConfigError(
                 f"unknown time integrator {self.integrator!r}; allowed: {', '.join(map(repr, INTEGRATORS))}"
             )
+        for name, default in (("integrator", "auto"), ("backend", "numba")):  # written out, a default is unset
+            if getattr(self, name) == default:
+                object.__setattr__(self, name, None)
 
     @property
     def duration(self) -> float:

@@ -56,7 +56,7 @@ from simgen.store.fingerprint import chunk_fingerprint
 from simgen.store.lock import LOCK_NAME
 from simgen.store.manifest import Subject, SubjectSetup, Task, validate_plan
 from simgen.store.metadata import provenance, simulation_attrs, solver_attrs
-from simgen.store.spec import OutputSpec
+from simgen.store.spec import OutputSpec, recorded_hashes
 from simgen.store.stats import chunk_moments, statistics
 
 __all__ = [
@@ -144,13 +144,14 @@ def layout_state(path: str, spec_hash: str, force: bool = False) -> LayoutState:
         warnings.simplefilter("ignore", SchemaWarning)
         attrs = check_store(path)
     version = int(attrs["schema_version"])
-    if attrs.get("spec_hash") == spec_hash and version == SCHEMA_VERSION:
+    same = spec_hash in recorded_hashes(attrs)
+    if same and version == SCHEMA_VERSION:
         return "resume"
     if force:
         return "replace"
     why = (
         f"was built from a different spec (hash {str(attrs.get('spec_hash'))[:12]}..., this spec {spec_hash[:12]}...)"
-        if attrs.get("spec_hash") != spec_hash
+        if not same
         else f"has schema version {version}, this simgen writes version {SCHEMA_VERSION}"
     )
     raise StoreMismatch(f"store {path} {why}; use a new store path or --force to replace it")

@@ -46,7 +46,16 @@ from simgen.store.lock import StoreLock
 from simgen.store.manifest import Plan, make_plan, validate_plan
 from simgen.store.metadata import recorded_scar_border
 from simgen.store.runner import BuildReport, run_pending
-from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection, load_spec, spec_from_mapping, spec_hash, spec_to_dict
+from simgen.store.spec import (
+    BuildSpec,
+    MeshEntry,
+    SiteSelection,
+    load_spec,
+    recorded_hashes,
+    spec_from_mapping,
+    spec_hash,
+    spec_to_dict,
+)
 from simgen.store.structure import Damage, Recorded, StoreDamaged, recorded_structure, structure_damage
 from simgen.store.verify import verify_store
 from simgen.tissue import tissue_spec_from_mapping
@@ -132,7 +141,7 @@ def _store_spec(store: str, attrs: dict | None, spec_file: Path | None) -> Build
         )
     spec = load_spec(spec_file)
     recorded = (attrs or {}).get("spec_hash")
-    if recorded is not None and recorded != spec_hash(spec):
+    if recorded is not None and spec_hash(spec) not in recorded_hashes(attrs or {}):
         raise SchemaError(
             f"{spec_file} is not the spec of store {store} (hash {spec_hash(spec)[:12]}..., "
             f"the store records {str(recorded)[:12]}...)"

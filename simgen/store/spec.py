@@ -74,6 +74,7 @@ __all__ = [
     "spec_from_mapping",
     "spec_to_dict",
     "spec_hash",
+    "recorded_hashes",
 ]
 
 #: Identifiers that become store group names (mesh ids, setting names, subject ids).
@@ -396,6 +397,18 @@ def load_spec(path: str | Path) -> BuildSpec:
 def spec_to_dict(spec: BuildSpec) -> dict[str, Any]:
     """JSON-able dict of ``spec`` with every field explicit; ``spec_from_mapping`` inverts it."""
     return to_mapping(spec)
+
+
+def recorded_hashes(attrs: dict[str, Any]) -> set[str]:
+    """The hashes a store's root attributes answer to: the recorded ``spec_hash`` and the hash of the recorded
+    ``spec`` as this version reads it (a spec that wrote a default out, e.g. ``integrator = "auto"``, was
+    hashed apart from the spec that leaves it unset; read again, the two are one spec)."""
+    hashes = {str(attrs["spec_hash"])} if attrs.get("spec_hash") else set()
+    try:
+        hashes.add(spec_hash(spec_from_mapping(attrs["spec"])))
+    except (KeyError, InputError, TypeError, ValueError):  # no recorded spec, or one this version cannot read
+        pass
+    return hashes
 
 
 def spec_hash(spec: BuildSpec) -> str:

@@ -1,10 +1,12 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from pathlib import Path
 
 import pytest
+import zarr
 
 from shared.errors import ConfigError, StimulusError, TissueError
 from shared.tissue import TissueSpec
@@ -19,6 +21,7 @@ from simgen.store import (
     spec_hash,
     spec_to_dict,
 )
+from simgen.store.layout import StoreMismatch
 
 SPECS = Path(__file__).resolve().parents[3] / "specs"
 
@@ -173,3 +176,27 @@ def test_relative_mesh_path(tmp_path: Path) -> None:
     assert spec.meshes[1].source == "biv"
     # Resolution happens once: the stored spec round-trips unchanged.
     assert spec_from_mapping(spec_to_dict(spec), base_dir=Path("/elsewhere")) == spec
+
+
+def test_a_default_written_out_is_the_same_spec_and_its_older_stores_resume(tmp_path, tiny_spec) -> None:
+    from simgen.store.layout import layout_state
+    from simgen.store.runner import build
+
+    unset = tiny_spec()
+    written = tiny_spec(solver={"frames": unset.solver.frames, "integrator": "auto", "backend": "numba"})
+    assert written == unset and spec_hash(written) == spec_hash(unset)
+    store = tmp_path / "s.zarr"
+    build(unset, store, workers=1)
+    # a store built before, from the spec with the defaults written out: its recorded hash is that spec's
+    group = zarr.open_group(str(store), mode="r+")
+    recorded = json.loads(json.dumps(dict(group.attrs)))
+    recorded["spec"]["solver"]["integrator"] = "auto"
+    recorded["spec_hash"] = hashlib.sha256(
+        json.dumps(recorded["spec"], sort_keys=True, separators=(",", ":")).encode()
+    ).hexdigest()
+    group.attrs.update(recorded)
+    assert recorded["spec_hash"] != spec_hash(unset)
+    assert layout_state(str(store), spec_hash(unset)) == "resume"
+    other = tiny_spec(solver={"frames": unset.solver.frames, "integrator": "imex"})
+    with pytest.raises(StoreMismatch, match="different spec"):
+        layout_state(str(store), spec_hash(other))
