@@ -360,6 +360,18 @@ CASES: dict[str, dict[str, Case]] = {
         "workers negative": Case(build("good", "--workers", "-2"), usage("--workers")),
         "retries -1": Case(build("good", "--retries", "-1"), usage("--retries")),
         "threads 0": Case(("simgen", "simulate", "{d}/o", "--threads", "0"), usage("--threads")),
+        "a mesh file resampled to 5 nodes": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "real:tof-biv", "--nodes", "5"),
+            ("n_nodes=5 outside the supported range 200..200000",),
+        ),
+        "a mesh file resampled to 10^8 nodes": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "real:tof-biv", "--nodes", "100000000"),
+            ("n_nodes=100000000 outside the supported range 200..200000",),
+        ),
+        "a dt of a billion steps": Case(
+            ("simgen", "simulate", "{d}/o", "--nodes", "300", "--dt", "1e-7"),
+            ("dt=1e-07 implies 330,000,000 steps", "more than 1,000,000 is refused"),
+        ),
         "unknown recording kind": Case(
             ("simgen", "simulate", "{d}/o", "--nodes", "300", "--observe", "surface", "--record", "lat"),
             ("--record: 'lat' is not one of potential, activation",),

@@ -29,16 +29,34 @@ import numpy as np
 
 from shared.errors import MeshError
 from shared.mesh import CellType, LongAxis, Mesh
+from simgen.meshes.ellipsoid import check_mesh_request
 from simgen.meshes.io import load_mesh
 from simgen.meshes.nodesets import detect_heart
 from simgen.meshes.resample import resample
 from simgen.meshes.shipped import REAL_LANDMARKS, REAL_PREFIX, is_real, unpacked
+from simgen.meshes.units import HEART_EXTENT_MM
 from simgen.meshes.validate import validate_mesh
 
 __all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
 
 #: Landmark points a spec may give (mm); ``apex`` and ``base`` (base centre) are required together.
 LANDMARKS = ("apex", "base", "septum")
+
+
+#: Largest bounding-box side of a heart in mm that a mesh may have, whatever unit it was read in.
+PLAUSIBLE_HEART_MM = (20.0, 400.0)
+
+
+def check_heart_size(mesh: Mesh, source: str) -> None:
+    """Refuse a heart whose size in mm no heart has: a length unit given or declared wrongly."""
+    extent = float(np.ptp(mesh.points, axis=0).max())
+    lo, hi = PLAUSIBLE_HEART_MM
+    if not lo <= extent <= hi:
+        raise MeshError(
+            f"{source}: read as a heart {extent:.4g} mm across, and hearts span about {HEART_EXTENT_MM[0]:g}-"
+            f"{HEART_EXTENT_MM[1]:g} mm: its length unit is wrong (the file's own, or the spec's units = ...); "
+            "give the unit its coordinates are in"
+        )
 
 
 def load_heart(
@@ -68,7 +86,10 @@ def load_heart(
             )
     else:
         mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays)
+    if heart:
+        check_heart_size(mesh, str(source))
     if nodes is not None:
+        check_mesh_request(kind or mesh.cell_type, nodes, 200)  # the range of the procedural meshes
         mesh = resample(mesh, nodes, kind or mesh.cell_type)
     elif kind is not None and kind != mesh.cell_type:
         raise MeshError(

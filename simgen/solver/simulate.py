@@ -25,7 +25,7 @@ from numpy.typing import DTypeLike, NDArray
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from shared.capture import activated_fraction, started_wave
-from shared.errors import ConfigError, InputError, TissueError
+from shared.errors import ConfigError, InputError, TimeStepError, TissueError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
@@ -81,6 +81,8 @@ DIRECT_SOLVE_NODES = 10_000
 #: Default stimulus radius (mm): the patch launches a wave from every non-scar site of the procedural and real
 #: hearts at 1k to 20k nodes (bench/convergence.py; docs/method.md, Convergence).
 STIMULUS_RADIUS = 10.0
+#: Most time steps a simulation may take (a ``dt`` that implies more is refused with its count).
+MAX_STEPS = 1_000_000
 
 #: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`),
 #: implicit-explicit SBDF2 (:mod:`simgen.solver.imex_kernel`), and the cheaper of Euler and IMEX per mesh.
@@ -162,6 +164,12 @@ class SolverConfig:
         if self.integrator is not None and self.integrator not in INTEGRATORS:
             raise ConfigError(
                 f"unknown time integrator {self.integrator!r}; allowed: {', '.join(map(repr, INTEGRATORS))}"
+            )
+        if self.dt is not None and np.isfinite(self.dt) and self.dt > 0 and self.duration / self.dt > MAX_STEPS:
+            raise TimeStepError(
+                f"time step dt={self.dt:g} implies {self.duration / self.dt:,.0f} steps ({self.duration:g} time units "
+                f"of {self.frames} frames): more than {MAX_STEPS:,} is refused; give a larger dt or leave it unset "
+                "(chosen for the mesh)"
             )
         for name, default in (("integrator", "auto"), ("backend", "numba")):  # written out, a default is unset
             if getattr(self, name) == default:

@@ -241,3 +241,18 @@ def test_permuted_hexahedral_grid_loads(tmp_path, caplog):
     assert mesh.cell_type == "tetra" and mesh.n_nodes == len(points)
     assert_tiles_the_box(mesh.points, mesh.cells, 45.0 * 40.0 * 50.0)
     assert f"split {len(hexes)} hexahedra into {mesh.n_cells} tetrahedra" in caplog.text
+
+
+@pytest.mark.parametrize("units", ["m", "mm"])
+def test_a_heart_of_no_hearts_size_is_refused_with_its_size(tmp_path, units):
+    from simgen.meshes.heart import load_heart
+
+    lv = lv_ellipsoid(1000)
+    scale = 1.0 if units == "m" else 1e-3  # a mm file declared in metres: 80 m; a m file read as mm: 0.08 mm
+    path = tmp_path / "heart.vtu"
+    meshio.write(path, meshio.Mesh(lv.points * scale, [("tetra", lv.cells)]))
+    with pytest.raises(MeshError, match=r"read as a heart .* mm across, and hearts span about 40-250 mm"):
+        load_heart(path, None, None, units=units)
+    assert load_heart(path, None, None, units="m" if units == "mm" else "mm").n_nodes == lv.n_nodes
+    with pytest.raises(MeshError, match="n_nodes=5 outside the supported range 200..200000"):
+        load_heart(path, 5, None, units="m" if units == "mm" else "mm")
