@@ -38,8 +38,8 @@ tree) and warns above 0.1.
    (goal <= 15 min on 2 cores).
 
 Run: ``.venv/bin/python -m bench.build [--paper [--paper-workers 1 2] [--paper-repeat 3]] [--out DIR]``
-(DIR gets build.md and build.json).
-The tables are published in docs/performance.md ("Build speed") with their machine and command.
+(DIR gets build.md and build.json). ``--publish`` writes the tables (without the summary lines)
+into the block ``build`` of docs/results.md with the command and the machine.
 """
 
 from __future__ import annotations
@@ -56,7 +56,15 @@ import distributed
 import numpy as np
 import zarr
 
-from bench.common import add_out_argument, machine, machine_line, write_out
+from bench.common import (
+    add_out_argument,
+    add_publish_argument,
+    check_publish,
+    machine,
+    machine_line,
+    publish_out,
+    write_out,
+)
 from simgen.store.layout import create_layout, write_chunk
 from simgen.store.manifest import make_plan
 from simgen.store.runner import build, dask_client
@@ -433,7 +441,7 @@ def _f(x, fmt: str) -> str:
 
 def _scaling_md(scaling: list[dict], ceiling: list[dict], args) -> list[str]:
     out = [
-        f"### Scaling: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x {args.sites} sites, "
+        f"#### Scaling: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x {args.sites} sites, "
         f"{args.chunk} sites per chunk; fastest of {args.repeat}",
         "",
         "| workers | tasks | sims | cluster up / down (s) | plan + layout (s) | build wall (s) | sims/s "
@@ -472,7 +480,7 @@ def _scaling_md(scaling: list[dict], ceiling: list[dict], args) -> list[str]:
 
 def _write_md(write: list[dict], args) -> list[str]:
     out = [
-        f"### Zarr write share: worker steps by hand, 1 subject x {args.write_sites} sites, threads=1, no Dask; "
+        f"#### Zarr write share: worker steps by hand, 1 subject x {args.write_sites} sites, threads=1, no Dask; "
         f"fastest of {args.repeat}",
         "",
         "| compressor | chunk_sites | chunks | Simulator.run (s) | in the task: write_chunk (s) | write ms/chunk "
@@ -505,7 +513,7 @@ def _write_md(write: list[dict], args) -> list[str]:
 def _paper_md(paper: list[dict]) -> list[str]:
     rounds = paper[0]["rounds"]
     out = [
-        f"### Paper scale: {Path(paper[0]['spec']).name}" + (f"; fastest of {rounds}" if rounds > 1 else ""),
+        f"#### Paper scale: {Path(paper[0]['spec']).name}" + (f"; fastest of {rounds}" if rounds > 1 else ""),
         "",
         "| workers | subjects | tasks | sims | wall (s) | wall (min) | sims/s | before tasks (s) | task phase (s) "
         "| after tasks (s) | mean task (s) | busy | speed-up (wall) | speed-up (tasks) | store GB | raw GB "
@@ -537,8 +545,10 @@ def _paper_md(paper: list[dict]) -> list[str]:
     return out
 
 
-def markdown(scaling: list[dict], ceiling: list[dict], write: list[dict], paper: list[dict], args) -> str:
-    """Summary against the goals, then one table per measurement that ran."""
+def markdown(
+    scaling: list[dict], ceiling: list[dict], write: list[dict], paper: list[dict], args, summary: bool = True
+) -> str:
+    """Summary against the goals (unless ``summary`` is false), then one table per measurement that ran."""
     goals = []
     if scaling:
         last = scaling[-1]
@@ -558,7 +568,7 @@ def markdown(scaling: list[dict], ceiling: list[dict], write: list[dict], paper:
             f"{p['sims_per_s']:.1f} sims/s, {p['store_bytes'] / 1e9:.2f} GB of files (goal <= 15 min)"
             + (f", {p['speedup']:.2f}x the first (goal >= 1.8x)" if p is not paper[0] else "")
         )
-    out = [f"- {g}" for g in goals]
+    out = [f"- {g}" for g in goals] if summary else []
     for section in (
         _scaling_md(scaling, ceiling, args) if scaling else [],
         _write_md(write, args) if write else [],
@@ -598,7 +608,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--paper-store", type=Path, help="keep the last --paper store at this new path (default: temporary)")
     p.add_argument("--tmp", type=Path, help="parent folder of the temporary stores (default: system temp)")
     add_out_argument(p, "build")
+    add_publish_argument(p, "build")
     args = p.parse_args(argv)
+    check_publish(args.publish)
 
     load_before = os.getloadavg()[0]
     t_start = time.perf_counter()
@@ -644,6 +656,7 @@ def main(argv: list[str] | None = None) -> None:
         )
     table = header + "\n" + markdown(scaling, ceiling, write, paper, args) + "\n"
     print(table)
+    publish_out(args.publish, "build", header + "\n" + markdown(scaling, ceiling, write, paper, args, summary=False))
     meta = {
         **machine(),
         "distributed": distributed.__version__,

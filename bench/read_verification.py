@@ -21,7 +21,8 @@ replaced by a no-op, in this process only):
   check their chunks anew).
 
 Run: ``.venv/bin/python -m bench.read_verification [--out DIR]`` (DIR gets read_verification.md and .json).
-The table is published in docs/performance.md ("Reading the store") with its machine and command.
+``--publish`` writes the table into the block ``read_verification`` of docs/results.md with the command and
+the machine.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import add_out_argument, machine_line, write_out
+from bench.common import add_out_argument, add_publish_argument, check_publish, machine_line, publish_out, write_out
 from bench.store_read import bench_spec, warm
 from learner.config import config_from_mapping
 from learner.data.episodes import EpisodeDataset, EpisodeSpec
@@ -126,12 +127,18 @@ def run(args) -> dict:
     return results
 
 
-def markdown(results: dict, args, seconds: float) -> str:
+def markdown(results: dict, args, seconds: float, header: bool = True) -> str:
+    """The table; ``header``: with the machine and command lines first (``--publish`` writes its own)."""
     off, on = results["unchecked"], results["verified"]
-    lines = [
-        f"Machine: {machine_line()}; "
-        f"store: 1 LV of ~{args.nodes} nodes x 4 settings x {args.sites} sites, {args.chunk} sites per shard.",
-        f"Command: `.venv/bin/python -m bench.read_verification` ({seconds:.0f} s); best of two passes each.",
+    store = f"1 LV of ~{args.nodes} nodes x 4 settings x {args.sites} sites, {args.chunk} sites per shard"
+    if header:
+        lines = [
+            f"Machine: {machine_line()}; store: {store}.",
+            f"Command: `.venv/bin/python -m bench.read_verification` ({seconds:.0f} s); best of two passes each.",
+        ]
+    else:
+        lines = [f"Store: {store}; {seconds:.0f} s in all; best of two passes each."]
+    lines += [
         "",
         "| reads | one simulation (ms) | episodes/s | training epoch (s) |",
         "|---|---:|---:|---:|",
@@ -155,11 +162,15 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--epochs", type=int, default=5, help="training epochs per pass (median kept)")
     p.add_argument("--tmp", type=Path, default=None, help="folder for the store (default: the system's temp)")
     add_out_argument(p, "read_verification")
+    add_publish_argument(p, "read_verification")
     args = p.parse_args(argv)
+    check_publish(args.publish)
     start = time.perf_counter()
     results = run(args)
-    text = markdown(results, args, time.perf_counter() - start)
+    seconds = time.perf_counter() - start
+    text = markdown(results, args, seconds)
     print(text)
+    publish_out(args.publish, "read_verification", markdown(results, args, seconds, header=False))
     payload = {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, **results}
     write_out(args.out, "read_verification", text, payload, indent=None)
 

@@ -22,8 +22,9 @@ grows about linearly in the nodes. Writes ``scaling.md``, ``scaling.json``
 and ``scaling.png`` (log-log).
 
 Run: ``.venv/bin/python -m bench.scaling [--out DIR] [--nodes 1000,5000,20000,50000] [--sites 16,64,256,512]``.
-The tables are published in docs/performance.md ("Scaling with mesh size and sites"), the plot
-as docs/scaling.png.
+``--publish`` writes the tables into the block ``scaling`` of docs/results.md with the command and the
+machine (with ``--train-only``, the block ``scaling.DEVICE``: ``scaling.cuda``); the plot goes to
+``--out``, copied by hand to docs/scaling.png.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.common import add_out_argument, machine_line, write_out
+from bench.common import add_out_argument, add_publish_argument, check_publish, machine_line, publish_out, write_out
 
 BUILD_SITES = 8
 SITES_MESH = 2000
@@ -221,12 +222,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--train-only", action="store_true", help="only the training-step rows")
     p.add_argument("--device", default="cpu", help="torch device of the training-step rows (e.g. cuda)")
     p.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
+    add_publish_argument(p, "scaling")
     args = p.parse_args(argv)
+    if args.publish == "scaling" and args.train_only:
+        args.publish = f"scaling.{args.device.split(':')[0]}"  # the block of training-only runs on that device
     if args.child:
         kind, *values = args.child
         result = child_build(*map(int, values)) if kind == "build" else child_train(int(values[0]), values[1])
         print(json.dumps(result))
         return
+    check_publish(args.publish)
     t0 = time.perf_counter()
     node_list, site_list = [int(v) for v in args.nodes.split(",")], [int(v) for v in args.sites.split(",")]
     nodes, sites, train = [], [], []
@@ -234,8 +239,21 @@ def main(argv: list[str] | None = None) -> None:
         train.append(run_child("train", str(n), args.device))
         print(f"train {train[-1]['nodes']} nodes: {train[-1]['step_s']:.2f} s", file=sys.stderr, flush=True)
     if args.train_only:
-        print(json.dumps(train, indent=1))
-        write_out(args.out, f"scaling-train-{args.device.split(':')[0]}", json.dumps(train, indent=1), train, indent=2)
+        gpu = all("peak_gpu_mb" in r for r in train)
+        memory = ("peak_gpu_mb", "peak GPU memory (MB)", ".0f") if gpu else ("peak_rss_mb", "peak RSS (MB)", ".0f")
+        columns = [
+            ("nodes", "nodes", "d"),
+            ("hierarchy_s", "hierarchy (s, host CPU)" if gpu else "hierarchy (s)", ".2f"),
+            ("step_s", "s per episode", ".2f"),
+            memory,
+        ]
+        md = (
+            f"metaPNS training episode on {args.device}: {machine_line()}; "
+            f"total {time.perf_counter() - t0:.0f} s\n\n{table(train, columns)}"
+        )
+        print(md)
+        publish_out(args.publish, "scaling", md)
+        write_out(args.out, f"scaling-train-{args.device.split(':')[0]}", md, train, indent=2)
         return
     for n in node_list:
         nodes.append(run_child("build", str(n), str(BUILD_SITES)))
@@ -265,16 +283,17 @@ def main(argv: list[str] | None = None) -> None:
     md = (
         f"Scaling bench: {machine_line()}, one thread per measurement; "
         f"total {time.perf_counter() - t0:.0f} s\n\n"
-        f"### Build vs mesh nodes ({BUILD_SITES} sites, one chunk)\n\n{table(nodes, build_cols)}\n"
+        f"#### Build vs mesh nodes ({BUILD_SITES} sites, one chunk)\n\n{table(nodes, build_cols)}\n"
         f"Time per simulation grows as nodes^{slope(nodes, 'nodes', 's_per_sim'):.2f} "
         f"(steps as nodes^{slope(nodes, 'nodes', 'steps'):.2f}: dt follows the mesh spacing).\n\n"
-        f"### Build vs sites (~{SITES_MESH}-node LV, one chunk)\n\n{table(sites, build_cols)}\n"
+        f"#### Build vs sites (~{SITES_MESH}-node LV, one chunk)\n\n{table(sites, build_cols)}\n"
         f"Run time grows as sites^{slope(sites, 'sites', 'run_s'):.2f}, peak memory as "
         f"sites^{slope(sites, 'sites', 'peak_rss_mb'):.2f}.\n\n"
-        f"### metaPNS training episode vs mesh nodes\n\n{table(train, train_cols)}\n"
+        f"#### metaPNS training episode vs mesh nodes\n\n{table(train, train_cols)}\n"
         f"Episode time grows as nodes^{slope(train, 'nodes', 'step_s'):.2f}.\n"
     )
     print(md)
+    publish_out(args.publish, "scaling", md)
     if write_out(args.out, "scaling", md, {"build_nodes": nodes, "build_sites": sites, "train": train}, indent=2):
         plot(nodes, sites, train, args.out / "scaling.png")
 

@@ -20,7 +20,7 @@ observed on the surface, as ``specs/train-default.toml``; sites drawn from the
 whole subject and from 2 build chunks) with the store in the page cache.
 
 Run: ``.venv/bin/python -m bench.store_read [--out DIR]`` (DIR gets store_read.md and store_read.json).
-The table is published in docs/performance.md ("Reading the store") with its machine and command.
+``--publish`` writes the table into the block ``store_read`` of docs/results.md with the command and the machine.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ import numpy as np
 import zarr
 
 import simgen.store.layout as store_module
-from bench.common import add_out_argument, machine_line, write_out
+from bench.common import add_out_argument, add_publish_argument, check_publish, machine_line, publish_out, write_out
 from learner.data.episodes import EpisodeDataset, EpisodeSpec
 from shared.reader import subject_ids
 from simgen.store.runner import build
@@ -150,7 +150,7 @@ def markdown(results: dict, args, seconds: float, load: float) -> str:
         f"Machine: {machine_line()}, Python {platform.python_version()}, "
         f"zarr {zarr.__version__}; 1-minute load average {load:.1f} before the run; {seconds:.0f} s in all.",
         "",
-        f"### Sharded vs unsharded: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x "
+        f"#### Sharded vs unsharded: 1 LV mesh ({args.nodes} nodes) x {args.settings} tissue settings x "
         f"{args.sites} sites, {args.chunk} sites per build task, {args.workers} workers",
         "",
         "| layout | build (s) | store MB | one simulation, cold (ms) | one simulation, cached (ms) "
@@ -186,11 +186,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=64, help="episodes per layout and draw")
     p.add_argument("--tmp", default=None, help="parent folder of the temporary stores")
     add_out_argument(p, "store_read")
+    add_publish_argument(p, "store_read")
     args = p.parse_args(argv)
+    check_publish(args.publish)
     load, start = os.getloadavg()[0], time.perf_counter()
     results = run(args)
     text = markdown(results, args, time.perf_counter() - start, load)
     print(text)
+    publish_out(args.publish, "store_read", text)
     write_out(args.out, "store_read", text, {"args": vars(args) | {"out": str(args.out)}, **results}, indent=None)
     if load > 0.5:
         print(f"warning: load average {load:.1f} at the start: other processes slow these figures", file=sys.stderr)

@@ -20,7 +20,8 @@ sequences come from a store built by ``simgen build`` (default: a 2k-node LV,
 55 frames, built here in a temporary folder when ``--store`` is not given).
 
 Run: ``.venv/bin/python -m bench.surrogate [--store PATH] [--config TOML] [--mesh lv] [--out DIR]``.
-The tables are published in docs/performance.md ("Surrogate speed") with their machine and command.
+``--publish`` writes the table (without the goal column) into the block ``surrogate`` of docs/results.md
+with the command and the machine (``surrogate.cuda`` with ``--device cuda``).
 """
 
 from __future__ import annotations
@@ -206,7 +207,11 @@ def main(argv: list[str] | None = None) -> None:
     )
     p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--no-tune", action="store_true", help=argparse.SUPPRESS)
+    common.add_publish_argument(p, "surrogate")
     args = p.parse_args(argv)
+    if args.publish == "surrogate" and args.device != "cpu":
+        args.publish = f"surrogate.{args.device.split(':')[0]}"  # the block of runs on that device
+    common.check_publish(args.publish)
     if not args.no_tune:
         tune_allocator()
     tmp = None
@@ -283,6 +288,8 @@ def main(argv: list[str] | None = None) -> None:
         f"| {k} | {v:.3g} | {goal_text(k)} |\n" for k, v in rows.items()
     )
     print(head + table)
+    published = "| quantity | value |\n|---|---|\n" + "".join(f"| {k} | {v:.3g} |\n" for k, v in rows.items())
+    common.publish_out(args.publish, "surrogate", head.removeprefix("# ") + published)
     if args.out:
         name = "surrogate" if on_cpu else f"surrogate-{args.device.split(':')[0]}"
         summary = {
