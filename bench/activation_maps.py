@@ -62,9 +62,8 @@ def activation_map(u: np.ndarray, activation: np.ndarray, observed: np.ndarray, 
     """Recorded activation times (K, N) in model time units: at ``observed`` nodes the activation times of
     simulations ``u`` (K, T, N) as a mapping system records them (:func:`~shared.capture.mapped_activation`)
     plus noise, NaN elsewhere."""
-    mapped = mapped_activation(activation, u.max(axis=1))
-    noisy = np.maximum(mapped + rng.normal(0.0, noise_ms / MS_PER_TIME_UNIT, mapped.shape), 0.0)
-    return np.where(observed[None, :], noisy, np.nan)
+    mapped = mapped_activation(activation, u.max(axis=1), noise_ms / MS_PER_TIME_UNIT, rng)
+    return np.where(observed[None, :], mapped, np.nan)
 
 
 def fold(model: str, store: str, subject: str, context: list[int], targets: list[int], observe: str, args, seed):

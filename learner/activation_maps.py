@@ -91,11 +91,12 @@ def template_from_sequences(
     keep = np.sort(np.random.default_rng(seed).choice(keep, min(max_series, len(keep)), replace=False))
     span = times[-1] - times[0]
     offsets = np.round(np.arange(-span, span + TEMPLATE_STEP / 2, TEMPLATE_STEP), 6)
-    sampled = np.full((len(keep), len(offsets)), np.nan)
-    for row, i in enumerate(keep):
-        at = act[i] + offsets
-        inside = (at >= times[0]) & (at <= times[-1])
-        sampled[row, inside] = np.interp(at[inside], times, series[i])
+    at = act[keep, None] + offsets[None, :]  # (M, P) the times each series is sampled at
+    right = np.clip(np.searchsorted(times, at), 1, len(times) - 1)
+    w = (at - times[right - 1]) / (times[right] - times[right - 1])
+    rows = series[keep]
+    sampled = (1 - w) * np.take_along_axis(rows, right - 1, axis=1) + w * np.take_along_axis(rows, right, axis=1)
+    sampled[(at < times[0]) | (at > times[-1])] = np.nan
     counted = np.isfinite(sampled).any(axis=0)
     median = np.zeros(len(offsets))
     median[counted] = np.nanmedian(sampled[:, counted], axis=0)

@@ -59,10 +59,19 @@ def started_wave(fraction: ArrayLike) -> NDArray[np.bool_]:
 ACTION_POTENTIAL_PEAK = 0.8
 
 
-def mapped_activation(activation: ArrayLike, peak: ArrayLike) -> NDArray[np.float64]:
+def mapped_activation(
+    activation: ArrayLike, peak: ArrayLike, noise: float = 0.0, rng: np.random.Generator | None = None
+) -> NDArray[np.float64]:
     """Activation times as a mapping system records them: ``activation`` where the node fires an action
     potential (its peak ``u`` reaches :data:`ACTION_POTENTIAL_PEAK`), ``+inf`` where it never activates or only
-    follows its neighbours passively (a scar core's electrotonic bump that touches 0.5 without firing)."""
+    follows its neighbours passively (a scar core's electrotonic bump that touches 0.5 without firing); with
+    ``noise``, Gaussian noise of that standard deviation (the units of ``activation``) from ``rng``, times kept
+    at or after 0."""
     activation = np.asarray(activation, np.float64)
     fired = np.isfinite(activation) & (np.asarray(peak) >= ACTION_POTENTIAL_PEAK)
-    return np.where(fired, activation, np.inf)
+    mapped = np.where(fired, activation, np.inf)
+    if noise > 0:
+        if rng is None:
+            raise InputError("noise > 0 needs an rng (np.random.Generator) for reproducible noise")
+        mapped = np.maximum(mapped + rng.normal(0.0, noise, mapped.shape), 0.0)
+    return mapped

@@ -253,9 +253,8 @@ def _recording(result, observed: np.ndarray, record: str, noise: float, rng: np.
     if record == "potential":
         mv = np.where(observed, to_millivolts(observe_field(result.u, observed, noise / 100.0, rng)), np.nan)
         return {"obs_mv": mv.astype(np.float32), "times_ms": result.times * MS_PER_TIME_UNIT}
-    mapped = mapped_activation(result.activation, result.u.max(axis=1)) * MS_PER_TIME_UNIT
-    noisy = np.maximum(mapped + rng.normal(0.0, noise, mapped.shape), 0.0) if noise else mapped
-    return {"activation_ms": np.where(observed, noisy, np.nan).astype(np.float32)}
+    mapped = mapped_activation(result.activation * MS_PER_TIME_UNIT, result.u.max(axis=1), noise, rng)
+    return {"activation_ms": np.where(observed, mapped, np.nan).astype(np.float32)}
 
 
 def _report_no_wave(sites: np.ndarray, fraction: np.ndarray) -> None:

@@ -335,9 +335,8 @@ def recorded_map(
     """Simulations ``u`` (K, T, N) recorded as activation-time maps at the ``observed`` nodes (noise ``noise_ms``
     ms, :func:`~shared.capture.mapped_activation`) and read back as potentials through ``template``; 0 elsewhere."""
     first = np.stack([activation_times(sequence, times) for sequence in u])
-    mapped = mapped_activation(first, u.max(axis=1))
-    noisy = np.maximum(mapped + rng.normal(0.0, noise_ms / MS_PER_TIME_UNIT, mapped.shape), 0.0)
-    return template.render(noisy, times) * observed
+    mapped = mapped_activation(first, u.max(axis=1), noise_ms / MS_PER_TIME_UNIT, rng)
+    return template.render(mapped, times) * observed
 
 
 def load_episode(

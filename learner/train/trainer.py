@@ -114,7 +114,6 @@ class Trainer:
             "config": self.config.to_dict(),
             "frames": self.view.frames,
             "times": self.view.times.tolist(),
-            "ap_template": self.ap_template,
             "splits": self.splits,
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
@@ -123,6 +122,8 @@ class Trainer:
             "epoch": self.epoch,
             "history": self.history,
             "best_validation": self.best,
+            # the template its episodes read maps through; without maps, computed from the store when asked for
+            **({"ap_template": self.ap_template} if self.config.data.episodes.activation_maps else {}),
         }
 
     @cached_property
