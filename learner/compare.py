@@ -20,7 +20,7 @@ import numpy as np
 
 from learner.evaluate import default_dc_frame
 from learner.metrics import sequence_metrics, summarize
-from learner.observations import resample_frames
+from learner.observations import read_npz, resample_frames
 from shared.errors import InputError
 from shared.units import MS_PER_TIME_UNIT, from_millivolts
 
@@ -66,14 +66,11 @@ def _load(path: str | Path, names: tuple[str, ...], what: str) -> dict[str, np.n
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} file not found: {path}")
-    try:
-        with np.load(path) as data:
-            missing = [name for name in names if name not in data.files]
-            if missing:
-                raise InputError(f"{path} is not a {what} file: it lacks {missing} (docs/formats.md)")
-            return {name: data[name] for name in names}
-    except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"{path} is not a readable .npz archive: {exc}") from None
+    arrays = read_npz(path, list(names), f"a {what}")
+    missing = [name for name in names if name not in arrays]
+    if missing:
+        raise InputError(f"{path} is not a {what} file: it lacks {missing} (docs/formats.md)")
+    return arrays
 
 
 def compare_files(prediction: str | Path, simulation: str | Path) -> Comparison:

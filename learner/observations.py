@@ -33,6 +33,7 @@ __all__ = [
     "Observations",
     "UnmappedWarning",
     "resample_frames",
+    "read_npz",
     "observations_from_store",
     "observations_from_file",
     "read_mesh_file",
@@ -194,6 +195,8 @@ OBSERVATION_ARRAYS = {
     "times_ms": (1, "fiu"),  # (T,) ms, or
     "times": (1, "fiu"),  # (T,) model time units
 }
+#: Recordings in mV whose lowest value is above this never come near rest (-80 mV): ``u`` given as ``obs_mv``.
+REST_ABOVE_MV = -50.0
 #: Groups of arrays of which a file gives exactly one (``sites`` and ``site_xyz`` may both be given if they agree).
 ONE_OF = {
     "sites": ("sites", "site_xyz"),
@@ -204,31 +207,38 @@ _KINDS = {"f": "float", "i": "integer", "u": "integer", "b": "bool"}
 _UNREADABLE = (ValueError, EOFError, zipfile.BadZipFile, zlib.error)  # what np.load raises for bad bytes
 
 
-def _read_arrays(path: Path) -> dict[str, np.ndarray]:
-    """The arrays of :data:`OBSERVATION_ARRAYS` (and region labels) that ``path`` holds, each checked for its
-    number of dimensions and dtype kind."""
+def read_npz(path: Path, names: list[str], what: str) -> dict[str, np.ndarray]:
+    """The arrays ``names`` that the ``.npz`` archive ``path`` holds (the others left out), each read whole; a
+    file that is no archive, or an array whose bytes do not decode, is refused with one line."""
     try:
         data = np.load(path)
     except _UNREADABLE as exc:
         raise InputError(f"{path} is not an .npz archive of arrays: {exc}") from None
     if not isinstance(data, np.lib.npyio.NpzFile):
-        raise InputError(f"{path} holds a single array, not an .npz archive of {list(OBSERVATION_ARRAYS)}")
+        raise InputError(f"{path} holds a single array, not an .npz archive of {what}")
     arrays = {}
     with data:
-        for name in [*OBSERVATION_ARRAYS, *SiteLabels.NAMES]:
+        for name in names:
             if name not in data.files:
                 continue
             try:
-                array = data[name]
+                arrays[name] = data[name]
             except _UNREADABLE as exc:
                 raise InputError(f"{path}: array {name!r} cannot be read: {exc}") from None
-            ndim, kinds = OBSERVATION_ARRAYS.get(name, (1, "biu"))
-            if array.ndim != ndim or array.dtype.kind not in kinds:
-                allowed = " or ".join(dict.fromkeys(_KINDS[k] for k in kinds))
-                raise InputError(
-                    f"{path}: {name} must be a {ndim}-D array of {allowed} values, got {array.ndim}-D {array.dtype}"
-                )
-            arrays[name] = array
+    return arrays
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of :data:`OBSERVATION_ARRAYS` (and region labels) that ``path`` holds, each checked for its
+    number of dimensions and dtype kind."""
+    arrays = read_npz(path, [*OBSERVATION_ARRAYS, *SiteLabels.NAMES], str(list(OBSERVATION_ARRAYS)))
+    for name, array in arrays.items():
+        ndim, kinds = OBSERVATION_ARRAYS.get(name, (1, "biu"))
+        if array.ndim != ndim or array.dtype.kind not in kinds:
+            allowed = " or ".join(dict.fromkeys(_KINDS[k] for k in kinds))
+            raise InputError(
+                f"{path}: {name} must be a {ndim}-D array of {allowed} values, got {array.ndim}-D {array.dtype}"
+            )
     return arrays
 
 
@@ -278,7 +288,9 @@ def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     if "obs" in a:
         return {"obs": a["obs"].astype(np.float32), "observed": observed, "times": times}
     mv = a["obs_mv"][:, :, observed].astype(np.float64)
-    if mv.size and (not np.isfinite(mv).all() or mv.min() < MV_RANGE[0] or mv.max() > MV_RANGE[1] or mv.min() > -50):
+    if mv.size and (
+        not np.isfinite(mv).all() or mv.min() < MV_RANGE[0] or mv.max() > MV_RANGE[1] or mv.min() > REST_ABOVE_MV
+    ):
         raise InputError(
             f"{path}: obs_mv ranges from {np.min(mv):.4g} to {np.max(mv):.4g} at observed nodes (NaN or inf, or "
             f"outside [{MV_RANGE[0]:g}, {MV_RANGE[1]:g}] mV, or never near rest): give the transmembrane potential in "

@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +74,7 @@ class Prediction:
         """(S,) whether the model predicts a propagating wave from each site (:mod:`shared.capture`)."""
         return started_wave(self.activated)
 
-    @property
+    @cached_property
     def activation(self) -> np.ndarray:
         """(S, N) predicted activation times in model time units (first crossing of ``u = 0.5``; NaN: never)."""
         return np.stack([activation_times(u, self.times) for u in self.u])
@@ -175,16 +176,11 @@ class PersonalizedHeart:
             spread = act_spread = None
             if samples > 1:
                 g = torch.Generator().manual_seed(seed)
-                draws = (
-                    torch.stack(
-                        [
-                            self.model.generate(s, self.hierarchy, self.posterior.sample(g), evidence=self.evidence)
-                            for _ in range(samples)
-                        ]
-                    )
-                    .cpu()
-                    .numpy()
-                )
+                draws = [
+                    self.model.generate(s, self.hierarchy, self.posterior.sample(g), evidence=self.evidence)
+                    for _ in range(samples)
+                ]
+                draws = torch.stack(draws).cpu().numpy()
                 spread = draws.std(axis=0)
                 act_spread = _activation_spread(draws, self.times)
         u = u.cpu().numpy()
@@ -368,16 +364,14 @@ def _activation_spread(draws: np.ndarray, times: np.ndarray) -> np.ndarray:
 def write_vtk(prediction: Prediction, folder: str | Path) -> list[Path]:
     """A ParaView time series per site (``site-<node>.pvd``, :func:`shared.vtk.write_time_series`): ``V_mV``
     and ``u`` per frame (and ``spread_mV`` with draws), ``activation_ms`` (and ``activation_spread_ms``)."""
-    arrays = prediction.arrays()
+    mesh, times_ms = prediction.mesh, np.asarray(prediction.times, np.float64) * MS_PER_TIME_UNIT
     paths = []
     for i, site in enumerate(prediction.sites):
-        frames = {"V_mV": arrays["v_mv"][i], "u": prediction.u[i]}
-        static = {"activation_ms": arrays["activation_ms"][i]}
+        frames = {"V_mV": to_millivolts(prediction.u[i]), "u": prediction.u[i]}
+        static = {"activation_ms": prediction.activation[i] * MS_PER_TIME_UNIT}
         if prediction.spread is not None:
-            frames["spread_mV"] = arrays["spread_mv"][i]
-            static["activation_spread_ms"] = arrays["activation_spread_ms"][i]
-        mesh = prediction.mesh
-        times_ms = arrays["times_ms"]
+            frames["spread_mV"] = 100.0 * prediction.spread[i]
+            static["activation_spread_ms"] = prediction.activation_spread[i] * MS_PER_TIME_UNIT
         paths.append(write_time_series(folder, f"site-{int(site)}", mesh.points, mesh.cells, times_ms, frames, static))
     return paths
 
@@ -387,11 +381,11 @@ def plot_prediction(prediction: Prediction, path: str | Path) -> Path:
     views on one colour scale; with draws, the spread of the activation time beside each map."""
     from learner.plot import plot_activation_panels
 
-    arrays = prediction.arrays()
     rows = []
     for i, site in enumerate(prediction.sites):
-        cols = [("predicted activation", arrays["activation_ms"][i])]
+        cols = [("predicted activation", prediction.activation[i] * MS_PER_TIME_UNIT)]
         if prediction.spread is not None:
-            cols.append(("spread", arrays["activation_spread_ms"][i], "spread"))
+            cols.append(("spread", prediction.activation_spread[i] * MS_PER_TIME_UNIT, "spread"))
         rows.append((f"site {int(site)}", cols))
-    return plot_activation_panels(prediction.mesh.points, rows, path, sites=list(arrays["site_xyz"]))
+    sites = list(prediction.mesh.points[prediction.sites])
+    return plot_activation_panels(prediction.mesh.points, rows, path, sites=sites)
