@@ -41,12 +41,18 @@ import numpy as np
 import zarr
 from numpy.typing import ArrayLike, NDArray
 from zarr.codecs import BytesCodec, Crc32cCodec, ShardingCodec
+from zarr.core.sync import sync
 from zarr.storage import LocalStore
 
 from shared.errors import DamagedData, InputError
 from shared.schema import SCHEMA_VERSION, subject_path
 
 __all__ = [
+    "DIGESTS",
+    "array_digest",
+    "read_failure",
+    "array_problem",
+    "read_checked",
     "chunk_fingerprint",
     "fingerprint_from_crcs",
     "crc32c_combine",
@@ -56,6 +62,67 @@ __all__ = [
 
 #: Offset and length of an inner chunk a shard does not store.
 _ABSENT = 2**64 - 1
+
+
+#: Group attribute recording the SHA-256 of each small array's values (mesh arrays, tissue fields, coordinates).
+DIGESTS = "digests"
+#: Arrays whose values are never all fill value (0), so a missing chunk file is damage where no digest says so.
+_NEVER_FILL = frozenset({"points", "cells", "times", "time_ms", "a", "D"})
+
+
+def array_digest(values: ArrayLike, dtype: str | np.dtype | None = None) -> str:
+    """SHA-256 (hex) of ``values`` as stored: ``dtype`` (default: their own), little-endian, C order."""
+    values = np.asarray(values)
+    data = np.ascontiguousarray(values, np.dtype(dtype or values.dtype).newbyteorder("<"))
+    return hashlib.sha256(data.reshape(-1).view(np.uint8)).hexdigest()
+
+
+def read_failure(arr: zarr.Array, coords: tuple[int, ...], exc: Exception) -> str:
+    """What a failed chunk read means: a checksum mismatch or another decoding error, naming the file."""
+    key = f"{arr.path}/{arr.metadata.encode_chunk_key(coords)}"
+    if "checksum" in str(exc):
+        return f"checksum mismatch (file {key})"
+    return f"unreadable (file {key}): {type(exc).__name__}: {exc}"
+
+
+def _chunk_files(arr: zarr.Array) -> list[str]:
+    """The keys of every chunk file of ``arr``."""
+    grid = [-(-size // chunk) for size, chunk in zip(arr.shape, arr.chunks)]
+    return [f"{arr.path}/{arr.metadata.encode_chunk_key(tuple(c))}" for c in np.ndindex(*grid)]
+
+
+def array_problem(arr: zarr.Array, digest: str | None) -> tuple[NDArray | None, str | None]:
+    """The values of small array ``arr`` (read whole) and ``None``, or ``None`` and what is wrong with them.
+
+    Wrong: a chunk that does not decode (checksum), values that differ from
+    ``digest`` (the group's recorded :func:`array_digest`; a chunk file gone
+    is named), or, with no digest recorded, a missing chunk file of an array
+    whose values are never all fill value.
+    """
+    try:
+        values = arr[...]
+    except Exception as exc:  # codec errors of a corrupted or truncated file
+        return None, f"{arr.basename} {read_failure(arr, (0,) * arr.ndim, exc)}"
+    if digest is not None and array_digest(values) == digest:
+        return values, None
+    if digest is None and arr.basename not in _NEVER_FILL:
+        return values, None
+    files = _chunk_files(arr) if values.size else []
+    missing = [key for key in files if not sync(arr.store_path.store.exists(key))]
+    if missing:
+        return None, f"{arr.basename} chunk file {', '.join(missing)} missing"
+    if digest is not None:
+        return None, f"{arr.basename} differs from its recorded digest (file {', '.join(files)})"
+    return values, None
+
+
+def read_checked(group: zarr.Group, name: str, store: str, where: str) -> NDArray:
+    """Array ``name`` of ``group`` whole, checked by :func:`array_problem`; ``where``: ``mesh <id>`` or
+    ``subject <id>``. Raises :class:`~shared.errors.DamagedData` naming store, group, array and file."""
+    values, problem = array_problem(group[name], group.attrs.get(DIGESTS, {}).get(name))
+    if problem is not None:
+        raise DamagedData(f"store {store}: {where}: {problem}; {repair_hint(store)}")
+    return values
 
 
 def repair_hint(store: str) -> str:

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from zarr.errors import ZarrUserWarning
 
 from shared.errors import DamagedData, InputError, SchemaError
-from shared.integrity import SubjectReader, repair_hint
+from shared.integrity import SubjectReader, read_checked, repair_hint
 from shared.location import is_url
 from shared.mesh import LongAxis, Mesh
 from shared.schema import MESH_INDEX_SETS, check_schema_version, mesh_path, subject_path
@@ -131,6 +131,10 @@ def _subject_group(path: str | Path, subject_id: str) -> zarr.Group:
         return zarr.open_group(str(path), path=subject_path(subject_id), mode="r", zarr_format=3)
     except FileNotFoundError:  # zarr's GroupNotFoundError derives from it
         raise InputError(f"unknown subject {subject_id!r} in store {path}") from None
+    except ValueError as exc:  # its zarr.json is not JSON
+        raise DamagedData(
+            f"store {path}: subject {subject_id}: group metadata unreadable ({exc}); {repair_hint(str(path))}"
+        ) from None
 
 
 def subject_attrs(path: str | Path, subject_id: str) -> dict:
@@ -144,14 +148,27 @@ def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:
     return _subject_group(path, subject_id)["done"][...].astype(bool)
 
 
+def _mesh_group(path: str | Path, mesh_id: str) -> zarr.Group:
+    try:
+        return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")
+    except (FileNotFoundError, KeyError, ValueError) as exc:  # gone, or its zarr.json not JSON
+        raise DamagedData(f"store {path}: mesh {mesh_id}: group unreadable ({exc}); {repair_hint(str(path))}") from None
+
+
 def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
-    """The mesh as stored (points, cells, node sets, axis)."""
-    g = zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")
+    """The mesh as stored (points, cells, node sets, axis); each array checked by
+    :func:`~shared.integrity.read_checked`."""
+    g = _mesh_group(path, mesh_id)
+    where = f"mesh {mesh_id}"
     axis = g.attrs.get("axis")
-    sets = {name: g[name][...] for name in MESH_INDEX_SETS if name != "electrodes" and g[name].shape[0]}
+    sets = {
+        name: read_checked(g, name, str(path), where)
+        for name in MESH_INDEX_SETS
+        if name != "electrodes" and g[name].shape[0]
+    }
     return Mesh(
-        points=g["points"][...],
-        cells=g["cells"][...],
+        points=read_checked(g, "points", str(path), where),
+        cells=read_checked(g, "cells", str(path), where),
         node_sets=sets,
         name=g.attrs["name"],
         axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
@@ -162,18 +179,19 @@ def read_index_set(path: str | Path, mesh_id: str, name: str) -> NDArray[np.int6
     """One stored node index set of a mesh (``surface``, ``epicardium``, ``electrodes``...)."""
     if name not in MESH_INDEX_SETS:
         raise SchemaError(f"unknown node set {name!r}; the store has {', '.join(MESH_INDEX_SETS)}")
-    return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")[name][...].astype(np.int64)
+    return read_checked(_mesh_group(path, mesh_id), name, str(path), f"mesh {mesh_id}").astype(np.int64)
 
 
 def read_tissue(path: str | Path, subject_id: str) -> TissueFields:
     """The subject's per-node tissue fields."""
-    g = zarr.open_group(str(path), path=subject_path(subject_id), mode="r")
-    return TissueFields(g["a"][...].astype(float), g["D"][...].astype(float), g["label"][...])
+    g, where = _subject_group(path, subject_id), f"subject {subject_id}"
+    a, D, label = (read_checked(g, name, str(path), where) for name in ("a", "D", "label"))
+    return TissueFields(a.astype(float), D.astype(float), label)
 
 
 def read_sites(path: str | Path, mesh_id: str) -> NDArray[np.int64]:
     """Stimulation node ids of every subject on ``mesh_id``."""
-    return zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r")["stim_nodes"][...].astype(np.int64)
+    return read_checked(_mesh_group(path, mesh_id), "stim_nodes", str(path), f"mesh {mesh_id}").astype(np.int64)
 
 
 def read_statistics(path: str | Path, subject_id: str | None = None) -> dict | None:
@@ -218,11 +236,13 @@ def read_integrator(path: str | Path, subject_id: str) -> str:
 
 def read_times(path: str | Path, subject_id: str, unit: Literal["time", "ms"] = "time") -> NDArray[np.float64]:
     """Frame times ``(time,)`` of a subject in model time units (``"time"``) or in ms (``"ms"``)."""
-    g = _subject_group(path, subject_id)
+    g, where = _subject_group(path, subject_id), f"subject {subject_id}"
     if unit == "time":
-        return g["times"][...]
+        return read_checked(g, "times", str(path), where)
     if unit == "ms":  # a version-1 store has no time_ms coordinate
-        return g["time_ms"][...] if "time_ms" in g else g["times"][...] * MS_PER_TIME_UNIT
+        if "time_ms" in g:
+            return read_checked(g, "time_ms", str(path), where)
+        return read_checked(g, "times", str(path), where) * MS_PER_TIME_UNIT
     raise InputError(f"unknown time unit {unit!r}; choose 'time' (model units) or 'ms'")
 
 

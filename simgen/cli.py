@@ -540,26 +540,66 @@ def repair(
     spec: Annotated[
         Path | None,
         typer.Option(
-            help="The spec STORE was built from; needed only when its root metadata or recorded spec is gone."
+            help="The spec STORE was built from: needed when its root metadata or recorded spec is gone; "
+            "when given, it must be STORE's (see --rescope)."
         ),
     ] = None,
+    rescope: Annotated[
+        bool,
+        typer.Option(
+            help="Make STORE the --spec's: subjects it does not imply are removed, new ones laid out and "
+            "computed (same solver, output and sites only)."
+        ),
+    ] = False,
+    remove_extra: Annotated[
+        bool, typer.Option(help="Delete groups and arrays the recorded spec does not imply (else refused).")
+    ] = False,
+    dry_run: Annotated[bool, typer.Option(help="Print what the repair would change first; write nothing.")] = False,
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
 ) -> None:
-    """Restore a damaged STORE from its recorded spec: missing or damaged metadata, groups, arrays and chunks.
+    """Restore a damaged STORE from its recorded spec, deleting or recomputing only what a check proved damaged.
 
-    Restores missing root attributes (the provenance as this repair's), removes
-    what the spec does not imply, writes damaged meshes and subjects anew,
-    recomputes damaged chunks and finishes the build (a build cut short, by a
-    full disk say, included); the store ends as a clean build of its spec.
-    Nothing is written before the repair is planned.
+    Prints its plan before it writes: root attributes, group and array metadata,
+    mesh arrays, tissue fields and coordinates (made again from the spec), chunks
+    whose data fail a check (computed again) and chunks whose data pass every
+    check (flagged done); then finishes the build. Refused, with nothing changed,
+    for a path that is not a store, a --spec that is not STORE's, members the
+    spec does not imply (see --remove-extra) and arrays this simgen makes
+    otherwise than the store holds them.
     """
-    from simgen.store.repair import repair_store
+    from simgen.store.repair import plan_repair, repair_store
 
+    if dry_run:
+        try:
+            lines = plan_repair(store, spec, rescope, remove_extra).lines()
+        except InputError as exc:
+            _fail(exc)
+        for line in lines or [f"{store}: nothing to repair"]:
+            console.print(f"plan: {line}" if lines else line, soft_wrap=True)
+        if lines:
+            console.print("(damage these changes hide is found once they are made)")
+        return
     reports = []
 
+    def show(lines: list[str]) -> None:
+        for line in lines:
+            console.print(f"plan: {line}", soft_wrap=True)
+
     def job(on_start, on_done):
-        reports.append(repair_store(store, spec, scheduler, workers, on_start=on_start, on_done=on_done))
+        reports.append(
+            repair_store(
+                store,
+                spec,
+                scheduler,
+                workers,
+                on_start=on_start,
+                on_done=on_done,
+                rescope=rescope,
+                remove_extra=remove_extra,
+                on_plan=show,
+            )
+        )
         return reports[0].build
 
     _run_with_progress(store, job, idle="no chunk to compute")
@@ -570,12 +610,17 @@ def repair(
 
 
 @app.command()
-def status(store: StoreArg) -> None:
+def status(
+    store: StoreArg,
+    checksums: Annotated[
+        bool, typer.Option(help="Also decode every done chunk as `simgen verify` does (reads the whole store).")
+    ] = False,
+) -> None:
     """Per-subject progress of a (possibly unfinished) build, and the damage a cheap check finds (exit 1 if any)."""
     from simgen.store.inspect import store_health
 
     try:
-        health = store_health(store)
+        health = store_health(store, checksums=checksums)
     except InputError as exc:
         _fail(exc)
     rows = health.rows
@@ -590,7 +635,13 @@ def status(store: StoreArg) -> None:
     console.print(table)
     done = sum(r.chunks_done for r in rows)
     total = sum(r.chunks for r in rows)
-    console.print(f"{done}/{total} chunks done and sound ({100 * done / max(total, 1):.0f}%)")
+    share = f"{done}/{total} chunks done ({100 * done / max(total, 1):.0f}%)"
+    if health.problems:
+        console.print(f"{share}; the store is damaged (below)")
+    elif health.checksums:
+        console.print(f"{share}; every chunk decoded: sound")
+    else:
+        console.print(f"{share}; structure sound, chunk data not decoded (`simgen status --checksums` decodes them)")
     counted = [r for r in rows if r.no_wave is not None]
     if counted:
         console.print(

@@ -157,6 +157,11 @@ def delete(relative: str) -> Callable[[Path], None]:
     return lambda store: (store / relative).unlink()
 
 
+def duplicate(relative: str, copy: str) -> Callable[[Path], None]:
+    """Damage: copy the store folder ``relative`` to ``copy`` (a member the spec does not imply)."""
+    return lambda store: shutil.copytree(store / relative, store / copy)
+
+
 def truncate(relative: str) -> Callable[[Path], None]:
     """Damage: cut the store file ``relative`` to half its length (a full disk, a killed copy)."""
 
@@ -214,7 +219,7 @@ CASES: dict[str, dict[str, Case]] = {
         ),
         "dry run on a damaged store": Case(
             ("simgen", "build", "{d}/good.toml", "--store", "{s}", "--dry-run"),
-            ("is damaged", "group missing (subjects/lv-healthy)", "Run `simgen repair {s}`"),
+            ("is damaged", "group metadata (subjects/lv-healthy/zarr.json) missing", "Run `simgen repair {s}`"),
             delete("subjects/lv-healthy/zarr.json"),
         ),
         "another spec on a store": Case(
@@ -259,9 +264,52 @@ CASES: dict[str, dict[str, Case]] = {
             ("other.toml is not the spec of store", "stim_nodes has shape (4,), the spec implies (3,)"),
             delete("zarr.json"),
         ),
+        "repair with another spec while its root metadata are there": Case(
+            ("simgen", "repair", "{s}", "--spec", "{d}/other.toml", "--workers", "1"),
+            ("other.toml is not the spec of store", "nothing was changed", "`--rescope`"),
+        ),
+        "repair re-scoped to other sites": Case(
+            ("simgen", "repair", "{s}", "--spec", "{d}/other.toml", "--rescope", "--workers", "1"),
+            ("other.toml has other [sites] settings than store", "nothing was changed"),
+        ),
+        "repair with a spec file that is not there": Case(
+            ("simgen", "repair", "{s}", "--spec", "{d}/nope.toml", "--workers", "1"), ("nope.toml",)
+        ),
+        "repair with an unparsable spec": Case(
+            ("simgen", "repair", "{s}", "--spec", "{d}/toml-syntax.toml", "--workers", "1"), ("toml-syntax.toml",)
+        ),
+        "repair of a folder that is no store": Case(
+            ("simgen", "repair", "{d}", "--workers", "1"), ("is not a simgen store", "nothing was changed")
+        ),
+        "repair of a mistyped path": Case(
+            ("simgen", "repair", "{d}/mistyped.zarr", "--workers", "1"), ("mistyped.zarr: no store there",)
+        ),
+        "repair of a store holding an array its spec does not imply": Case(
+            ("simgen", "repair", "{s}", "--workers", "1"),
+            ("subjects/lv-healthy/w", "--remove-extra", "nothing was changed"),
+            duplicate("subjects/lv-healthy/x", "subjects/lv-healthy/w"),
+        ),
+        "sites of a store whose mesh chunk is gone": Case(
+            ("simgen", "sites", "{s}", "lv-healthy"),
+            ("mesh lv: points chunk file meshes/lv/points/c/0/0 missing", "simgen repair {s}"),
+            delete("meshes/lv/points/c/0/0"),
+        ),
+        "export of a store whose node set chunk is gone": Case(
+            ("simgen", "export-vtk", "{s}", "lv-healthy", "0", "--out", "{d}/vtk-gone"),
+            ("mesh lv: surface chunk file meshes/lv/surface/c/0 missing", "simgen repair {s}"),
+            delete("meshes/lv/surface/c/0"),
+        ),
+        "export of a store whose tissue field chunk is gone": Case(
+            ("simgen", "export-vtk", "{s}", "lv-scar-apex", "0", "--out", "{d}/vtk-gone"),
+            ("subject lv-scar-apex: label chunk file subjects/lv-scar-apex/label/c/0 missing", "simgen repair {s}"),
+            delete("subjects/lv-scar-apex/label/c/0"),
+        ),
         "card of a store whose subjects group is gone": Case(
             ("simgen", "card", "{s}"),
-            ("is damaged (1 problem(s)): store: group missing (subjects)", "Run `simgen repair {s}`"),
+            (
+                "is damaged (1 problem(s)): store: group metadata (subjects/zarr.json) missing",
+                "Run `simgen repair {s}`",
+            ),
             delete("subjects/zarr.json"),
         ),
         "status of a missing store": Case(("simgen", "status", "{d}/missing.zarr"), ("missing.zarr",)),
@@ -814,11 +862,13 @@ def test_pickled_code_never_ran(d, outcomes):
 
 #: Metadata of each kind of group and array, deleted, then restored by ``simgen repair``: what it reports.
 DELETED_METADATA = {
-    "subjects/lv-healthy/zarr.json": "subject groups laid out anew: lv-healthy",
-    "subjects/zarr.json": "subject groups laid out anew: lv-healthy, lv-scar-apex",
-    "subjects/lv-scar-apex/activation/zarr.json": "subject groups laid out anew: lv-scar-apex",
-    "meshes/lv/zarr.json": "mesh groups written anew: lv",
-    "meshes/lv/cells/zarr.json": "mesh groups written anew: lv",
+    "subjects/lv-healthy/zarr.json": "group metadata written anew (members kept): subjects/lv-healthy",
+    "subjects/zarr.json": "group metadata written anew (members kept): subjects",
+    "subjects/lv-scar-apex/activation/zarr.json": (
+        "array metadata written anew (chunk files kept): subjects/lv-scar-apex/activation"
+    ),
+    "meshes/lv/zarr.json": "group metadata written anew (members kept): meshes/lv",
+    "meshes/lv/cells/zarr.json": "arrays written anew from the spec: meshes/lv/cells",
 }
 
 
@@ -831,7 +881,9 @@ def test_repair_restores_deleted_metadata_byte_identical(d, store):
     results = run_batch([["simgen", "repair", str(copy), "--workers", "1"] for copy in copies.values()])
     for (metadata, copy), (code, output) in zip(copies.items(), results):
         assert code == 0 and "Traceback" not in output, output
-        assert f"repaired: {DELETED_METADATA[metadata]}" in flat(output) and "nothing was damaged" not in output
+        assert f"plan: {DELETED_METADATA[metadata]}" in flat(output) and "nothing was damaged" not in output
+        assert f"repaired: {DELETED_METADATA[metadata]}" in flat(output)
+        assert "chunks marked not done" not in output  # no simulation lost
         assert digest(copy) == digest(store), metadata
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import zarr
 
 from shared.errors import InputError
-from shared.integrity import SubjectReader
+from shared.integrity import SubjectReader, read_checked
 from shared.reader import checked_subject_ids
 from shared.schema import subject_path
 from shared.vtk import write_time_series
@@ -70,17 +70,12 @@ def export_vtk(store: str | Path, subject_id: str, site_index: int, out_dir: str
     mesh = read_mesh(store, g.attrs["mesh_id"])
     reader = SubjectReader(store, subject_id, int(attrs["schema_version"]))  # checksums, fingerprint, finite u
     u = np.asarray(reader.rows("u", [site])[0], np.float32)  # (time, node)
-    try:
-        static = {
-            "activation_ms": (reader.rows("activation", [site])[0] * MS_PER_TIME_UNIT).astype(np.float32),
-            "a": np.asarray(g["a"][...], np.float32),
-            "label": np.asarray(g["label"][...], np.int8),
-        }
-    except ValueError as exc:  # a checksum mismatch or undecodable bytes of a tissue field
-        raise InputError(
-            f"subject {subject_id!r}: its tissue fields cannot be read ({exc}); `simgen verify {store}` "
-            f"names the damage and `simgen repair {store}` restores it"
-        ) from None
+    where = f"subject {subject_id}"
+    static = {
+        "activation_ms": (reader.rows("activation", [site])[0] * MS_PER_TIME_UNIT).astype(np.float32),
+        "a": np.asarray(read_checked(g, "a", store, where), np.float32),
+        "label": np.asarray(read_checked(g, "label", store, where), np.int8),
+    }
     frames = {"V_mV": to_millivolts(u), "u": u}
-    times_ms = np.asarray(g["times"][...]) * MS_PER_TIME_UNIT
+    times_ms = read_checked(g, "times", store, where) * MS_PER_TIME_UNIT
     return write_time_series(out_dir, f"{subject_id}_site{site:04d}", mesh.points, mesh.cells, times_ms, frames, static)

@@ -8,17 +8,16 @@ shard indices and content fingerprints, from the chunks' stored checksums;
 no result data is decoded), so a deleted, truncated, moved or copied shard is
 named as well as a missing group. It never raises for damage: whatever
 cannot be read is a finding. A damaged inner chunk whose index and checksum
-entry are intact is found by ``simgen verify``, which decodes every chunk.
+entry are intact is found only by decoding it: ``simgen verify``, or
+``simgen status --checksums``, which runs verify's checks of every chunk.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import zarr
-from zarr.errors import ZarrUserWarning
 
 from shared.capture import started_wave
 from shared.errors import InputError
@@ -27,7 +26,16 @@ from shared.reader import implied_subject_ids
 from shared.schema import subject_path
 from simgen.store.layout import check_store
 from simgen.store.location import store_location
-from simgen.store.structure import read_done, recorded_structure, structure_damage
+from simgen.store.structure import (
+    GROUP,
+    GROUP_METADATA,
+    METADATA,
+    read_done,
+    recorded_structure,
+    stored_names,
+    structure_damage,
+)
+from simgen.store.verify import verify_store
 
 __all__ = ["SubjectStatus", "StoreHealth", "store_status", "store_health"]
 
@@ -54,9 +62,13 @@ class StoreHealth:
     store: str
     rows: list[SubjectStatus] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    checksums: bool = False  # every done chunk was decoded (``simgen status --checksums``)
 
 
-def _subject_row(store: str, root: zarr.Group, subject_id: str, version: int, health: StoreHealth) -> None:
+def _subject_row(
+    store: str, root: zarr.Group, subject_id: str, version: int, health: StoreHealth, decoded: set[int]
+) -> None:
+    """The row of one subject; ``decoded``: its done chunks that failed ``simgen verify``'s decoding checks."""
     try:
         g = root[subject_path(subject_id)]
         mesh_id = str(g.attrs.get("mesh_id", "?"))
@@ -70,16 +82,17 @@ def _subject_row(store: str, root: zarr.Group, subject_id: str, version: int, he
         health.problems.append(f"subject {subject_id}: unreadable ({type(exc).__name__}: {exc})")
         return
     done = reader.done == 1
-    damaged = 0
+    bad = set(decoded)
     for chunk in map(int, done.nonzero()[0]):
         try:
             reader.check_chunk(chunk)
         except InputError as exc:
-            damaged += 1
+            bad.add(chunk)
             health.problems.append(str(exc).split("; run `simgen repair")[0].removeprefix(f"store {store}: "))
         except Exception as exc:  # noqa: BLE001
-            damaged += 1
+            bad.add(chunk)
             health.problems.append(f"subject {subject_id}: chunk {chunk} unreadable ({type(exc).__name__}: {exc})")
+    damaged = len(bad)
     sound = int(done.sum()) - damaged
     health.rows.append(
         SubjectStatus(subject_id, mesh_id, len(done), sound, reader.n_sites, damaged, no_wave=_no_wave(g.attrs))
@@ -94,11 +107,13 @@ def _no_wave(attrs) -> int | None:
     return int((~started_wave(capture["activated_fraction"])).sum())
 
 
-def store_health(store: str | Path) -> StoreHealth:
+def store_health(store: str | Path, checksums: bool = False) -> StoreHealth:
     """Chunks done per subject and the damage of the structure and of the done chunks (see the module docstring).
 
-    Raises :class:`~shared.errors.SchemaError` only for what is not a simgen
-    store of a readable version.
+    ``checksums``: also decode every done chunk as ``simgen verify`` does
+    (every checksum, value, moment and fingerprint; no recomputation), so the
+    health found is what verify finds. Raises :class:`~shared.errors.SchemaError`
+    only for what is not a simgen store of a readable version.
     """
     store = store_location(store)
     attrs = check_store(store)
@@ -113,15 +128,17 @@ def store_health(store: str | Path) -> StoreHealth:
         damage = []
         health.problems.append(f"store: structure cannot be checked ({type(exc).__name__}: {exc})")
     health.problems += [str(d) for d in damage]
-    broken = {d.group for d in damage if d.chunk is None and not d.extra}
+    decoded: dict[str, set[int]] = {}
+    if checksums and not damage:
+        found = verify_store(store, sample=0)
+        for ref in found.damaged_chunks:
+            decoded.setdefault(ref.subject_id, set()).add(ref.chunk)
+        health.checksums = True
+        health.problems += [p for p in found.problems if p not in health.problems and not p.endswith(" not done")]
+    broken = {d.group for d in damage if d.kind in (GROUP, GROUP_METADATA, METADATA)}
     root = zarr.open_group(store, mode="r", use_consolidated=False)
     version = int(attrs["schema_version"])
-    with warnings.catch_warnings():  # a subject folder without zarr.json is named above
-        warnings.simplefilter("ignore", ZarrUserWarning)
-        try:
-            stored = sorted(name for name, _ in root["subjects"].groups())
-        except KeyError:
-            stored = []
+    stored = sorted(stored_names(root, "subjects"))
     ids = list(dict.fromkeys([*(implied_subject_ids(attrs) or []), *stored]))
     try:
         recorded = recorded_structure(attrs)
@@ -136,7 +153,7 @@ def store_health(store: str | Path) -> StoreHealth:
                 chunks = -(-sites // recorded.spec.output.chunk_sites)
             health.rows.append(SubjectStatus(subject_id, mesh_id, chunks, 0, sites, missing=True))
             continue
-        _subject_row(store, root, subject_id, version, health)
+        _subject_row(store, root, subject_id, version, health, decoded.get(subject_id, set()))
     return health
 
 

@@ -23,6 +23,7 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
+from zarr.core.buffer import Buffer, default_buffer_prototype
 from zarr.core.group import GroupMetadata
 from zarr.core.metadata import ArrayV3Metadata
 from zarr.core.sync import sync
@@ -32,6 +33,7 @@ from shared.capture import activated_fraction
 from shared.cli import PATH_ERRNOS
 from shared.config import to_mapping
 from shared.errors import InputError
+from shared.integrity import DIGESTS, array_digest
 from shared.mesh import Mesh
 from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from shared.schema import (
@@ -66,6 +68,12 @@ __all__ = [
     "create_layout",
     "write_mesh_group",
     "write_subject_groups",
+    "mesh_values",
+    "mesh_attrs",
+    "field_values",
+    "subject_attrs",
+    "write_array",
+    "write_group_metadata",
     "subject_array_metadata",
     "mesh_array_metadata",
     "remove_partials",
@@ -249,14 +257,9 @@ def write_subject_groups(
     :func:`simgen.store.edit.add_subject`.
     """
     nodes: dict[str, Any] = {}
+    values = {s.id: field_values(setups[s.id], meshes[s.mesh_id], sites[s.mesh_id], solver) for s in subjects}
     for s in subjects:
-        attrs = {
-            "mesh_id": s.mesh_id,
-            "tissue": spec_dict_of(s.tissue),
-            "chunk_sites": output.chunk_sites,
-            "solver": solver_attrs(setups[s.id], solver),
-            "split": canonical_part(s.id),
-        }
+        attrs = subject_attrs(s, setups[s.id], output, solver, values[s.id])
         nodes[subject_path(s.id)] = GroupMetadata(attributes=attrs)
         for name, (shape, chunks) in subject_shapes(
             meshes[s.mesh_id].n_nodes, len(sites[s.mesh_id]), output, solver
@@ -267,26 +270,45 @@ def write_subject_groups(
     except OSError:
         _abandon_writes()
         raise
-    times = solver.output_interval * np.arange(1, solver.frames + 1)
 
     def write_fields(s: Subject) -> None:
-        f, points = setups[s.id].fields, meshes[s.mesh_id].points
-        values = {
-            "a": f.a,
-            "D": f.D,
-            "label": f.label,
-            "times": times,
-            "time_ms": times * MS_PER_TIME_UNIT,
-            "site": sites[s.mesh_id],
-            "x": points[:, 0],
-            "y": points[:, 1],
-            "z": points[:, 2],
-        }
-        for name, value in values.items():
-            arrays[f"{subject_path(s.id)}/{name}"][...] = np.asarray(value, SUBJECT_ARRAYS[name].dtype)
+        for name, value in values[s.id].items():
+            arrays[f"{subject_path(s.id)}/{name}"][...] = value
 
     with ThreadPoolExecutor(IO_THREADS) as pool:
         list(pool.map(write_fields, subjects))
+
+
+def field_values(setup: SubjectSetup, mesh: Mesh, sites: NDArray, solver: SolverConfig) -> dict[str, NDArray]:
+    """A subject's tissue fields and coordinates, in the stored dtypes (what a layout writes)."""
+    f, points = setup.fields, mesh.points
+    times = solver.output_interval * np.arange(1, solver.frames + 1)
+    values = {
+        "a": f.a,
+        "D": f.D,
+        "label": f.label,
+        "times": times,
+        "time_ms": times * MS_PER_TIME_UNIT,
+        "site": sites,
+        "x": points[:, 0],
+        "y": points[:, 1],
+        "z": points[:, 2],
+    }
+    return {name: np.asarray(value, SUBJECT_ARRAYS[name].dtype) for name, value in values.items()}
+
+
+def subject_attrs(
+    s: Subject, setup: SubjectSetup, output: OutputSpec, solver: SolverConfig, values: dict[str, NDArray]
+) -> dict[str, Any]:
+    """The attributes of a subject group as a layout writes them (``values``: :func:`field_values`)."""
+    return {
+        "mesh_id": s.mesh_id,
+        "tissue": spec_dict_of(s.tissue),
+        "chunk_sites": output.chunk_sites,
+        "solver": solver_attrs(setup, solver),
+        "split": canonical_part(s.id),
+        DIGESTS: {name: array_digest(value) for name, value in values.items()},
+    }
 
 
 class _AbandonedWrite(logging.Filter):
@@ -383,18 +405,44 @@ def spec_dict_of(obj: Any) -> Any:
     return json.loads(json.dumps(to_mapping(obj)))
 
 
-def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> None:
+def mesh_values(mesh: Mesh, sites: NDArray, electrodes: NDArray) -> dict[str, NDArray]:
+    """The arrays of a mesh group, in the stored dtypes."""
+    sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
+    values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
+    return {name: np.asarray(value, MESH_ARRAYS[name].dtype) for name, value in values.items()}
+
+
+def mesh_attrs(mesh: Mesh, values: dict[str, NDArray]) -> dict[str, Any]:
+    """The attributes of a mesh group as a layout writes them: name, cell type, long axis, digests."""
     axis = None
     if mesh.axis is not None:
         axis = {k: np.asarray(getattr(mesh.axis, k), float).tolist() for k in ("apex", "base", "reference")}
-    g.attrs.update({"name": mesh.name, "cell_type": mesh.cell_type, "axis": axis})
-    sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
-    values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
+    digests = {name: array_digest(value) for name, value in values.items()}
+    return {"name": mesh.name, "cell_type": mesh.cell_type, "axis": axis, DIGESTS: digests}
+
+
+def write_array(group: zarr.Group, name: str, metadata: ArrayV3Metadata, value: NDArray | None) -> None:
+    """Create array ``name`` of ``group`` from ``metadata`` (Zarr's ``zarr.json``, as a layout makes it) and,
+    unless ``value`` is ``None``, write its values; chunk files already stored are kept (or overwritten)."""
+    sync(group.store.set(f"{group.path}/{name}/zarr.json".lstrip("/"), _metadata_file(metadata)))
+    if value is not None and value.size:
+        zarr.open_array(group.store, path=f"{group.path}/{name}".lstrip("/"), mode="r+")[...] = value
+
+
+def _metadata_file(metadata: ArrayV3Metadata | GroupMetadata) -> Buffer:
+    return metadata.to_buffer_dict(default_buffer_prototype())["zarr.json"]
+
+
+def write_group_metadata(root: zarr.Group, path: str, attrs: dict[str, Any]) -> None:
+    """Write the ``zarr.json`` of group ``path`` with ``attrs`` (its members are kept)."""
+    sync(root.store.set(f"{path}/zarr.json", _metadata_file(GroupMetadata(attributes=attrs))))
+
+
+def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> None:
+    values = mesh_values(mesh, sites, electrodes)
+    g.attrs.update(mesh_attrs(mesh, values))
     for name, value in values.items():
-        value = np.asarray(value, MESH_ARRAYS[name].dtype)
-        arr = _array(g, name, MESH_ARRAYS, value.shape, _mesh_chunks(value.shape))
-        if value.size:
-            arr[...] = value
+        write_array(g, name, mesh_array_metadata(name, value.shape), value)
 
 
 class ResultArrays(NamedTuple):

@@ -32,15 +32,20 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 from zarr.core.buffer import default_buffer_prototype
+from zarr.core.group import AsyncGroup, GroupMetadata
 from zarr.core.metadata import ArrayV3Metadata
+from zarr.core.sync import sync
 from zarr.errors import ZarrUserWarning
+from zarr.storage._common import make_store_path
 
 from shared.config import from_mapping
 from shared.errors import InputError
+from shared.integrity import DIGESTS, array_problem, read_failure
 from shared.schema import MESH_ARRAYS, METADATA_VERSION, SCHEMA_VERSION, SUBJECT_ARRAYS, mesh_path, subject_path
 from shared.split import canonical_part
 from shared.units import MS_PER_TIME_UNIT
 from simgen.store.layout import mesh_array_metadata, spec_dict_of, subject_array_metadata, subject_shapes
+from simgen.store.lock import LOCK_NAME
 from simgen.store.spec import BuildSpec, SiteSelection, spec_from_mapping
 
 __all__ = [
@@ -50,8 +55,15 @@ __all__ = [
     "recorded_structure",
     "structure_damage",
     "read_done",
-    "read_failure",
+    "stored_names",
     "refuse_damaged",
+    "GROUP",
+    "GROUP_METADATA",
+    "ATTRIBUTES",
+    "METADATA",
+    "CONTENT",
+    "FLAG",
+    "EXTRA",
 ]
 
 #: Arrays of a mesh group.
@@ -70,6 +82,17 @@ class StoreDamaged(InputError):
     """A store's structure disagrees with its recorded spec, or one of its small arrays fails its checksum."""
 
 
+#: Kinds of :class:`Damage`, from a whole group gone to one done flag (what ``simgen repair`` does with each:
+#: :mod:`simgen.store.repair`).
+GROUP = "group"  # a group's folder is gone
+GROUP_METADATA = "group metadata"  # a group's zarr.json is gone, unreadable or an array's (its members are stored)
+ATTRIBUTES = "attributes"  # a group attribute is missing or disagrees with the recorded spec
+METADATA = "metadata"  # an array's zarr.json is gone, unreadable or not what the schema expects
+CONTENT = "content"  # an array's values: a checksum, a digest, a chunk file gone, coordinates disagreeing
+FLAG = "flag"  # one done flag
+EXTRA = "extra"  # a member the recorded spec does not imply
+
+
 @dataclass(frozen=True)
 class Damage:
     """One damaged piece of a store.
@@ -77,14 +100,26 @@ class Damage:
     ``group``: the group concerned (``""``: the root; ``meshes/<id>``,
     ``subjects/<id>``); ``array``: its member concerned (``None``: the group
     itself); ``chunk``: the one done flag concerned (``None``: the whole array
-    or group); ``extra``: the member is not implied by the recorded spec.
+    or group); ``kind``: one of :data:`GROUP`, :data:`GROUP_METADATA`,
+    :data:`ATTRIBUTES`, :data:`METADATA`, :data:`CONTENT`, :data:`FLAG`,
+    :data:`EXTRA`.
     """
 
     group: str
     problem: str
     array: str | None = None
     chunk: int | None = None
-    extra: bool = False
+    kind: str = CONTENT
+
+    @property
+    def extra(self) -> bool:
+        """The member is not implied by the recorded spec."""
+        return self.kind == EXTRA
+
+    @property
+    def path(self) -> str:
+        """The path of the damaged group or array in the store."""
+        return f"{self.group}/{self.array}".strip("/") if self.array else self.group
 
     @property
     def where(self) -> str:
@@ -138,14 +173,6 @@ def _required(table: dict[int, tuple[str, ...]], version: int) -> list[str]:
     return [name for since, names in table.items() if since <= version for name in names]
 
 
-def read_failure(arr: zarr.Array, coords: tuple[int, ...], exc: Exception) -> str:
-    """What a failed chunk read means: a checksum mismatch or another decoding error, naming the file."""
-    key = f"{arr.path}/{arr.metadata.encode_chunk_key(coords)}"
-    if "checksum" in str(exc):
-        return f"checksum mismatch (file {key})"
-    return f"unreadable (file {key}): {type(exc).__name__}: {exc}"
-
-
 def _metadata_json(arr: zarr.Array | ArrayV3Metadata) -> dict[str, Any]:
     """An array's ``zarr.json`` as stored (NaN fill values as strings, so they compare equal)."""
     metadata = arr.metadata if isinstance(arr, zarr.Array) else arr
@@ -166,11 +193,28 @@ def _metadata_problems(arr: zarr.Array, expected: ArrayV3Metadata, version: int)
     ]
 
 
+def stored_names(root: zarr.Group, path: str) -> set[str]:
+    """The names stored directly under ``path`` of ``root``'s store (members, whatever their metadata), but a
+    group's own ``zarr.json``, the store lock and half-written ``*.partial`` files."""
+
+    async def names() -> set[str]:
+        return {name async for name in root.store.list_dir(path)}
+
+    try:
+        found = sync(names())
+    except FileNotFoundError:
+        return set()
+    return {name for name in found if name not in ("zarr.json", LOCK_NAME) and not name.endswith(".partial")}
+
+
 class _Checker:
     """Collects the damage of one store (see the module docstring)."""
 
-    def __init__(self, store: str) -> None:
-        self.root = zarr.open_group(store, mode="r", use_consolidated=False)
+    def __init__(self, store: str, attrs: dict | None = None) -> None:
+        if attrs is None:
+            self.root = zarr.open_group(store, mode="r", use_consolidated=False)
+        else:  # the root attributes a repair will write, whatever the root zarr.json holds now
+            self.root = zarr.Group(AsyncGroup(GroupMetadata(attributes=attrs), sync(make_store_path(store, mode="r"))))
         self.attrs = dict(self.root.attrs)
         self.version = int(self.attrs["schema_version"])
         self.recorded = recorded_structure(self.attrs)
@@ -178,98 +222,123 @@ class _Checker:
         self.meshes_ok: dict[str, dict[str, NDArray]] = {}  # the sound meshes' arrays
         self.mesh_sizes: dict[str, tuple[int, int]] = {}  # nodes and sites of meshes whose metadata are sound
 
-    def add(self, group: str, problem: str, array: str | None = None, chunk: int | None = None, extra=False) -> None:
-        self.damage.append(Damage(group, problem, array, chunk, extra))
+    def add(self, group: str, problem: str, array: str | None = None, chunk: int | None = None, kind=CONTENT) -> None:
+        self.damage.append(Damage(group, problem, array, chunk, kind))
 
-    def members(self, path: str) -> dict[str, zarr.Array | zarr.Group] | None:
-        """The members of group ``path``; ``None`` (and the damage named) when it is missing or not a group."""
+    def members(self, path: str) -> tuple[dict[str, Any], dict | None] | None:
+        """The members of group ``path`` (``None`` for one whose metadata do not read) and its attributes
+        (``None`` when its own metadata do not read, which is named); ``None`` when nothing is stored there."""
+        stored = stored_names(self.root, path)
         try:
             group = self.root[path] if path else self.root
-        except KeyError:
-            self.add(path, f"group missing ({path})")
-            return None
+        except (KeyError, ValueError):  # no zarr.json, or not JSON
+            group = None
+        found: dict[str, Any] = {}
         if not isinstance(group, zarr.Group):
-            self.add(path, f"{path} is an array, not a group")
-            return None
-        with warnings.catch_warnings():  # the lock file at the root is no Zarr node
-            warnings.simplefilter("ignore", ZarrUserWarning)
-            return dict(group.members())
+            if group is None and not stored:
+                self.add(path, f"group missing ({path})", kind=GROUP)
+                return None
+            what = "missing or unreadable" if group is None else "an array's, not a group's"
+            self.add(path, f"group metadata ({path}/zarr.json) {what}", kind=GROUP_METADATA)
+            attrs = None
+        else:
+            attrs = dict(group.attrs)
+            with warnings.catch_warnings():  # a member without metadata is found below
+                warnings.simplefilter("ignore", ZarrUserWarning)
+                try:
+                    found = dict(group.members())
+                except Exception:  # noqa: BLE001 - a member's unreadable metadata: each opened alone below
+                    found = {}
+        for name in sorted(stored - set(found)):
+            try:
+                found[name] = self.root[f"{path}/{name}".strip("/")]
+            except (KeyError, ValueError):  # no zarr.json, or not JSON
+                found[name] = None
+        return found, attrs
 
     def extras(self, path: str, members: dict, expected: set[str]) -> None:
         for name in sorted(set(members) - expected):
             kind = "group" if isinstance(members[name], zarr.Group) else "array"
             where = f"{path}/{name}".strip("/")
-            self.add(path, f"extra {kind} {where} (not implied by the recorded spec)", name, extra=True)
+            self.add(path, f"extra {kind} {where} (not implied by the recorded spec)", name, kind=EXTRA)
 
-    def attributes(self, path: str, attrs: dict, required: list[str]) -> None:
-        for name in required:
+    def attributes(self, path: str, attrs: dict | None, required: list[str]) -> None:
+        for name in required if attrs is not None else []:
             if name not in attrs:
-                self.add(path, f"attribute {name} missing")
+                self.add(path, f"attribute {name} missing", kind=ATTRIBUTES)
 
     def metadata(self, path: str, members: dict, name: str, expected: ArrayV3Metadata) -> zarr.Array | None:
         """Array ``name`` of group ``path`` if its metadata are ``expected`` (else the damage is named)."""
         arr = members.get(name)
         if not isinstance(arr, zarr.Array):
-            self.add(path, f"array {name} missing" if arr is None else f"{name} is a group, not an array", name)
+            if name not in members:
+                problem = f"array {name} missing"
+            elif arr is None:
+                problem = f"metadata of array {name} ({path}/{name}/zarr.json) missing or unreadable"
+            else:
+                problem = f"{name} is a group, not an array"
+            self.add(path, problem, name, kind=METADATA)
             return None
         problems = _metadata_problems(arr, expected, self.version)
         for problem in problems:
-            self.add(path, problem, name)
+            self.add(path, problem, name, kind=METADATA)
         return None if problems else arr
 
-    def array(self, path: str, members: dict, name: str, expected: ArrayV3Metadata) -> NDArray | None:
-        """The values of array ``name`` of group ``path`` if its metadata are ``expected`` and it reads back."""
+    def array(self, path: str, members: dict, name: str, expected: ArrayV3Metadata, attrs: dict | None):
+        """The values of array ``name`` of group ``path`` if its metadata are ``expected`` and its values
+        read back as recorded (:func:`~shared.integrity.array_problem`)."""
         arr = self.metadata(path, members, name, expected)
-        return None if arr is None else self.read(path, name, arr)
+        return None if arr is None else self.read(path, name, arr, attrs)
 
-    def read(self, path: str, name: str, arr: zarr.Array) -> NDArray | None:
-        """The values of array ``name`` of group ``path``; ``None`` (and the damage named) when they do not decode."""
-        try:
-            return arr[...]
-        except Exception as exc:  # codec errors of a corrupted or truncated file
-            self.add(path, f"{name} {read_failure(arr, (0,) * arr.ndim, exc)}", name)
-            return None
+    def read(self, path: str, name: str, arr: zarr.Array, attrs: dict | None) -> NDArray | None:
+        """The values of array ``name`` of group ``path``; ``None`` (and the damage named) when they do not
+        decode or differ from the group's recorded digest."""
+        values, problem = array_problem(arr, ((attrs or {}).get(DIGESTS) or {}).get(name))
+        if problem is not None:
+            self.add(path, problem, name)
+        return values
 
     def check(self) -> list[Damage]:
         self.attributes("", self.attrs, _required(_ROOT_ATTRS, self.version))
         top = self.members("")
         if top is None:
             return self.damage
-        self.extras("", top, {"meshes", "subjects"})
+        self.extras("", top[0], {"meshes", "subjects"})
         meshes = self.members("meshes")
         if meshes is not None:
-            self.extras("meshes", meshes, set(self.recorded.sites))
-            for mesh_id in self.recorded.sites:
-                self.mesh(mesh_id)
+            self.extras("meshes", meshes[0], set(self.recorded.sites))
+        for mesh_id in self.recorded.sites:
+            self.mesh(mesh_id)
         subjects = self.members("subjects")
         if subjects is not None:
-            self.extras("subjects", subjects, set(self.recorded.subjects))
-            for subject_id in self.recorded.subjects:
-                self.subject(subject_id)
+            self.extras("subjects", subjects[0], set(self.recorded.subjects))
+        for subject_id in self.recorded.subjects:
+            self.subject(subject_id)
         return self.damage
 
     def mesh(self, mesh_id: str) -> None:
         path = mesh_path(mesh_id)
-        members = self.members(path)
-        if members is None:
+        found = self.members(path)
+        if found is None:
             return
-        attrs = dict(self.root[path].attrs)
+        members, attrs = found
         shape_params = self.version >= METADATA_VERSION and mesh_id not in self.recorded.added
         self.attributes(path, attrs, _required(_MESH_ATTRS, self.version) + ["shape_params"] * shape_params)
         self.extras(path, members, set(_MESH_NAMES))
         before = len(self.damage)
         values, sizes = {}, {}
+        cell_type = (attrs or {}).get("cell_type")
         for name in _MESH_NAMES:
             arr = members.get(name)
             stored = tuple(arr.shape) if isinstance(arr, zarr.Array) and arr.ndim else (0,)
             shape = {
                 "points": (stored[0], 3),
-                "cells": (stored[0], _VERTICES.get(attrs.get("cell_type"), 4)),
+                "cells": (stored[0], _VERTICES.get(cell_type, 4)),
                 "stim_nodes": (self.recorded.sites[mesh_id],),
             }.get(name, stored[:1])
             arr = self.metadata(path, members, name, mesh_array_metadata(name, shape))
             if arr is not None:
-                sizes[name], values[name] = arr.shape[0], self.read(path, name, arr)
+                sizes[name], values[name] = arr.shape[0], self.read(path, name, arr, attrs)
         if {"points", "stim_nodes"} <= set(sizes):  # the subjects' shapes are known
             self.mesh_sizes[mesh_id] = sizes["points"], sizes["stim_nodes"]
         if len(self.damage) == before:
@@ -277,18 +346,20 @@ class _Checker:
 
     def subject(self, subject_id: str) -> None:
         path = subject_path(subject_id)
-        members = self.members(path)
-        if members is None:
+        found = self.members(path)
+        if found is None:
             return
+        members, attrs = found
         before = len(self.damage)
-        attrs = dict(self.root[path].attrs)
         self.attributes(path, attrs, _required(_SUBJECT_ATTRS, self.version))
         mesh_id, spec = self.recorded.subjects[subject_id], self.recorded.spec
         tissue, chunk_sites = self.recorded.tissue[subject_id], spec.output.chunk_sites
         implied = {"mesh_id": mesh_id, "tissue": tissue, "chunk_sites": chunk_sites}
         for key, value in implied.items():
-            if key in attrs and attrs[key] != value:
-                self.add(path, f"attribute {key} is {attrs[key]!r}, the recorded spec implies {value!r}")
+            if attrs is not None and key in attrs and attrs[key] != value:
+                self.add(
+                    path, f"attribute {key} is {attrs[key]!r}, the recorded spec implies {value!r}", kind=ATTRIBUTES
+                )
         if mesh_id not in self.mesh_sizes:  # shapes follow from the mesh: nothing more to compare against
             return
         names = [name for name, s in SUBJECT_ARRAYS.items() if s.since <= self.version]
@@ -298,12 +369,13 @@ class _Checker:
         for name in names:  # the fields are read whole; of the result arrays, only the done flags
             expected = subject_array_metadata(name, *shapes[name], spec.output)
             if name in _FIELDS:
-                values[name] = self.array(path, members, name, expected)
+                values[name] = self.array(path, members, name, expected, attrs)
             elif (done := self.metadata(path, members, name, expected)) is not None and name == "done":
                 for chunk, problem in read_done(done)[1].items():
-                    self.add(path, problem, name, chunk)
+                    self.add(path, problem, name, chunk, kind=FLAG)
         mesh = self.meshes_ok.get(mesh_id)
-        if len(self.damage) == before and mesh is not None and self.version >= METADATA_VERSION:
+        attributes_sound = not any(d.group == path and d.kind == ATTRIBUTES for d in self.damage[before:])
+        if attrs is not None and attributes_sound and mesh is not None and self.version >= METADATA_VERSION:
             self.coordinates(path, subject_id, attrs, mesh, values)
 
     def coordinates(self, path: str, subject_id: str, attrs: dict, mesh: dict, values: dict) -> None:
@@ -313,19 +385,24 @@ class _Checker:
         expected = {
             "site": mesh["stim_nodes"],
             "times": times,
-            "time_ms": values["times"] * MS_PER_TIME_UNIT,
+            "time_ms": times * MS_PER_TIME_UNIT,
             **{axis: mesh["points"][:, i] for i, axis in enumerate("xyz")},
         }
         for name, value in expected.items():
-            if not np.array_equal(values[name], value):
+            if (
+                values.get(name) is not None
+                and values.get("times") is not None
+                and not np.array_equal(values[name], value)
+            ):
                 self.add(path, f"coordinate {name} disagrees with the mesh and times", name)
         if attrs["split"] != canonical_part(subject_id):
             self.add(
                 path,
                 f"split attribute {attrs['split']!r}, the canonical split assigns {canonical_part(subject_id)!r}",
+                kind=ATTRIBUTES,
             )
         if not {"dt", "steps_per_frame", "stimulus_radius"} <= set(attrs["solver"] or {}):
-            self.add(path, "solver attribute incomplete")
+            self.add(path, "solver attribute incomplete", kind=ATTRIBUTES)
 
 
 def read_done(done: zarr.Array) -> tuple[NDArray[np.bool_], dict[int, str]]:
@@ -352,13 +429,15 @@ def read_done(done: zarr.Array) -> tuple[NDArray[np.bool_], dict[int, str]]:
     return flags, problems
 
 
-def structure_damage(store: str) -> list[Damage]:
+def structure_damage(store: str, attrs: dict | None = None) -> list[Damage]:
     """Every missing, extra, mis-shaped or corrupted piece of ``store`` but the result chunks.
 
     ``store``: a :func:`~simgen.store.location.store_location` whose schema
-    version the caller has checked (:func:`~shared.reader.check_store`).
+    version the caller has checked (:func:`~shared.reader.check_store`);
+    ``attrs``: the root attributes to check against instead of the stored ones
+    (a repair's, before it writes them).
     """
-    return _Checker(store).check()
+    return _Checker(store, attrs).check()
 
 
 def refuse_damaged(store: str) -> None:

@@ -24,6 +24,7 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
+from shared.integrity import read_failure
 from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
 from shared.units import U_RANGE
 from simgen.solver.backends import BACKEND_TOLERANCE
@@ -33,9 +34,17 @@ from simgen.store.layout import check_store, read_mesh, read_sites, read_tissue
 from simgen.store.location import store_location
 from simgen.store.metadata import recorded_solver
 from simgen.store.stats import chunk_moments, statistics
-from simgen.store.structure import Damage, read_done, read_failure, recorded_structure, structure_damage
+from simgen.store.structure import (
+    GROUP,
+    GROUP_METADATA,
+    METADATA,
+    Damage,
+    read_done,
+    recorded_structure,
+    structure_damage,
+)
 
-__all__ = ["U_RANGE", "ChunkRef", "VerifyReport", "verify_store"]
+__all__ = ["U_RANGE", "ChunkRef", "VerifyReport", "chunk_problems", "verify_store"]
 
 
 @dataclass(frozen=True)
@@ -126,7 +135,7 @@ def _value_problems(ref: ChunkRef, u: NDArray, activation: NDArray) -> list[str]
     return problems
 
 
-def _chunk_problems(g: zarr.Group, ref: ChunkRef, version: int) -> list[str]:
+def chunk_problems(g: zarr.Group, ref: ChunkRef, version: int) -> list[str]:
     """Everything wrong with done chunk ``ref``: unreadable data, values, moments, fingerprint."""
     u, err_u = _read(g["u"], ref, "u")
     activation, err_a = _read(g["activation"], ref, "activation")
@@ -167,7 +176,7 @@ def _check_chunks(root: zarr.Group, subject_id: str, report: VerifyReport, versi
             report.problems.append(f"{ref} not done")
             continue
         report.chunks_checked += 1
-        problems = _chunk_problems(g, ref, version)
+        problems = chunk_problems(g, ref, version)
         report.chunk_problems(ref, problems)
         if not problems:
             good.append(ref)
@@ -275,14 +284,20 @@ def verify_store(store: str | Path, sample: int = 1, seed: int = 0) -> VerifyRep
     root = zarr.open_group(store, mode="r", use_consolidated=False)  # what is stored, not a copy of its metadata
     report = VerifyReport(store, damage=structure_damage(store))
     report.problems.extend(map(str, report.damage))
-    damaged = {d.group for d in report.damage if d.chunk is None and not d.extra}  # groups not to read further
+    unopened = {d.group for d in report.damage if d.kind in (GROUP, GROUP_METADATA, METADATA)}  # not read further
     ids = [
         subject_id
         for subject_id, mesh_id in recorded.subjects.items()
-        if not {subject_path(subject_id), mesh_path(mesh_id), "meshes", "subjects"} & damaged
+        if not {subject_path(subject_id), mesh_path(mesh_id)} & unopened
     ]
     candidates = [ref for s in ids for ref in _check_chunks(root, s, report, version)]
     if version >= METADATA_VERSION and not report.problems:
         report.problems.extend(_statistics_problems(root, list(recorded.subjects)))
-    _recompute(store, root, _sample(candidates, max(int(sample), 0), seed), recorded.spec.solver, report)
+    damaged = {d.group for d in report.damage}  # a subject is recomputed on a sound mesh and tissue only
+    sound = [
+        ref
+        for ref in candidates
+        if not {subject_path(ref.subject_id), mesh_path(recorded.subjects[ref.subject_id])} & damaged
+    ]
+    _recompute(store, root, _sample(sound, max(int(sample), 0), seed), recorded.spec.solver, report)
     return report

@@ -94,7 +94,7 @@ def test_dry_run_refuses_what_the_build_refuses_and_writes_nothing(reference_sto
     assert store_bytes(store) == store_bytes(reference_store)
     (store / "subjects/lv-healthy/zarr.json").unlink()
     damaged = store_bytes(store)
-    with pytest.raises(StoreDamaged, match=r"group missing \(subjects/lv-healthy\)"):
+    with pytest.raises(StoreDamaged, match=r"group metadata \(subjects/lv-healthy/zarr\.json\) missing"):
         dry_run(tiny_spec(), store)
     assert dry_run(tiny_spec(), store, force=True) == "replace"
     assert store_bytes(store) == damaged

@@ -14,7 +14,7 @@ import pytest
 from zarr.storage import LocalStore
 
 from shared.errors import InputError, SchemaError
-from simgen.store.repair import repair_store
+from simgen.store.repair import RepairRefused, repair_store
 from simgen.store.runner import build
 from simgen.store.structure import StoreDamaged
 from simgen.store.verify import verify_store
@@ -144,9 +144,15 @@ def test_repair_restores_a_byte_identical_store(store, reference_store, store_by
     copy_chunk(store, "lv-healthy", "lv-scar-apex", 1)
     shutil.copytree(store / "subjects/lv-healthy/x", store / "subjects/lv-healthy/w")
     assert not verify_store(store, sample=0).ok
-    report = repair_store(store, workers=1)
-    assert report.meshes == ["lv"] and report.subjects == ["lv-scar-apex"]
-    assert report.removed == ["subjects/lv-healthy/w"] and report.chunks == ["lv-healthy/0", "lv-healthy/1"]
+    damaged = store_bytes(store)
+    with pytest.raises(RepairRefused, match=r"1 member\(s\) its recorded spec does not imply: subjects/lv-healthy/w"):
+        repair_store(store, workers=1)
+    assert store_bytes(store) == damaged
+    report = repair_store(store, workers=1, remove_extra=True)
+    assert report.arrays == ["meshes/lv/points", "subjects/lv-scar-apex/a"] and not report.subjects
+    assert report.removed == ["subjects/lv-healthy/w"]
+    assert report.chunks == ["lv-healthy/0", "lv-scar-apex/1"] and report.flags == ["lv-healthy/1"]
+    assert report.build.tasks_run == 2  # the sound chunks are kept
     assert store_bytes(store) == store_bytes(reference_store)
     assert verify_store(store).ok
 
@@ -172,7 +178,8 @@ def test_repair_of_a_sound_store_changes_nothing(store, reference_store, store_b
 def test_repair_restores_deleted_metadata_of_any_group_or_array(store, reference_store, store_bytes, metadata):
     (store / metadata).unlink()
     report = repair_store(store, workers=1)
-    assert report.meshes or report.subjects
+    assert report.groups or report.metadata or report.arrays
+    assert report.build.tasks_run == 0  # no simulation is lost
     assert store_bytes(store) == store_bytes(reference_store)
 
 
@@ -233,7 +240,7 @@ def test_repair_finishes_a_layout_cut_short_by_a_full_disk(
         with pytest.raises(OSError, match="No space left on device"):
             build(spec, store, workers=1)
     report = repair_store(store, workers=1)
-    assert report.subjects == ["lv-healthy", "lv-scar-apex"]
+    assert report.groups == ["subjects"] and report.subjects == ["lv-scar-apex"], report.lines()
     assert store_bytes(store) == store_bytes(reference_store)
 
 
@@ -250,5 +257,5 @@ def test_a_repair_that_cannot_finish_writes_nothing(store, store_bytes, tmp_path
     (store / "meshes/patient/zarr.json").unlink()
     damaged = store_bytes(store)
     with pytest.raises(InputError, match="patient.vtu"):
-        repair_store(store, workers=1)
+        repair_store(store, workers=1, remove_extra=True)
     assert store_bytes(store) == damaged

@@ -122,7 +122,7 @@ def test_coordinates_and_split_are_checked_against_the_mesh(store):
     g["site"][0] = g["site"][0] + 1
     g.attrs["split"] = next(p for p in ("train", "test") if p != g.attrs["split"])
     assert verify_store(store, sample=0).problems == [
-        "subject lv-healthy: coordinate site disagrees with the mesh and times",
+        "subject lv-healthy: site differs from its recorded digest (file subjects/lv-healthy/site/c/0)",
         f"subject lv-healthy: split attribute {g.attrs['split']!r}, the canonical split assigns "
         f"{canonical_part('lv-healthy')!r}",
     ]
