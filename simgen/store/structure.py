@@ -219,6 +219,7 @@ class _Checker:
         self.version = int(self.attrs["schema_version"])
         self.recorded = recorded_structure(self.attrs)
         self.damage: list[Damage] = []
+        self.digests: dict[str, bool] = {}  # whether each mesh and subject group records its arrays' digests
         self.meshes_ok: dict[str, dict[str, NDArray]] = {}  # the sound meshes' arrays
         self.mesh_sizes: dict[str, tuple[int, int]] = {}  # nodes and sites of meshes whose metadata are sound
 
@@ -314,6 +315,9 @@ class _Checker:
             self.extras("subjects", subjects[0], set(self.recorded.subjects))
         for subject_id in self.recorded.subjects:
             self.subject(subject_id)
+        if any(self.digests.values()):  # written by a layout that records them: each group must
+            for path in sorted(path for path, recorded in self.digests.items() if not recorded):
+                self.add(path, f"attribute {DIGESTS} missing", kind=ATTRIBUTES)
         return self.damage
 
     def mesh(self, mesh_id: str) -> None:
@@ -322,6 +326,8 @@ class _Checker:
         if found is None:
             return
         members, attrs = found
+        if attrs is not None:
+            self.digests[path] = DIGESTS in attrs
         shape_params = self.version >= METADATA_VERSION and mesh_id not in self.recorded.added
         self.attributes(path, attrs, _required(_MESH_ATTRS, self.version) + ["shape_params"] * shape_params)
         self.extras(path, members, set(_MESH_NAMES))
@@ -350,6 +356,8 @@ class _Checker:
         if found is None:
             return
         members, attrs = found
+        if attrs is not None:
+            self.digests[path] = DIGESTS in attrs
         before = len(self.damage)
         self.attributes(path, attrs, _required(_SUBJECT_ATTRS, self.version))
         mesh_id, spec = self.recorded.subjects[subject_id], self.recorded.spec

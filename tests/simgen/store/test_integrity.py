@@ -163,26 +163,6 @@ def test_repair_of_a_sound_store_changes_nothing(store, reference_store, store_b
     assert store_bytes(store) == store_bytes(reference_store)
 
 
-@pytest.mark.parametrize(
-    "metadata",
-    [
-        "subjects/lv-healthy/zarr.json",
-        "subjects/zarr.json",
-        "subjects/lv-healthy/u/zarr.json",
-        "subjects/lv-scar-apex/done/zarr.json",
-        "meshes/lv/zarr.json",
-        "meshes/zarr.json",
-        "meshes/lv/points/zarr.json",
-    ],
-)
-def test_repair_restores_deleted_metadata_of_any_group_or_array(store, reference_store, store_bytes, metadata):
-    (store / metadata).unlink()
-    report = repair_store(store, workers=1)
-    assert report.groups or report.metadata or report.arrays
-    assert report.build.tasks_run == 0  # no simulation is lost
-    assert store_bytes(store) == store_bytes(reference_store)
-
-
 def drop_root_attributes(store: Path, *names: str) -> None:
     path = store / "zarr.json"
     meta = json.loads(path.read_text())

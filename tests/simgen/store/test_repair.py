@@ -1,0 +1,162 @@
+"""``simgen repair`` never destroys: every kind of damage is restored to a clean build, or refused with nothing
+changed, and no repair computes again a simulation whose data pass every check."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from shared.errors import DamagedData, SchemaError
+from shared.reader import read_mesh, read_tissue
+from simgen.store.repair import RepairRefused, plan_repair, repair_store
+from simgen.store.runner import build
+from simgen.store.verify import verify_store
+
+
+@pytest.fixture
+def store(reference_store, tmp_path) -> Path:
+    copy = tmp_path / "s.zarr"
+    shutil.copytree(reference_store, copy)
+    return copy
+
+
+def _delete(relative: str) -> Callable[[Path], None]:
+    return lambda store: (store / relative).unlink()
+
+
+def _remove_folder(relative: str) -> Callable[[Path], None]:
+    return lambda store: shutil.rmtree(store / relative)
+
+
+def _garble(relative: str) -> Callable[[Path], None]:
+    return lambda store: (store / relative).write_text("{not json")
+
+
+def _flip(relative: str, at: int = 100) -> Callable[[Path], None]:
+    def damage(store: Path) -> None:
+        data = bytearray((store / relative).read_bytes())
+        data[at] ^= 0x10
+        (store / relative).write_bytes(bytes(data))
+
+    return damage
+
+
+def _drop_attribute(relative: str, name: str) -> Callable[[Path], None]:
+    def damage(store: Path) -> None:
+        meta = json.loads((store / relative).read_text())
+        del meta["attributes"][name]
+        (store / relative).write_text(json.dumps(meta))
+
+    return damage
+
+
+H, S = "subjects/lv-healthy", "subjects/lv-scar-apex"
+#: Damage kind -> (damage, simulations computed again by the repair: only chunks whose data are damaged).
+DAMAGE: dict[str, tuple[Callable[[Path], None], int]] = {
+    "mesh points chunk gone": (_delete("meshes/lv/points/c/0/0"), 0),
+    "mesh cells chunk flipped": (_flip("meshes/lv/cells/c/0/0"), 0),
+    "node set chunk gone": (_delete("meshes/lv/surface/c/0"), 0),
+    "sites chunk gone": (_delete("meshes/lv/stim_nodes/c/0"), 0),
+    "electrodes chunk gone": (_delete("meshes/lv/electrodes/c/0"), 0),
+    "mesh group metadata garbled": (_garble("meshes/lv/zarr.json"), 0),
+    "mesh digests dropped": (_drop_attribute("meshes/lv/zarr.json", "digests"), 0),
+    "mesh group gone": (_remove_folder("meshes/lv"), 0),
+    "meshes group metadata gone": (_delete("meshes/zarr.json"), 0),
+    "tissue field chunk gone": (_delete(f"{S}/label/c/0"), 0),
+    "tissue field flipped": (_flip(f"{S}/a/c/0", at=20), 0),
+    "coordinate chunk gone": (_delete(f"{H}/x/c/0"), 0),
+    "times chunk gone": (_delete(f"{H}/times/c/0"), 0),
+    "tissue field metadata gone": (_delete(f"{S}/D/zarr.json"), 0),
+    "subject group metadata garbled": (_garble(f"{H}/zarr.json"), 0),
+    "subject attribute dropped": (_drop_attribute(f"{H}/zarr.json", "solver"), 0),
+    "subjects group metadata gone": (_delete("subjects/zarr.json"), 0),
+    "u metadata gone": (_delete(f"{H}/u/zarr.json"), 0),
+    "u metadata garbled": (_garble(f"{S}/u/zarr.json"), 0),
+    "done metadata gone": (_delete(f"{H}/done/zarr.json"), 0),
+    "done folder gone": (_remove_folder(f"{H}/done"), 0),
+    "done flag flipped": (_flip(f"{H}/done/c/1", at=0), 0),
+    "fingerprint metadata gone": (_delete(f"{S}/fingerprint/zarr.json"), 0),
+    "u shard flipped": (_flip(f"{H}/u/c/0/0/0"), 3),
+    "subject group gone": (_remove_folder(S), 6),
+    "root provenance dropped": (_drop_attribute("zarr.json", "provenance"), 0),
+}
+
+
+@pytest.mark.usefixtures("reference_commit")
+@pytest.mark.parametrize("kind", DAMAGE)
+def test_every_damage_is_repaired_to_a_clean_build_computing_only_damaged_chunks(
+    kind, store, reference_store, store_bytes
+):
+    damage, recomputed = DAMAGE[kind]
+    damage(store)
+    assert not verify_store(store, sample=0).ok, "the damage is found"
+    plans = []
+    report = repair_store(store, workers=1, on_plan=plans.append)
+    assert plans and plans[0] == (plans[0] and report.lines()[: len(plans[0])]), "the plan is printed first"
+    assert report.build.simulations == recomputed, report.lines()
+    assert store_bytes(store) == store_bytes(reference_store)
+
+
+def test_a_dry_run_plans_and_writes_nothing(store, store_bytes):
+    _delete("meshes/lv/points/c/0/0")(store)
+    _flip(f"{H}/u/c/0/0/0")(store)
+    damaged = store_bytes(store)
+    assert plan_repair(store).lines() == ["arrays written anew from the spec: meshes/lv/points"]
+    assert store_bytes(store) == damaged
+
+
+def test_a_path_that_is_not_a_store_is_refused_and_nothing_written(tmp_path):
+    with pytest.raises(SchemaError, match="no store there"):
+        repair_store(tmp_path / "mistyped.zarr", workers=1)
+    assert not (tmp_path / "mistyped.zarr").exists()
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes/todo.txt").write_text("x")
+    with pytest.raises(SchemaError, match="is not a simgen store"):
+        repair_store(tmp_path / "notes", workers=1)
+    assert sorted(p.name for p in (tmp_path / "notes").iterdir()) == ["todo.txt"]
+
+
+def test_another_spec_is_refused_unless_rescoped(store, store_bytes, tiny_spec_toml, tmp_path):
+    other = tmp_path / "other.toml"
+    other.write_text(tiny_spec_toml.replace('"scar-apex"', '"scar-apex", "scar-lateral-mid"'))
+    before = store_bytes(store)
+    with pytest.raises(RepairRefused, match="is not the spec of store .*`--rescope`"):
+        repair_store(store, other, workers=1)
+    assert store_bytes(store) == before
+
+
+@pytest.mark.usefixtures("reference_commit")
+def test_a_rescope_keeps_the_shared_subjects_and_equals_a_clean_build(store, store_bytes, tiny_spec, tmp_path):
+    spec_file = tmp_path / "rescoped.toml"
+    spec_file.write_text(
+        'tissue = ["healthy", "scar-lateral-mid"]\n[[meshes]]\nid = "lv"\nsource = "lv"\nnodes = 500\n[sites]\n'
+        "count = 6\n[solver]\nframes = 8\n[output]\nchunk_sites = 3\nsock_electrodes = 40\n"
+    )
+    report = repair_store(store, spec_file, workers=1, rescope=True)
+    assert report.root == ["spec", "spec_hash"] and report.removed == [S]
+    assert report.subjects == ["lv-scar-lateral-mid"] and report.build.simulations == 6  # lv-healthy kept
+    clean = tmp_path / "clean.zarr"
+    build(tiny_spec(tissue=["healthy", "scar-lateral-mid"]), clean, workers=1)
+    assert store_bytes(store) == store_bytes(clean)
+
+
+def test_a_rescope_that_would_keep_other_results_is_refused(store, store_bytes, tiny_spec_toml, tmp_path):
+    other = tmp_path / "frames.toml"
+    other.write_text(tiny_spec_toml.replace("frames = 8", "frames = 9"))
+    before = store_bytes(store)
+    with pytest.raises(RepairRefused, match=r"other \[solver\] settings"):
+        repair_store(store, other, workers=1, rescope=True)
+    assert store_bytes(store) == before
+
+
+def test_readers_refuse_a_missing_chunk_instead_of_reading_zeros(store):
+    _delete("meshes/lv/points/c/0/0")(store)
+    _delete(f"{S}/label/c/0")(store)
+    with pytest.raises(DamagedData, match=r"mesh lv: points chunk file meshes/lv/points/c/0/0 missing.*simgen repair"):
+        read_mesh(store, "lv")
+    with pytest.raises(DamagedData, match=r"subject lv-scar-apex: label chunk file .*label/c/0 missing"):
+        read_tissue(store, "lv-scar-apex")
