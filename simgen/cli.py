@@ -58,6 +58,14 @@ HeartOpt = Annotated[
         help="A mesh file must be a heart (its node sets are detected); --no-heart accepts one that is not (a slab).",
     ),
 ]
+UnitsOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--units",
+        help="Length unit of a mesh file's coordinates: mm, cm or m (default: the file's own, else inferred from "
+        "a heart's size; mm for --no-heart).",
+    ),
+]
 TISSUE_HELP = (
     "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; scars, each with region "
     "('segments' + segments 1-17, or 'sphere' + node or centre and radius in mm), border_width in mm, core and "
@@ -90,11 +98,12 @@ def mesh(
     nodes: NodesOpt = None,
     kind: KindOpt = None,
     heart: HeartOpt = True,
+    units: UnitsOpt = None,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
     region labels (AHA segments, RV free wall) as point data: what sites by region need."""
     try:
-        m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
         out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, _labels(m).arrays() if heart else None)
     except (InputError, OSError) as exc:
@@ -131,6 +140,7 @@ def simulate(
     nodes: NodesOpt = None,
     kind: KindOpt = None,
     heart: HeartOpt = True,
+    units: UnitsOpt = None,
     tissue: Annotated[str, typer.Option(help=TISSUE_HELP)] = "healthy",
     sites: Annotated[
         str | None, typer.Option(help="Comma-separated stimulation node ids of the mesh (default 0 without others).")
@@ -188,7 +198,7 @@ def simulate(
     try:
         if record not in RECORDINGS:
             raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
-        m = get_mesh(source, nodes, kind, heart=heart)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
@@ -483,6 +493,7 @@ def add_subject(
     tissue: Annotated[list[str], typer.Option(help=f"{TISSUE_HELP} Repeat for several.")],
     nodes: NodesOpt = 2000,
     kind: KindOpt = "tetra",
+    units: UnitsOpt = None,
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
 ) -> None:
@@ -494,7 +505,7 @@ def add_subject(
         specs = [_tissue_spec(t) for t in tissue]
         return run_add(
             store,
-            MeshEntry(mesh_id, mesh_file, nodes, kind),  # type: ignore[arg-type]
+            MeshEntry(mesh_id, mesh_file, nodes, kind, units=units),  # type: ignore[arg-type]
             specs,
             scheduler=scheduler,
             workers=workers,

@@ -232,6 +232,24 @@ CASES: dict[str, dict[str, Case]] = {
             build("bad-cells-mesh-file"),
             ("badcells.vtu: cell node index out of range [0, 316): 1 cell(s), first cell 3",),
         ),
+        "a heart of no inferable size": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/tiny-heart.ply"),
+            ("tiny-heart.ply: cannot infer the length unit", "--units mm|cm|m"),
+        ),
+        "a heart read in a unit that makes it 1.6 m long": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/tiny-heart.ply", "--units", "m"),
+            ("read as a heart 1593 mm across", "--units mm|cm|m"),
+        ),
+        "an unknown length unit": Case(
+            ("simgen", "simulate", "{d}/o", "--mesh", "{d}/tiny-heart.ply", "--units", "inch"), ("'inch'",)
+        ),
+        "a length unit for a procedural mesh": Case(
+            ("simgen", "simulate", "{d}/o", "--mesh", "lv", "--units", "cm"), ("procedural mesh 'lv' takes no units",)
+        ),
+        "a folded LV surface": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/folded.vtu"),
+            ("folded.vtu: its surface passes through itself",),
+        ),
         "a 50 mm cube of hexahedra": Case(build("cube-hexahedra"), ("cube-hex.vtu: not a heart", "heart = false")),
         "a 50 mm cube of tetrahedra": Case(build("cube-tetrahedra"), ("cube-tet.vtu: not a heart", "heart = false")),
         "a cube as a slab with a sock": Case(
@@ -695,7 +713,8 @@ def write_checkpoints(d: Path, mesh) -> None:
 
 def write_meshes(d: Path, mesh) -> None:
     """Mesh files: ``garbage.vtu`` (not a mesh), ``nan.vtu`` (a NaN coordinate), ``badcells.vtu`` (a cell refers
-    to a node past the last), ``cube-hex.vtu`` and ``cube-tet.vtu`` (50 mm cubes: no heart)."""
+    to a node past the last), ``cube-hex.vtu`` and ``cube-tet.vtu`` (50 mm cubes: no heart), ``tiny-heart.ply``
+    (a heart 1.6 units long, no unit metadata) and ``folded.vtu`` (an LV surface folded through itself)."""
     import meshio
 
     from simgen.meshes.slab import slab
@@ -714,6 +733,13 @@ def write_meshes(d: Path, mesh) -> None:
     corner = np.arange(6**3).reshape(6, 6, 6)[:-1, :-1, :-1].ravel()
     offsets = np.array([0, 36, 42, 6, 1, 37, 43, 7])  # the 8 corners of each grid cube
     meshio.write(d / "cube-hex.vtu", meshio.Mesh(grid, [("hexahedron", corner[:, None] + offsets)]))
+    from simgen.meshes.catalog import get_mesh
+
+    lv = get_mesh("lv", 400, "triangle")
+    meshio.write(d / "tiny-heart.ply", meshio.Mesh(lv.points * 0.02, [("triangle", lv.cells)]))
+    folded = lv.points.copy()
+    folded[folded[:, 0] > 0.5 * folded[:, 0].max(), 0] *= -0.9
+    meshio.write(d / "folded.vtu", meshio.Mesh(folded, [("triangle", lv.cells)]))
 
 
 @pytest.fixture(scope="module")
@@ -885,6 +911,31 @@ def test_repair_restores_deleted_metadata_byte_identical(d, store):
         assert f"repaired: {DELETED_METADATA[metadata]}" in flat(output)
         assert "chunks marked not done" not in output  # no simulation lost
         assert digest(copy) == digest(store), metadata
+
+
+def test_repair_restores_every_damage_of_the_suite_or_refuses_it_unchanged(d, store):
+    """Each store damage of :data:`CASES`, then ``simgen repair``: the clean build's bytes (exit 0), or a
+    refusal (exit 2) that names the reason and leaves the store as it was."""
+    damages = {case.damage: key for key, case in FLAT.items() if case.damage is not None}
+    copies = {}
+    for i, (damage, key) in enumerate(damages.items()):
+        copies[key] = d / "repair-suite" / f"{i}.zarr"
+        shutil.copytree(store, copies[key])
+        damage(copies[key])
+    before = {key: digest(copy) for key, copy in copies.items()}
+    argvs = [["simgen", "repair", str(copy), "--workers", "1"] for copy in copies.values()]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # two subprocesses
+        halves = list(pool.map(run_batch, [argvs[::2], argvs[1::2]]))
+    results = [halves[i % 2][i // 2] for i in range(len(argvs))]
+    refused = []
+    for (key, copy), (code, output) in zip(copies.items(), results):
+        assert code in (0, 2) and "Traceback" not in output, (key, output)
+        if code == 2:
+            refused.append(key)
+            assert digest(copy) == before[key], key
+        else:
+            assert digest(copy) == digest(store), key
+    assert len(refused) <= 4, refused  # the root metadata gone (no --spec), an extra array, the lock a folder
 
 
 def test_unlock_force_removes_another_hosts_lock(d):

@@ -4,6 +4,8 @@
 file or a shipped real mesh (``"real:<name>"``):
 
 1. :func:`~simgen.meshes.io.load_mesh`: millimetres, safe repairs, validation;
+   a heart of no plausible size (:func:`check_heart_size`) or whose surface
+   passes through itself (:func:`~simgen.meshes.folds.refuse_folds`) is refused;
 2. :func:`~simgen.meshes.resample.resample` to about ``nodes`` nodes of ``kind``;
    without ``nodes`` the mesh is used as it is: its own nodes and cells, node
    ids as in the file (:attr:`shared.mesh.Mesh.file_index` maps them back
@@ -30,11 +32,12 @@ import numpy as np
 from shared.errors import MeshError
 from shared.mesh import CellType, LongAxis, Mesh
 from simgen.meshes.ellipsoid import check_mesh_request
+from simgen.meshes.folds import refuse_folds
 from simgen.meshes.io import load_mesh
 from simgen.meshes.nodesets import detect_heart
 from simgen.meshes.resample import resample
 from simgen.meshes.shipped import REAL_LANDMARKS, REAL_PREFIX, is_real, unpacked
-from simgen.meshes.units import HEART_EXTENT_MM
+from simgen.meshes.units import HEART_EXTENT_MM, UNITS_HINT
 from simgen.meshes.validate import validate_mesh
 
 __all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
@@ -54,8 +57,8 @@ def check_heart_size(mesh: Mesh, source: str) -> None:
     if not lo <= extent <= hi:
         raise MeshError(
             f"{source}: read as a heart {extent:.4g} mm across, and hearts span about {HEART_EXTENT_MM[0]:g}-"
-            f"{HEART_EXTENT_MM[1]:g} mm: its length unit is wrong (the file's own, or the spec's units = ...); "
-            "give the unit its coordinates are in"
+            f"{HEART_EXTENT_MM[1]:g} mm: its length unit is wrong (the file's own, or the one given); "
+            f"give the unit its coordinates are in: {UNITS_HINT}"
         )
 
 
@@ -85,9 +88,10 @@ def load_heart(
                 node_set_arrays=node_set_arrays,
             )
     else:
-        mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays)
+        mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays, heart=heart)
     if heart:
         check_heart_size(mesh, str(source))
+        refuse_folds(mesh, str(source))
     if nodes is not None:
         check_mesh_request(kind or mesh.cell_type, nodes, 200)  # the range of the procedural meshes
         mesh = resample(mesh, nodes, kind or mesh.cell_type)

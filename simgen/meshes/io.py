@@ -53,6 +53,7 @@ def load_mesh(
     axis: LongAxis | None = None,
     units: str | None = None,
     node_set_arrays: Mapping[str, str] | None = None,
+    heart: bool = True,
 ) -> Mesh:
     """Read a triangle, tetrahedral or hexahedral mesh in mm, repair it where safe and validate it.
 
@@ -61,8 +62,9 @@ def load_mesh(
     path : any file meshio reads (.vtu, .vtk, .msh, .obj, .stl, .ply, .xdmf, ...).
     name : mesh name; defaults to the file stem.
     axis : optional ventricular frame to attach (files carry none), in mm.
-    units : ``"mm"``, ``"cm"`` or ``"m"``; ``None``: the file's, else inferred
-        from the extent (:func:`simgen.meshes.units.mm_per_unit`).
+    units : ``"mm"``, ``"cm"`` or ``"m"``; ``None``: the file's, else, for a
+        ``heart``, inferred from the extent of the nodes in cells, else mm
+        (:func:`simgen.meshes.units.mm_per_unit`).
     node_set_arrays : node set name -> name of the file's 0/1 point-data array
         holding it (e.g. ``{"epicardium": "EPI"}``).
 
@@ -85,7 +87,8 @@ def load_mesh(
         points = np.hstack([points, np.zeros((len(points), 1))])
     kind, cells = _select_cells(raw, path)
     _check_indices(cells, len(points), path)
-    scale, origin = mm_per_unit(points, file_units(raw.field_data, raw.point_data, where), units, where)
+    declared = file_units(raw.field_data, raw.point_data, where)
+    scale, origin = mm_per_unit(points[np.unique(cells)], declared, units, where, infer=heart)
     if scale != 1.0:
         points = points * scale
         (log.warning if origin == "inferred" else log.info)(

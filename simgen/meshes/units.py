@@ -7,10 +7,11 @@ its millimetres per unit, taken in this order:
 2. the file's own metadata: a field (meshio ``field_data``) or a constant point-data
    array named ``mm_per_unit`` (what :func:`simgen.meshes.io.save_mesh` writes), or a
    field ``units`` / ``length_unit`` holding ``"mm"``, ``"cm"`` or ``"m"``;
-3. the extent: a heart is about 50-150 mm long, so the largest side of the
-   bounding box in :data:`HEART_EXTENT_MM` (40-250 mm) means mm, ten times
-   smaller means cm and a thousand times smaller means m. Any other extent is
-   ambiguous and refused.
+3. for a heart, the extent of the nodes in cells: a heart is about 50-150 mm
+   long, so the largest side of the bounding box in :data:`HEART_EXTENT_MM`
+   (40-250 mm) means mm, ten times smaller means cm and a thousand times
+   smaller means m. Any other extent is ambiguous and refused. A mesh that is
+   no heart (``--no-heart``: a slab) has no size to infer from: mm.
 
 When the caller's units and the file's disagree, the file is refused.
 """
@@ -25,7 +26,16 @@ from numpy.typing import NDArray
 
 from shared.errors import MeshError
 
-__all__ = ["MM_PER_UNIT", "HEART_EXTENT_MM", "UNIT_KEY", "Units", "file_units", "infer_units", "mm_per_unit"]
+__all__ = [
+    "MM_PER_UNIT",
+    "HEART_EXTENT_MM",
+    "UNIT_KEY",
+    "UNITS_HINT",
+    "Units",
+    "file_units",
+    "infer_units",
+    "mm_per_unit",
+]
 
 Units = Literal["mm", "cm", "m"]
 
@@ -34,6 +44,9 @@ MM_PER_UNIT: dict[str, float] = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
 #: Largest bounding-box side, in mm, that an inferred unit must give (inclusive).
 HEART_EXTENT_MM = (40.0, 250.0)
+
+#: How a user gives a mesh file's unit: the commands' option and the spec's key.
+UNITS_HINT = '--units mm|cm|m (a build spec: units = "mm", "cm" or "m" in its [[meshes]] entry)'
 
 #: Name of the metadata array holding millimetres per unit.
 UNIT_KEY = "mm_per_unit"
@@ -68,7 +81,7 @@ def infer_units(points: NDArray[np.float64], where: str) -> Units:
     ranges = ", ".join(f"{lo / s:g}-{hi / s:g} {u}" for u, s in MM_PER_UNIT.items())
     raise MeshError(
         f"{where}: cannot infer the length unit from the mesh extent {extent:g} (a heart spans {ranges}); "
-        "give the unit (units = 'mm', 'cm' or 'm' in the spec's [[meshes]] table)"
+        f"give the unit: {UNITS_HINT}"
     )
 
 
@@ -77,8 +90,10 @@ def mm_per_unit(
     declared: Units | None,
     given: str | None,
     where: str,
+    infer: bool = True,
 ) -> tuple[float, str]:
-    """Millimetres per unit and where the unit came from (``"given"``, ``"file"`` or ``"inferred"``)."""
+    """Millimetres per unit and where the unit came from (``"given"``, ``"file"``, ``"inferred"`` from
+    ``points``, the nodes in cells, or ``"assumed"`` mm when not ``infer``: a mesh that is no heart)."""
     if given is not None and given not in MM_PER_UNIT:
         raise MeshError(f"{where}: units {given!r} is not one of {list(MM_PER_UNIT)}")
     if given is not None and declared is not None and given != declared:
@@ -87,4 +102,6 @@ def mm_per_unit(
         return MM_PER_UNIT[given], "given"
     if declared is not None:
         return MM_PER_UNIT[declared], "file"
+    if not infer:
+        return 1.0, "assumed"
     return MM_PER_UNIT[infer_units(points, where)], "inferred"

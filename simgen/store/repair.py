@@ -145,6 +145,7 @@ class RepairPlan:
         return [f"{_TITLES[kind]}: {', '.join(getattr(self, kind))}" for kind in kinds]
 
     def extend(self, other: RepairPlan) -> None:
+        """Add ``other``'s changes to these."""
         for f in fields(RepairPlan):
             getattr(self, f.name).extend(getattr(other, f.name))
 

@@ -34,9 +34,27 @@ def test_units_inferred_from_the_extent(tmp_path, unit, scale, caplog):
 def test_ambiguous_extent_is_refused(tmp_path):
     path = tmp_path / "small.ply"
     meshio.write(path, meshio.Mesh(LV.points * 0.02, [("triangle", LV.cells)]))  # under 2 units long
-    with pytest.raises(MeshError, match=r"cannot infer the length unit from the mesh extent 1\.\d+ .*units = 'mm'"):
+    with pytest.raises(
+        MeshError, match=r"cannot infer the length unit from the mesh extent 1\.\d+ .*--units mm\|cm\|m"
+    ):
         load_mesh(path)
     assert load_mesh(path, units="m").points.max() > 0  # a given unit settles it
+
+
+def test_units_are_inferred_from_the_nodes_in_cells(tmp_path):
+    stray = np.vstack([LV.points, [[5000.0, 0.0, 0.0]]])  # a node in no cell, far away
+    path = tmp_path / "stray.ply"
+    meshio.write(path, meshio.Mesh(stray, [("triangle", LV.cells)]))
+    loaded = load_mesh(path)
+    assert loaded.n_nodes == LV.n_nodes and np.ptp(loaded.points, axis=0).max() < 250  # mm, the stray dropped
+
+
+def test_a_mesh_that_is_no_heart_is_read_in_mm(tmp_path):
+    path = tmp_path / "slab.ply"  # under 2 units long, no unit metadata: no heart size to infer from
+    meshio.write(path, meshio.Mesh(LV.points * 0.02, [("triangle", LV.cells)]))
+    with pytest.raises(MeshError, match="cannot infer the length unit"):
+        load_mesh(path)
+    np.testing.assert_allclose(load_mesh(path, heart=False).points, LV.points * 0.02)
 
 
 def test_file_units_win_over_inference_and_must_agree(tmp_path):
