@@ -6,6 +6,7 @@ import hashlib
 import importlib.metadata
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -158,6 +159,27 @@ def test_the_model_is_checked_whole_config_weights_and_values(tmp_path, monkeypa
     _rewritten(folder, tensors, wider)
     with pytest.raises(InputError, match="its weights do not fit the model its config describes"):
         load_model(NAME)
+
+
+def test_a_damaged_shipped_model_is_one_line_on_the_command_line(tmp_path, monkeypatch):
+    from safetensors.torch import load_file
+
+    folder = tmp_path / NAME
+    shutil.copytree(pretrained.info(NAME).folder, folder)
+    monkeypatch.setattr(shipped_models, "SHIPPED_DIR", tmp_path)
+    examples = Path(__file__).resolve().parents[2] / "examples"
+    args = ["personalize", NAME, "--observations", str(examples / "observations.npz"), "--out", str(tmp_path / "p")]
+    config = json.loads((folder / pretrained.CONFIG).read_text())
+    (folder / pretrained.CONFIG).write_text(json.dumps({**config, "frames": 54}))
+    edited = runner.invoke(app, args)
+    tensors = load_file(folder / pretrained.WEIGHTS)
+    first = sorted(tensors)[0]
+    _rewritten(folder, {**tensors, first: tensors[first] * float("nan")}, config)
+    nan = runner.invoke(app, args)
+    for result, expected in ((edited, "does not match model.safetensors"), (nan, "hold NaN or inf")):
+        assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+        errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+        assert len(errors) == 1 and expected in " ".join(result.output.split()), result.output
 
 
 def test_export_writes_what_load_reads(tiny_store, tiny_toml, tmp_path, monkeypatch):

@@ -42,6 +42,10 @@ DAMAGE = {
         lambda s: (s / f"{SUBJECT}/zarr.json").unlink(),
         "group metadata (subjects/lv-healthy/zarr.json) missing",
     ),
+    "subject metadata garbled": (
+        lambda s: (s / f"{SUBJECT}/zarr.json").write_text("{not json"),
+        "group metadata (subjects/lv-healthy/zarr.json) missing or unreadable",
+    ),
     "mesh array metadata deleted": (
         lambda s: (s / "meshes/lv/points/zarr.json").unlink(),
         "metadata of array points (meshes/lv/points/zarr.json) missing",
@@ -85,3 +89,14 @@ def test_status_counts_only_sound_chunks(copy):
         "lv-healthy": (1, 1),
         "lv-scar-apex": (2, 0),
     }
+
+
+def test_status_decodes_every_chunk_on_request_and_never_calls_undecoded_data_sound(copy):
+    _flip(copy / f"{SUBJECT}/u/c/0/0/0", at=100)  # inside a site's data: its index and stored CRC intact
+    quick = CliRunner().invoke(app, ["status", str(copy)])
+    assert quick.exit_code == 0 and "chunk data not decoded" in " ".join(quick.output.split())
+    assert "sound" not in quick.output.replace("structure sound", "")
+    full = CliRunner().invoke(app, ["status", str(copy), "--checksums"])
+    assert full.exit_code == 1 and "Traceback" not in full.output, full.output
+    assert any("u chunk unreadable" in line for line in full.output.splitlines() if line.startswith("damaged: "))
+    assert "3/4 chunks done" in full.output and "every chunk decoded: sound" not in full.output
