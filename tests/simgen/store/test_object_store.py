@@ -157,3 +157,15 @@ def test_missing_bucket_is_a_clear_error(s3_endpoint, tiny_spec):
 
     with pytest.raises(StoreURLError, match=r"cannot write the lock s3://no-such-bucket/x.zarr/.lock.*must exist"):
         build(tiny_spec(), "s3://no-such-bucket/x.zarr")
+
+
+def test_s3_repair_restores_what_was_deleted_and_keeps_every_simulation(s3_store, local_store, store_bytes, cluster):
+    from simgen.store.repair import repair_store
+
+    fs, root = filesystem(s3_store)
+    fs.rm_file(f"{root}/meshes/lv/points/c/0/0")
+    fs.rm_file(f"{root}/subjects/lv-healthy/zarr.json")
+    report = repair_store(s3_store, scheduler=cluster)
+    assert report.arrays == ["meshes/lv/points"] and report.groups == ["subjects/lv-healthy"]
+    assert report.build.simulations == 0
+    assert object_bytes(s3_store) == store_bytes(local_store)
