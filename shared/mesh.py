@@ -46,6 +46,18 @@ class LongAxis:
         return float(np.linalg.norm(np.asarray(self.base) - np.asarray(self.apex)))
 
 
+def _unit_fibres(fibres: NDArray, n_nodes: int, name: str) -> NDArray[np.float64]:
+    """``fibres`` as (N, 3) float64 unit vectors; :class:`MeshError` for another shape, non-finite or zero rows."""
+    f = np.asarray(fibres, dtype=np.float64)
+    if f.shape != (n_nodes, 3):
+        raise MeshError(f"mesh {name!r}: fibres must have shape ({n_nodes}, 3), one vector per node, got {f.shape}")
+    norm = np.linalg.norm(f, axis=1)
+    bad = np.flatnonzero(~np.isfinite(norm) | (norm <= 0))
+    if bad.size:
+        raise MeshError(f"mesh {name!r}: {bad.size} fibre vector(s) zero or not finite, first nodes {bad[:5].tolist()}")
+    return f / norm[:, None]
+
+
 @dataclass(frozen=True)
 class Mesh:
     """A triangle surface or tetrahedral volume mesh in millimetres.
@@ -63,6 +75,10 @@ class Mesh:
         nodes in no cell: (n_file,) the mesh node of each node of the file, -1
         for a dropped one (:meth:`to_file`, :meth:`from_file`); ``None``: the
         node ids are the file's (or the mesh was made, not read).
+    fibres : optional (N, 3) unit fibre direction at each node (axial: ``f``
+        and ``-f`` are one direction), tangent to a triangle surface; the
+        conduction is faster along them when the solver's ``anisotropy`` is
+        set (:func:`simgen.solver.fem.stiffness_matrix`).
     """
 
     points: NDArray[np.float64]
@@ -71,6 +87,7 @@ class Mesh:
     axis: LongAxis | None = None
     name: str = "mesh"
     file_index: NDArray[np.int64] | None = None
+    fibres: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float64)
@@ -93,6 +110,8 @@ class Mesh:
             if index.ndim != 1 or not np.array_equal(np.sort(index[index >= 0]), np.arange(len(pts))):
                 raise MeshError(f"mesh {self.name!r}: file_index must map file nodes onto each of its nodes once")
             object.__setattr__(self, "file_index", index)
+        if self.fibres is not None:
+            object.__setattr__(self, "fibres", _unit_fibres(self.fibres, len(pts), self.name))
 
     @property
     def n_nodes(self) -> int:

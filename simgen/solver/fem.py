@@ -1,8 +1,20 @@
-"""P1 finite elements on triangles (embedded in 3-D) and tetrahedra.
+r"""P1 finite elements on triangles (embedded in 3-D) and tetrahedra.
 
 The monodomain diffusion term ``div(D grad u)`` is discretised with linear
 elements and a lumped (row-sum) mass matrix, giving ``du/dt = -M^{-1} K u``.
-Element diffusivity is the mean of its nodes' diffusivities.
+Element diffusivity is the mean of its nodes' diffusivities. With fibres
+(:attr:`shared.mesh.Mesh.fibres`) and an anisotropy ratio ``r = D_l / D_t``
+the conductivity is a tensor per element,
+
+.. math::
+
+    D_e = d_e \left(\tfrac{1}{r} I + \left(1 - \tfrac{1}{r}\right) \overline{f f^T}\right),
+
+``d_e`` the element diffusivity (the along-fibre value) and
+:math:`\overline{f f^T}` the mean over the element's nodes of their fibres'
+outer products (sign-free: ``f`` and ``-f`` give the same tensor; exact for
+uniform fibres). On triangles only the fibres' component in the element's
+plane counts, as the gradients lie in it.
 """
 
 from __future__ import annotations
@@ -14,7 +26,15 @@ from numpy.typing import NDArray
 from shared.errors import MeshError
 from shared.mesh import Mesh
 
-__all__ = ["Geometry", "element_gradients", "stiffness_matrix", "lumped_mass", "diffusion_operator", "operator_from"]
+__all__ = [
+    "Geometry",
+    "element_gradients",
+    "stiffness_matrix",
+    "conductivity_tensors",
+    "lumped_mass",
+    "diffusion_operator",
+    "operator_from",
+]
 
 #: ``element_gradients``' result; pass it on to assemble several matrices of one mesh from one pass over its cells.
 Geometry = tuple[NDArray[np.float64], NDArray[np.float64]]
@@ -50,17 +70,42 @@ def element_gradients(points: NDArray[np.float64], cells: NDArray[np.integer]) -
 
 
 def stiffness_matrix(
-    mesh: Mesh, node_diffusivity: NDArray[np.float64], geometry: Geometry | None = None
+    mesh: Mesh,
+    node_diffusivity: NDArray[np.float64],
+    geometry: Geometry | None = None,
+    anisotropy: float | None = None,
 ) -> sp.csr_matrix:
-    """Symmetric stiffness matrix ``K_ij = sum_e D_e |e| grad(phi_i) . grad(phi_j)``."""
+    """Symmetric stiffness matrix ``K_ij = sum_e |e| grad(phi_i) . D_e grad(phi_j)``.
+
+    ``anisotropy``: ``D_l / D_t`` along the mesh's fibres (module docstring);
+    ``None`` or 1: isotropic, ``D_e = d_e I`` (the fibres are not read).
+    """
     grads, measure = geometry or element_gradients(mesh.points, mesh.cells)
     d_cell = np.asarray(node_diffusivity, float)[mesh.cells].mean(axis=1)
-    local = np.einsum("mid,mjd->mij", grads, grads) * (d_cell * measure)[:, None, None]
+    if anisotropy is None or anisotropy == 1.0:
+        local = np.einsum("mid,mjd->mij", grads, grads)
+    else:
+        local = np.einsum("mid,mde,mje->mij", grads, conductivity_tensors(mesh, anisotropy), grads)
+    local = local * (d_cell * measure)[:, None, None]
     k = mesh.cells.shape[1]
     rows = np.repeat(mesh.cells, k, axis=1).ravel()
     cols = np.tile(mesh.cells, (1, k)).ravel()
     n = mesh.n_nodes
     return sp.csr_matrix((local.ravel(), (rows, cols)), shape=(n, n))
+
+
+def conductivity_tensors(mesh: Mesh, anisotropy: float) -> NDArray[np.float64]:
+    """(M, 3, 3) relative conductivity of each element: ``I / r + (1 - 1 / r)`` times the mean of its nodes'
+    ``f f^T`` (module docstring)."""
+    if mesh.fibres is None:
+        raise MeshError(
+            f"mesh {mesh.name!r} has no fibres: anisotropic conduction (anisotropy = {anisotropy:g}) needs them"
+        )
+    if not np.isfinite(anisotropy) or anisotropy < 1.0:
+        raise MeshError(f"anisotropy {anisotropy!r} must be a finite ratio D_l / D_t >= 1")
+    f = mesh.fibres[mesh.cells]  # (M, k, 3)
+    outer = np.einsum("mki,mkj->mij", f, f) / mesh.cells.shape[1]
+    return np.eye(3) / anisotropy + (1.0 - 1.0 / anisotropy) * outer
 
 
 def lumped_mass(mesh: Mesh, geometry: Geometry | None = None) -> NDArray[np.float64]:
@@ -71,11 +116,15 @@ def lumped_mass(mesh: Mesh, geometry: Geometry | None = None) -> NDArray[np.floa
 
 
 def diffusion_operator(
-    mesh: Mesh, node_diffusivity: NDArray[np.float64], geometry: Geometry | None = None
+    mesh: Mesh,
+    node_diffusivity: NDArray[np.float64],
+    geometry: Geometry | None = None,
+    anisotropy: float | None = None,
 ) -> sp.csr_matrix:
     """``A = -M^{-1} K`` so that the diffusion step reads ``du/dt = A u``."""
     geometry = geometry or element_gradients(mesh.points, mesh.cells)
-    return operator_from(stiffness_matrix(mesh, node_diffusivity, geometry), lumped_mass(mesh, geometry))
+    stiffness = stiffness_matrix(mesh, node_diffusivity, geometry, anisotropy)
+    return operator_from(stiffness, lumped_mass(mesh, geometry))
 
 
 def operator_from(stiffness: sp.spmatrix, mass: NDArray[np.float64]) -> sp.csr_matrix:

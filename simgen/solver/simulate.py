@@ -128,6 +128,13 @@ class SolverConfig:
     stays out of a spec's hash; a store
     records the integrator that ran on each subject, and a subject without
     that record (stores written before it existed) runs forward Euler.
+
+    ``anisotropy``: the ratio ``D_l / D_t`` of conduction along and across the
+    mesh's fibres (:attr:`shared.mesh.Mesh.fibres`; ``diffusivity`` is the
+    along-fibre value, :mod:`simgen.solver.fem`), a front about
+    ``sqrt(anisotropy)`` times faster along them; ``None`` (or 1): isotropic,
+    and out of a spec's hash. Every integrator and backend takes it, through
+    the assembled operator.
     """
 
     diffusivity: float = 100.0
@@ -141,6 +148,7 @@ class SolverConfig:
     activation_threshold: float = 0.5
     backend: Literal["numba", "torch", "auto"] | None = None
     integrator: Literal["euler", "rkc", "imex", "auto"] | None = None
+    anisotropy: float | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.diffusivity) or self.diffusivity <= 0:
@@ -159,6 +167,8 @@ class SolverConfig:
             raise InputError(f"stimulus_duration must be >= 0 time units, got {self.stimulus_duration}")
         if not 0 < self.activation_threshold < 1:
             raise InputError(f"activation_threshold must be in (0, 1), got {self.activation_threshold}")
+        if self.anisotropy is not None and not (np.isfinite(self.anisotropy) and self.anisotropy >= 1):
+            raise InputError(f"anisotropy must be a finite ratio D_l / D_t >= 1, got {self.anisotropy}")
         if self.backend is not None:
             check_backend(self.backend)
         if self.integrator is not None and self.integrator not in INTEGRATORS:
@@ -171,7 +181,7 @@ class SolverConfig:
                 f"of {self.frames} frames): more than {MAX_STEPS:,} is refused; give a larger dt or leave it unset "
                 "(chosen for the mesh)"
             )
-        for name, default in (("integrator", "auto"), ("backend", "numba")):  # written out, a default is unset
+        for name, default in (("integrator", "auto"), ("backend", "numba"), ("anisotropy", 1.0)):  # a default: unset
             if getattr(self, name) == default:
                 object.__setattr__(self, name, None)
 
@@ -260,7 +270,7 @@ def assemble(
         raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
     if geometry is None:
         geometry = element_gradients(mesh.points, mesh.cells)
-    K = stiffness_matrix(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry)
+    K = stiffness_matrix(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry, config.anisotropy)
     mass = lumped_mass(mesh, geometry)
     A = operator_from(K, mass)
     lambda_max = largest_eigenvalue(A, mass)

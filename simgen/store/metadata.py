@@ -96,13 +96,16 @@ INTEGRATOR_NAMES = {
 
 
 def simulation_attrs(solver: SolverConfig) -> dict:
-    """Root attribute ``simulation``: the model, its constants and the settings every subject shares."""
+    """Root attribute ``simulation``: the model, its constants and the settings every subject shares
+    (``anisotropy``, ``D_l / D_t`` along the meshes' fibres, only where set: stores without it are isotropic)."""
+    anisotropy = {} if solver.anisotropy is None else {"anisotropy": solver.anisotropy}
     return {
         "model": "Aliev-Panfilov (1996), monodomain, P1 finite elements, "
         + INTEGRATOR_NAMES.get(solver.integrator or "auto"),
         "equations": list(AP_EQUATIONS),
         "constants": dataclasses.asdict(solver.model),
         "diffusivity": solver.diffusivity,
+        **anisotropy,
         "stimulus_radius": solver.stimulus_radius,
         "stimulus_duration": solver.stimulus_duration,
         "activation_threshold": solver.activation_threshold,
