@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -28,6 +29,7 @@ from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
 
 if TYPE_CHECKING:
+    from shared.mesh import Mesh
     from simgen.store.estimate import BuildEstimate
 
 app = typer.Typer(
@@ -66,6 +68,14 @@ UnitsOpt = Annotated[
         "a heart's size; mm for --no-heart).",
     ),
 ]
+FibresOpt = Annotated[
+    bool,
+    typer.Option(
+        "--fibres/--no-fibres",
+        help="Rule-based fibres (LDRB: helix +60 to -60 degrees through the wall; LV volume meshes) where the "
+        "mesh carries none (a file's own point data 'fibre' is used as it is).",
+    ),
+]
 TISSUE_HELP = (
     "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; scars, each with region "
     "('segments' + segments 1-17, or 'sphere' + node or centre and radius in mm), border_width in mm, core and "
@@ -99,11 +109,12 @@ def mesh(
     kind: KindOpt = None,
     heart: HeartOpt = True,
     units: UnitsOpt = None,
+    fibres: FibresOpt = False,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
     region labels (AHA segments, RV free wall) as point data: what sites by region need."""
     try:
-        m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
+        m = _with_fibres(get_mesh(source, nodes, kind, units=units, heart=heart), fibres)  # type: ignore[arg-type]
         out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, _labels(m).arrays() if heart else None)
     except (InputError, OSError) as exc:
@@ -141,6 +152,16 @@ def simulate(
     kind: KindOpt = None,
     heart: HeartOpt = True,
     units: UnitsOpt = None,
+    fibres: FibresOpt = False,
+    anisotropy: Annotated[
+        float | None,
+        typer.Option(
+            min=1.0,
+            callback=finite,
+            help="Conduction along the mesh's fibres over across them, D_l / D_t (about 4-7 in ventricles); "
+            "the diffusivity is the along-fibre one. Unset: isotropic.",
+        ),
+    ] = None,
     tissue: Annotated[str, typer.Option(help=TISSUE_HELP)] = "healthy",
     sites: Annotated[
         str | None, typer.Option(help="Comma-separated stimulation node ids of the mesh (default 0 without others).")
@@ -198,11 +219,11 @@ def simulate(
     try:
         if record not in RECORDINGS:
             raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
-        m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
+        m = _with_fibres(get_mesh(source, nodes, kind, units=units, heart=heart), fibres)  # type: ignore[arg-type]
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
-        config = SolverConfig(dt=dt, integrator=integrator)  # type: ignore[arg-type]
+        config = SolverConfig(dt=dt, integrator=integrator, anisotropy=anisotropy)  # type: ignore[arg-type]
         sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
         result = sim.run(site_ids, threads=threads, centres=centres)
     except (InputError, ValueError) as exc:
@@ -249,6 +270,15 @@ def simulate(
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
     _report_no_wave(site_ids, result.activated_fraction)
+
+
+def _with_fibres(mesh: Mesh, fibres: bool) -> Mesh:
+    """``mesh`` with rule-based fibres (:func:`~simgen.meshes.fibres.ldrb_fibres`) when ``fibres`` and it has none."""
+    if not fibres or mesh.fibres is not None:
+        return mesh
+    from simgen.meshes.fibres import ldrb_fibres
+
+    return dataclasses.replace(mesh, fibres=ldrb_fibres(mesh)[0])
 
 
 #: What ``simulate --observe`` records: potentials or activation-time maps.

@@ -246,6 +246,9 @@ CASES: dict[str, dict[str, Case]] = {
         "a length unit for a procedural mesh": Case(
             ("simgen", "simulate", "{d}/o", "--mesh", "lv", "--units", "cm"), ("procedural mesh 'lv' takes no units",)
         ),
+        "anisotropy on a mesh without fibres": Case(
+            ("simgen", "simulate", "{d}/o", "--nodes", "300", "--anisotropy", "4"), ("has no fibres", "--fibres")
+        ),
         "a folded LV surface": Case(
             ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/folded.vtu"),
             ("folded.vtu: its surface passes through itself",),

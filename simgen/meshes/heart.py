@@ -9,7 +9,8 @@ file or a shipped real mesh (``"real:<name>"``):
 2. :func:`~simgen.meshes.resample.resample` to about ``nodes`` nodes of ``kind``;
    without ``nodes`` the mesh is used as it is: its own nodes and cells, node
    ids as in the file (:attr:`shared.mesh.Mesh.file_index` maps them back
-   where the repairs dropped nodes in no cell);
+   where the repairs dropped nodes in no cell); fibres the file carries (point
+   data ``fibre``) follow, a resampled node taking its nearest file node's;
 3. the node sets the file carries (its own masks, or those ``node_set_arrays``
    names) are kept; when it lacks ``epicardium`` or ``endocardium``, all heart
    sets and the long axis are detected (:func:`~simgen.meshes.nodesets.detect_heart`),
@@ -23,11 +24,13 @@ file or a shipped real mesh (``"real:<name>"``):
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
 from shared.mesh import CellType, LongAxis, Mesh
@@ -94,7 +97,10 @@ def load_heart(
         refuse_folds(mesh, str(source))
     if nodes is not None:
         check_mesh_request(kind or mesh.cell_type, nodes, 200)  # the range of the procedural meshes
-        mesh = resample(mesh, nodes, kind or mesh.cell_type)
+        original, mesh = mesh, resample(mesh, nodes, kind or mesh.cell_type)
+        if original.fibres is not None:  # each new node takes the fibre of the file's nearest node
+            nearest = cKDTree(original.points).query(mesh.points)[1]
+            mesh = dataclasses.replace(mesh, fibres=original.fibres[nearest])
     elif kind is not None and kind != mesh.cell_type:
         raise MeshError(
             f"{source} holds {mesh.cell_type}s: used as it is, it is simulated as {mesh.cell_type}s; to have "
@@ -113,7 +119,7 @@ def load_heart(
         sets = {**detected, **sets}
     if landmarks:
         axis = axis_from_landmarks(landmarks, axis)
-    return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name, mesh.file_index))
+    return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name, mesh.file_index, mesh.fibres))
 
 
 def axis_from_landmarks(landmarks: Mapping[str, Sequence[float]], detected: LongAxis | None = None) -> LongAxis:

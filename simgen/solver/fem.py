@@ -99,7 +99,8 @@ def conductivity_tensors(mesh: Mesh, anisotropy: float) -> NDArray[np.float64]:
     ``f f^T`` (module docstring)."""
     if mesh.fibres is None:
         raise MeshError(
-            f"mesh {mesh.name!r} has no fibres: anisotropic conduction (anisotropy = {anisotropy:g}) needs them"
+            f"mesh {mesh.name!r} has no fibres: anisotropic conduction (anisotropy = {anisotropy:g}) needs them: "
+            "a mesh file's point data 'fibre', or rule-based fibres (--fibres; simgen.meshes.fibres.ldrb_fibres)"
         )
     if not np.isfinite(anisotropy) or anisotropy < 1.0:
         raise MeshError(f"anisotropy {anisotropy!r} must be a finite ratio D_l / D_t >= 1")
