@@ -93,6 +93,7 @@ SPECS = {
     "level-range": spec("chunk_sites = 2", 'chunk_sites = 2\ncompressor = "zstd"\nlevel = 30'),
     "toml-syntax": spec("frames = 6", "frames = = 6"),
     "unstable-dt": spec("frames = 6", "frames = 6\ndt = 10.0"),
+    "anisotropic": spec("frames = 6", "frames = 6\nanisotropy = 4.0"),
     "negative-diffusivity": spec("frames = 6", "frames = 6\ndiffusivity = -1.0"),
     "nan-diffusivity": spec("frames = 6", "frames = 6\ndiffusivity = nan"),
     "no-meshes": 'meshes = []\ntissue = ["healthy"]\n',
@@ -246,6 +247,7 @@ CASES: dict[str, dict[str, Case]] = {
         "a length unit for a procedural mesh": Case(
             ("simgen", "simulate", "{d}/o", "--mesh", "lv", "--units", "cm"), ("procedural mesh 'lv' takes no units",)
         ),
+        "anisotropy in a build spec": Case(build("anisotropic"), ("[solver] anisotropy", "holds no fibres")),
         "anisotropy on a mesh without fibres": Case(
             ("simgen", "simulate", "{d}/o", "--nodes", "300", "--anisotropy", "4"), ("has no fibres", "--fibres")
         ),

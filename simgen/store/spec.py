@@ -260,6 +260,11 @@ class BuildSpec:
         object.__setattr__(self, "custom_tissue", tuple(self.custom_tissue))
         if not self.meshes:
             raise ConfigError("the spec has no meshes: add at least one [[meshes]] table")
+        if self.solver.anisotropy is not None:
+            raise ConfigError(
+                "[solver] anisotropy: a dataset store holds no fibres yet, so builds are isotropic; "
+                "anisotropic simulations run with `simgen simulate --fibres --anisotropy R`"
+            )
         ids = [m.id for m in self.meshes]
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
