@@ -56,6 +56,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.resolution --out report/bench
 	$(BIN)/python -m bench.predict --out report/bench
 	$(BIN)/python -m bench.scaling --out report/bench
+	$(BIN)/python -m bench.anisotropy --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -86,3 +86,22 @@ def test_a_point_stimulus_spreads_as_an_ellipse_of_aspect_sqrt_r():
         return float(np.polyfit(activation[axis], along[axis], 1)[0])
 
     assert speed(x, y) / speed(y, x) == pytest.approx(2.0, rel=0.04)
+
+
+def test_imex_matches_euler_on_an_anisotropic_real_heart():
+    """The CT-derived LV with rule-based fibres, r = 4: IMEX activation times against the Euler reference
+    (measured: 0.3% of their range at most, CC 0.9999997)."""
+    from simgen.meshes.catalog import get_mesh
+    from simgen.meshes.fibres import ldrb_fibres
+
+    mesh = get_mesh("real:rodero01-lv")
+    mesh = dataclasses.replace(mesh, fibres=ldrb_fibres(mesh)[0])
+    sites = np.array([0, 1000, 3000])
+    euler, imex = (
+        Simulator(mesh, config=SolverConfig(anisotropy=4.0, integrator=name)).run(sites).activation
+        for name in ("euler", "imex")
+    )
+    assert np.array_equal(np.isnan(euler), np.isnan(imex))
+    both = np.isfinite(euler)
+    assert np.abs(euler - imex)[both].max() < 0.02 * (np.nanmax(euler) - np.nanmin(euler))
+    assert min(np.corrcoef(e[k], i[k])[0, 1] for e, i, k in ((euler[s], imex[s], both[s]) for s in range(3))) >= 0.99
