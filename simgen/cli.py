@@ -72,8 +72,8 @@ FibresOpt = Annotated[
     bool,
     typer.Option(
         "--fibres/--no-fibres",
-        help="Rule-based fibres (LDRB: helix +60 to -60 degrees through the wall; LV volume meshes) where the "
-        "mesh carries none (a file's own point data 'fibre' is used as it is).",
+        help="Rule-based fibres (LDRB: helix +60 to -60 degrees through the wall; LV and BiV volume meshes) "
+        "where the mesh carries none (a file's own point data 'fibre' is used as it is).",
     ),
 ]
 TISSUE_HELP = (

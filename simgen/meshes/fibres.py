@@ -18,8 +18,12 @@ angle, linear through the wall,
 (+60 degrees at the endocardium to -60 at the epicardium by default: seen from
 outside, counter-clockwise from the circumferential direction is positive).
 Fibres are unit vectors orthogonal to ``e_t``, so tangent to both surfaces.
-The biventricular rule (separate LV and RV solves blended across the septum)
-is not done: meshes with an RV endocardium are refused.
+On a biventricle (node sets ``lv_endocardium`` and ``rv_endocardium``) the
+rule is Bayer et al.'s: the LV frame (from the LV endocardium's solve) and the
+RV frame (from the RV's), each at the septal helix angle, are blended by the
+RV share ``phi_rv / (phi_lv + phi_rv)`` and the result with the epicardial
+frame by ``d``, each blend a bidirectional spherical interpolation of the
+frames' quaternions (:func:`_bislerp`).
 """
 
 from __future__ import annotations
@@ -67,37 +71,124 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
+def _frames(mesh: Mesh, transmural: NDArray[np.float64], longitudinal: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3, 3) rotations whose columns are ``(e_c, e_l, e_t)``: ``e_t`` along ``transmural``, ``e_l`` the
+    part of ``longitudinal`` orthogonal to it, ``e_c = e_l x e_t`` (module docstring). Where a gradient
+    vanishes (the apex, a cavity's rim) the long axis or any orthogonal direction stands in."""
+    axis = np.asarray(mesh.axis.base, float) - np.asarray(mesh.axis.apex, float)
+    axis /= np.linalg.norm(axis)
+    t, g = transmural.copy(), longitudinal.copy()
+    for v, fallback in ((t, np.cross(axis, np.eye(3)[np.argmin(np.abs(axis))])), (g, axis)):
+        flat = np.linalg.norm(v, axis=1) <= 1e-9 * np.abs(v).max()
+        v[flat] = fallback
+    e_t = _unit(t)
+    e_l = g - np.einsum("nd,nd->n", g, e_t)[:, None] * e_t
+    along = np.linalg.norm(e_l, axis=1) < 1e-6  # the longitudinal gradient along e_t: any tangent direction
+    e_l[along] = np.cross(e_t[along], np.eye(3)[np.argmin(np.abs(e_t[along]), axis=1)])
+    e_l = _unit(e_l)
+    return np.stack([np.cross(e_l, e_t), e_l, e_t], axis=2)
+
+
+def _rotated(frames: NDArray[np.float64], degrees: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``frames`` turned about their ``e_t`` by ``degrees``: ``e_c`` towards ``e_l``."""
+    a = np.radians(degrees)[:, None]
+    e_c, e_l = frames[:, :, 0], frames[:, :, 1]
+    return np.stack([np.cos(a) * e_c + np.sin(a) * e_l, np.cos(a) * e_l - np.sin(a) * e_c, frames[:, :, 2]], axis=2)
+
+
+def _quaternions(frames: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 4) unit quaternions ``(w, x, y, z)`` of rotation matrices (N, 3, 3)."""
+    m = frames
+    diagonal = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    w = np.sqrt(np.maximum(0.0, 1.0 + diagonal.sum(axis=1))) / 2
+    signs = np.array([[1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    xyz = np.sqrt(np.maximum(0.0, 1.0 + diagonal @ signs.T)) / 2
+    xyz = np.copysign(xyz, np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], 1))
+    return _unit(np.column_stack([w, xyz]))
+
+
+def _matrices(q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3, 3) rotation matrices of unit quaternions (N, 4)."""
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1),
+        ],
+        axis=1,
+    )
+
+
+def _times(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Quaternion products ``a b`` (rows)."""
+    aw, ax, ay, az = a.T
+    bw, bx, by, bz = b.T
+    return np.column_stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
+
+
+def _bislerp(a: NDArray[np.float64], b: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Bayer et al.'s bidirectional spherical interpolation from frames ``a`` (t = 0) to ``b`` (t = 1).
+
+    A frame turned by 180 degrees about any of its axes describes the same fibres (they are axial), so of
+    ``a``'s four such turns the one nearest ``b`` is interpolated along the great circle to ``b``.
+    """
+    qa, qb = _quaternions(a), _quaternions(b)
+    turns = [_times(qa, np.tile(unit, (len(qa), 1))) for unit in np.eye(4)]  # qa * {1, i, j, k}
+    dots = np.stack([np.einsum("nd,nd->n", q, qb) for q in turns], axis=1)
+    best = np.argmax(np.abs(dots), axis=1)
+    q = np.stack(turns, axis=1)[np.arange(len(qa)), best] * np.sign(dots[np.arange(len(qa)), best])[:, None]
+    cos = np.clip(np.einsum("nd,nd->n", q, qb), -1.0, 1.0)
+    theta = np.arccos(cos)[:, None]
+    t = np.clip(t, 0.0, 1.0)[:, None]
+    small = theta[:, 0] < 1e-6
+    sin = np.where(small[:, None], 1.0, np.sin(theta))
+    mixed = (np.sin((1 - t) * theta) * q + np.sin(t * theta) * qb) / sin
+    mixed[small] = ((1 - t) * q + t * qb)[small]
+    return _matrices(_unit(mixed))
+
+
+def _apex_nodes(mesh: Mesh) -> NDArray[np.int64]:
+    length = np.linalg.norm(np.asarray(mesh.axis.base) - np.asarray(mesh.axis.apex))
+    apex = np.flatnonzero(np.linalg.norm(mesh.points - mesh.axis.apex, axis=1) <= 0.05 * length)
+    return apex if apex.size else np.array([int(np.argmin(np.linalg.norm(mesh.points - mesh.axis.apex, axis=1)))])
+
+
 def ldrb_fibres(
     mesh: Mesh, helix_endo: float = HELIX_ENDO, helix_epi: float = HELIX_EPI
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Fibres (N, 3) and the transmural coordinate ``d`` (N,) of an LV volume mesh (module docstring).
+    """Fibres (N, 3) and the transmural coordinate ``d`` (N,) of a ventricular volume mesh (module docstring).
 
-    Needs a tetrahedral mesh with ``endocardium``, ``epicardium`` and ``base``
-    node sets and a long axis (:attr:`shared.mesh.Mesh.axis`, whose apex
-    point fixes the apex nodes); :class:`MeshError` names what is missing.
+    Needs a tetrahedral mesh with ``endocardium`` (an LV) or ``lv_endocardium``
+    and ``rv_endocardium`` (a biventricle), ``epicardium`` and ``base`` node
+    sets and a long axis (:attr:`shared.mesh.Mesh.axis`, whose apex point fixes
+    the apex nodes); :class:`MeshError` names what is missing.
     """
     if mesh.cell_type != "tetra":
         raise MeshError(f"mesh {mesh.name!r}: rule-based fibres need a volume (tetrahedral) mesh")
-    if "rv_endocardium" in mesh.node_sets:
-        raise MeshError(f"mesh {mesh.name!r}: rule-based fibres of a biventricle (the LDRB septum blend) are not done")
     if mesh.axis is None:
         raise MeshError(f"mesh {mesh.name!r}: rule-based fibres need its long axis (apex and base)")
-    endo, epi, base = (mesh.nodes(name) for name in ("endocardium", "epicardium", "base"))
-    d = laplace(mesh, {0.0: endo, 1.0: epi})
-    length = np.linalg.norm(np.asarray(mesh.axis.base) - np.asarray(mesh.axis.apex))
-    apex = np.flatnonzero(np.linalg.norm(mesh.points - mesh.axis.apex, axis=1) <= 0.05 * length)
-    if not apex.size:
-        apex = np.array([int(np.argmin(np.linalg.norm(mesh.points - mesh.axis.apex, axis=1)))])
-    psi = laplace(mesh, {0.0: apex, 1.0: base})
-    e_t = _unit(node_gradients(mesh, d))
-    g = node_gradients(mesh, psi)
-    axis = np.asarray(mesh.axis.base, float) - np.asarray(mesh.axis.apex, float)
-    flat = np.linalg.norm(g, axis=1) < 1e-9 * np.abs(g).max()  # at the apex nodes: the long axis instead
-    g[flat] = axis / np.linalg.norm(axis)
-    e_l = g - np.einsum("nd,nd->n", g, e_t)[:, None] * e_t
-    along = np.linalg.norm(e_l, axis=1) < 1e-6  # grad psi along e_t (the apex): any tangent direction
-    e_l[along] = np.cross(e_t[along], np.eye(3)[np.argmin(np.abs(e_t[along]), axis=1)])
-    e_l = _unit(e_l)
-    e_c = np.cross(e_l, e_t)
-    alpha = np.radians(helix_endo * (1.0 - d) + helix_epi * d)[:, None]
-    return _unit(np.cos(alpha) * e_c + np.sin(alpha) * e_l), d
+    epi, base = mesh.nodes("epicardium"), mesh.nodes("base")
+    psi = node_gradients(mesh, laplace(mesh, {0.0: _apex_nodes(mesh), 1.0: base}))
+    if "rv_endocardium" not in mesh.node_sets:
+        d = laplace(mesh, {0.0: mesh.nodes("endocardium"), 1.0: epi})
+        frames = _rotated(_frames(mesh, node_gradients(mesh, d), psi), helix_endo * (1.0 - d) + helix_epi * d)
+        return _unit(frames[:, :, 0]), d
+    lv, rv = mesh.nodes("lv_endocardium"), mesh.nodes("rv_endocardium")
+    d = laplace(mesh, {0.0: np.union1d(lv, rv), 1.0: epi})
+    phi_lv = laplace(mesh, {1.0: lv, 0.0: np.union1d(rv, epi)})
+    phi_rv = laplace(mesh, {1.0: rv, 0.0: np.union1d(lv, epi)})
+    share = phi_rv / np.maximum(phi_lv + phi_rv, 1e-12)  # 0 on the LV endocardium, 1 on the RV's
+    septal = helix_endo * (1.0 - 2.0 * share)
+    q_lv = _rotated(_frames(mesh, -node_gradients(mesh, phi_lv), psi), septal)
+    q_rv = _rotated(_frames(mesh, node_gradients(mesh, phi_rv), psi), septal)
+    q_epi = _rotated(_frames(mesh, node_gradients(mesh, d), psi), helix_endo * (1.0 - d) + helix_epi * d)
+    frames = _bislerp(_bislerp(q_lv, q_rv, share), q_epi, d)
+    return _unit(frames[:, :, 0]), d
