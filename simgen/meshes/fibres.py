@@ -1,4 +1,4 @@
-"""Rule-based myocardial fibres on a left-ventricular volume mesh (the LDRB rule of Bayer et al. 2012, LV part).
+"""Rule-based myocardial fibres on ventricular volume meshes: the LDRB rule of Bayer et al. (2012).
 
 Two P1 Laplace solves on the mesh (:func:`laplace`, the project's own
 stiffness matrix, Dirichlet values by elimination):
