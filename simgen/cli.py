@@ -112,11 +112,23 @@ def mesh(
     fibres: FibresOpt = False,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
-    region labels (AHA segments, RV free wall) as point data: what sites by region need."""
+    region labels (AHA segments, RV free wall) as point data: what sites by region need. With --fibres also
+    its fibres (point data fibre), the ventricular coordinates they come from (transmural, apicobasal,
+    rv_share) and a picture of them (OUT with suffix .fibres.png)."""
     try:
-        m = _with_fibres(get_mesh(source, nodes, kind, units=units, heart=heart), fibres)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
+        coordinates = {}
+        if fibres:
+            from simgen.meshes.fibres import ldrb_fibres
+
+            rule, coordinates = ldrb_fibres(m)
+            m = m if m.fibres is not None else dataclasses.replace(m, fibres=rule)
         out.parent.mkdir(parents=True, exist_ok=True)
-        save_mesh(m, out, _labels(m).arrays() if heart else None)
+        save_mesh(m, out, {**(_labels(m).arrays() if heart else {}), **coordinates})
+        if fibres:
+            from simgen.plot import plot_fibres
+
+            plot_fibres(m, out.with_suffix(".fibres.png"), f"{m.name}: fibres on the epicardium")
     except (InputError, OSError) as exc:
         _fail(exc, out)
     table = Table(title=f"{m.name} -> {out}")

@@ -20,7 +20,7 @@ from matplotlib.colors import Normalize, to_rgba
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from mpl_toolkits.mplot3d import Axes3D
-from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 from numpy.typing import ArrayLike, NDArray
 
 from shared.errors import InputError
@@ -322,4 +322,35 @@ def plot_mesh_overview(
     fig.colorbar(segment_colours, cax=cax, label="AHA segment", ticks=[1, 6, 7, 12, 13, 16, 17])
     cax = fig.add_axes((_key_x(fig, 0.15), 0.06, 0.2 / fig.get_figwidth(), 0.2))
     fig.colorbar(activation_colours, cax=cax, label="activation time (ms)")
+    _save(fig, path)
+
+
+def plot_fibres(
+    mesh: Mesh, path: str | PathLike[str], title: str = "fibres", views: Sequence[tuple[float, float]] = VIEWS
+) -> None:
+    """The mesh's fibre directions on its epicardium as short strokes over the grey surface, one panel per view.
+
+    Each stroke is centred on an epicardial node facing the camera (at most 1,500 per view, evenly drawn)
+    and spans 1.5 mean edge lengths along the node's fibre.
+    """
+    if mesh.fibres is None:
+        raise InputError(f"mesh {mesh.name!r} has no fibres to plot")
+    nodes = mesh.node_sets.get("epicardium", mesh.node_sets.get("surface", np.arange(mesh.n_nodes)))
+    half = 0.75 * mesh.mean_edge_length()
+    fig, axes = _grid(1, len(views))
+    for ax, view in zip(axes[0], views):
+        eye = _eye(*view)
+        faces = _facing(mesh, surface_triangles(mesh), eye)
+        _draw_surface(ax, mesh, faces, np.tile(to_rgba(_NAN_COLOUR), (len(faces), 1)), view)
+        centre = mesh.points.mean(axis=0)
+        shown = nodes[(mesh.points[nodes] - centre) @ eye > 0]
+        shown = shown[:: max(1, len(shown) // 1500)]
+        p, f = mesh.points[shown], mesh.fibres[shown]
+        lift = 0.3 * half * eye  # just above the surface, so that its faces do not hide the strokes
+        ax.add_collection3d(
+            Line3DCollection(
+                np.stack([p - half * f + lift, p + half * f + lift], axis=1), colors="#8b1a1a", linewidths=0.9
+            )
+        )
+    fig.suptitle(title, fontsize=9)
     _save(fig, path)

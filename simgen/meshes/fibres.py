@@ -28,6 +28,8 @@ frames' quaternions (:func:`_bislerp`).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
@@ -37,7 +39,7 @@ from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.solver.fem import element_gradients, stiffness_matrix
 
-__all__ = ["HELIX_ENDO", "HELIX_EPI", "laplace", "node_gradients", "ldrb_fibres"]
+__all__ = ["HELIX_ENDO", "HELIX_EPI", "laplace", "node_gradients", "ventricular_coordinates", "ldrb_fibres"]
 
 #: Default helix angles (degrees) at the endocardium and the epicardium.
 HELIX_ENDO, HELIX_EPI = 60.0, -60.0
@@ -161,34 +163,66 @@ def _apex_nodes(mesh: Mesh) -> NDArray[np.int64]:
     return apex if apex.size else np.array([int(np.argmin(np.linalg.norm(mesh.points - mesh.axis.apex, axis=1)))])
 
 
-def ldrb_fibres(
-    mesh: Mesh, helix_endo: float = HELIX_ENDO, helix_epi: float = HELIX_EPI
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Fibres (N, 3) and the transmural coordinate ``d`` (N,) of a ventricular volume mesh (module docstring).
+class _Solves(NamedTuple):
+    """The Laplace solutions of the rule: transmural, apico-basal, and on a biventricle the LV's and RV's."""
+
+    transmural: NDArray[np.float64]
+    apicobasal: NDArray[np.float64]
+    lv: NDArray[np.float64] | None = None
+    rv: NDArray[np.float64] | None = None
+
+    @property
+    def rv_share(self) -> NDArray[np.float64]:
+        """0 on the LV endocardium, 1 on the RV's: ``phi_rv / (phi_lv + phi_rv)``."""
+        return self.rv / np.maximum(self.lv + self.rv, 1e-12)
+
+
+def _solves(mesh: Mesh) -> _Solves:
+    if mesh.cell_type != "tetra":
+        raise MeshError(f"mesh {mesh.name!r}: rule-based fibres need a volume (tetrahedral) mesh")
+    if mesh.axis is None:
+        raise MeshError(f"mesh {mesh.name!r}: rule-based fibres need its long axis (apex and base)")
+    epi = mesh.nodes("epicardium")
+    apicobasal = laplace(mesh, {0.0: _apex_nodes(mesh), 1.0: mesh.nodes("base")})
+    if "rv_endocardium" not in mesh.node_sets:
+        return _Solves(laplace(mesh, {0.0: mesh.nodes("endocardium"), 1.0: epi}), apicobasal)
+    lv, rv = mesh.nodes("lv_endocardium"), mesh.nodes("rv_endocardium")
+    return _Solves(
+        laplace(mesh, {0.0: np.union1d(lv, rv), 1.0: epi}),
+        apicobasal,
+        laplace(mesh, {1.0: lv, 0.0: np.union1d(rv, epi)}),
+        laplace(mesh, {1.0: rv, 0.0: np.union1d(lv, epi)}),
+    )
+
+
+def _coordinates(solves: _Solves) -> dict[str, NDArray[np.float64]]:
+    found = {"transmural": solves.transmural, "apicobasal": solves.apicobasal}
+    return found if solves.lv is None else {**found, "rv_share": solves.rv_share}
+
+
+def ventricular_coordinates(mesh: Mesh) -> dict[str, NDArray[np.float64]]:
+    """The Laplace coordinates the rule builds on, per node: ``transmural`` (0 endocardium, 1 epicardium),
+    ``apicobasal`` (0 apex, 1 base) and, on a biventricle, ``rv_share`` (0 on the LV endocardium, 1 on the
+    RV's).
 
     Needs a tetrahedral mesh with ``endocardium`` (an LV) or ``lv_endocardium``
     and ``rv_endocardium`` (a biventricle), ``epicardium`` and ``base`` node
     sets and a long axis (:attr:`shared.mesh.Mesh.axis`, whose apex point fixes
     the apex nodes); :class:`MeshError` names what is missing.
     """
-    if mesh.cell_type != "tetra":
-        raise MeshError(f"mesh {mesh.name!r}: rule-based fibres need a volume (tetrahedral) mesh")
-    if mesh.axis is None:
-        raise MeshError(f"mesh {mesh.name!r}: rule-based fibres need its long axis (apex and base)")
-    epi, base = mesh.nodes("epicardium"), mesh.nodes("base")
-    psi = node_gradients(mesh, laplace(mesh, {0.0: _apex_nodes(mesh), 1.0: base}))
-    if "rv_endocardium" not in mesh.node_sets:
-        d = laplace(mesh, {0.0: mesh.nodes("endocardium"), 1.0: epi})
-        frames = _rotated(_frames(mesh, node_gradients(mesh, d), psi), helix_endo * (1.0 - d) + helix_epi * d)
-        return _unit(frames[:, :, 0]), d
-    lv, rv = mesh.nodes("lv_endocardium"), mesh.nodes("rv_endocardium")
-    d = laplace(mesh, {0.0: np.union1d(lv, rv), 1.0: epi})
-    phi_lv = laplace(mesh, {1.0: lv, 0.0: np.union1d(rv, epi)})
-    phi_rv = laplace(mesh, {1.0: rv, 0.0: np.union1d(lv, epi)})
-    share = phi_rv / np.maximum(phi_lv + phi_rv, 1e-12)  # 0 on the LV endocardium, 1 on the RV's
-    septal = helix_endo * (1.0 - 2.0 * share)
-    q_lv = _rotated(_frames(mesh, -node_gradients(mesh, phi_lv), psi), septal)
-    q_rv = _rotated(_frames(mesh, node_gradients(mesh, phi_rv), psi), septal)
-    q_epi = _rotated(_frames(mesh, node_gradients(mesh, d), psi), helix_endo * (1.0 - d) + helix_epi * d)
-    frames = _bislerp(_bislerp(q_lv, q_rv, share), q_epi, d)
-    return _unit(frames[:, :, 0]), d
+    return _coordinates(_solves(mesh))
+
+
+def ldrb_fibres(
+    mesh: Mesh, helix_endo: float = HELIX_ENDO, helix_epi: float = HELIX_EPI
+) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
+    """Fibres (N, 3) of a ventricular volume mesh (module docstring) and its :func:`ventricular_coordinates`."""
+    solves = _solves(mesh)
+    d, psi = solves.transmural, node_gradients(mesh, solves.apicobasal)
+    wall = _rotated(_frames(mesh, node_gradients(mesh, d), psi), helix_endo * (1.0 - d) + helix_epi * d)
+    if solves.lv is not None:
+        septal = helix_endo * (1.0 - 2.0 * solves.rv_share)
+        q_lv = _rotated(_frames(mesh, -node_gradients(mesh, solves.lv), psi), septal)
+        q_rv = _rotated(_frames(mesh, node_gradients(mesh, solves.rv), psi), septal)
+        wall = _bislerp(_bislerp(q_lv, q_rv, solves.rv_share), wall, d)
+    return _unit(wall[:, :, 0]), _coordinates(solves)

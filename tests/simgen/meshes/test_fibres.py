@@ -17,8 +17,8 @@ from simgen.meshes.topology import boundary_faces
 @pytest.fixture(scope="module")
 def lv():
     mesh = get_mesh("lv", 5000, "tetra")
-    fibres, d = ldrb_fibres(mesh)
-    return mesh, fibres, d
+    fibres, coordinates = ldrb_fibres(mesh)
+    return mesh, fibres, coordinates["transmural"]
 
 
 def helix_angles(points: np.ndarray, fibres: np.ndarray) -> np.ndarray:
@@ -77,7 +77,8 @@ def test_biventricular_fibres_follow_the_rule_on_both_walls_and_the_septum():
     the LV free wall's epicardium; on the septum's RV side (its middle: the RV endocardium wraps round at
     the junctions) -60 in this frame (+60 from the RV cavity's side)."""
     mesh = get_mesh("biv", 5000, "tetra")
-    fibres, d = ldrb_fibres(mesh)
+    fibres, coordinates = ldrb_fibres(mesh)
+    assert sorted(coordinates) == ["apicobasal", "rv_share", "transmural"]
     np.testing.assert_allclose(np.linalg.norm(fibres, axis=1), 1.0, atol=1e-12)
     p, angle = mesh.points, helix_angles(mesh.points, fibres)
     mid, radius = (p[:, 2] > -45.0) & (p[:, 2] < -5.0), np.hypot(p[:, 0], p[:, 1])
@@ -108,7 +109,11 @@ def test_simgen_mesh_writes_fibres_that_simulate_conducts_along(tmp_path):
     runner = CliRunner()
     path = tmp_path / "lv.vtu"
     assert runner.invoke(app, ["mesh", str(path), "--nodes", "2000", "--fibres"]).exit_code == 0
-    assert load_mesh(path).fibres is not None
+    assert load_mesh(path).fibres is not None and (tmp_path / "lv.fibres.png").stat().st_size > 10_000
+    import meshio
+
+    written = meshio.read(path).point_data
+    assert {"fibre", "transmural", "apicobasal"} <= set(written) and written["transmural"].max() == 1.0
     latest = {}
     for ratio in ("1", "4"):
         out = tmp_path / f"r{ratio}"
