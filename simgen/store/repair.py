@@ -404,7 +404,7 @@ class _Round:
         for mesh_id in plan.meshes:
             made = self.made
             write_mesh_group(root, mesh_id, made.meshes[mesh_id], made.sites[mesh_id], made.electrodes[mesh_id])
-            self._shape_params(root.require_group(mesh_path(mesh_id)), mesh_id)
+            write_group_metadata(root, mesh_path(mesh_id), self._group_attrs(root, mesh_path(mesh_id)))
         subjects = [s for s in self.made.subjects if s.id in plan.subjects]
         if subjects:
             spec, made = self.recorded.spec, self.made
@@ -438,10 +438,6 @@ class _Round:
 
     def _spec_mesh(self, mesh_id: str) -> MeshEntry:
         return next(m for m in self.recorded.spec.meshes if m.id == mesh_id)
-
-    def _shape_params(self, group: zarr.Group, mesh_id: str) -> None:
-        if mesh_id not in self.recorded.added:  # as the build's layout writes it
-            group.attrs["shape_params"] = self._spec_mesh(mesh_id).shape_params
 
     def _array_metadata(self, group_path: str, name: str, value: np.ndarray | None):
         kind, group_id = group_path.split("/", 1)
