@@ -920,7 +920,8 @@ def test_repair_restores_deleted_metadata_byte_identical(d, store):
 
 def test_repair_restores_every_damage_of_the_suite_or_refuses_it_unchanged(d, store):
     """Each store damage of :data:`CASES`, then ``simgen repair``: the clean build's bytes (exit 0), or a
-    refusal (exit 2) that names the reason and leaves the store as it was."""
+    refusal (exit 2) that names the reason and leaves the store as it was. Two repairs at a time share one
+    cluster: stores with the same subject ids never take each other's chunks (Dask keys name the store)."""
     damages = {case.damage: key for key, case in FLAT.items() if case.damage is not None}
     copies = {}
     for i, (damage, key) in enumerate(damages.items()):
@@ -928,9 +929,17 @@ def test_repair_restores_every_damage_of_the_suite_or_refuses_it_unchanged(d, st
         shutil.copytree(store, copies[key])
         damage(copies[key])
     before = {key: digest(copy) for key, copy in copies.items()}
-    argvs = [["simgen", "repair", str(copy), "--workers", "1"] for copy in copies.values()]
-    with ThreadPoolExecutor(max_workers=2) as pool:  # two subprocesses
-        halves = list(pool.map(run_batch, [argvs[::2], argvs[1::2]]))
+    from distributed import LocalCluster
+
+    from simgen.store.runner import single_thread_env
+
+    with (  # one worker for every repair that computes chunks again: no cluster started per repair
+        single_thread_env(),
+        LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+    ):
+        argvs = [["simgen", "repair", str(copy), "--scheduler", cluster.scheduler_address] for copy in copies.values()]
+        with ThreadPoolExecutor(max_workers=2) as pool:  # two subprocesses
+            halves = list(pool.map(run_batch, [argvs[::2], argvs[1::2]]))
     results = [halves[i % 2][i // 2] for i in range(len(argvs))]
     refused = []
     for (key, copy), (code, output) in zip(copies.items(), results):

@@ -13,6 +13,7 @@ are submitted, so the result is identical to an uninterrupted build.
 from __future__ import annotations
 
 import copy
+import hashlib
 import os
 import time
 from collections import Counter
@@ -333,6 +334,9 @@ def _run_round(
     """
     workers = gpu_workers(client) if gpus else list(client.scheduler_info()["workers"])
     home = subject_workers(tasks, workers)
+    # Dask treats tasks of one key as one: the store in the key keeps builds of two stores that share a
+    # cluster (and subject ids) from taking each other's chunks for their own.
+    store_key = hashlib.sha256(store.encode()).hexdigest()[:8]
     futures = {
         client.submit(
             run_task,
@@ -342,7 +346,7 @@ def _run_round(
             t.start,
             t.stop,
             solver,
-            key=f"simgen-{t.subject_id}-{t.chunk}",
+            key=f"simgen-{store_key}-{t.subject_id}-{t.chunk}",
             retries=retries,
             pure=False,
             workers=home.get(t.subject_id),
