@@ -117,12 +117,7 @@ def mesh(
     rv_share) and a picture of them (OUT with suffix .fibres.png)."""
     try:
         m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
-        coordinates = {}
-        if fibres:
-            from simgen.meshes.fibres import ldrb_fibres
-
-            rule, coordinates = ldrb_fibres(m)
-            m = m if m.fibres is not None else dataclasses.replace(m, fibres=rule)
+        m, coordinates = _rule_fibres(m) if fibres else (m, {})
         out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, {**(_labels(m).arrays() if heart else {}), **coordinates})
         if fibres:
@@ -284,13 +279,18 @@ def simulate(
     _report_no_wave(site_ids, result.activated_fraction)
 
 
-def _with_fibres(mesh: Mesh, fibres: bool) -> Mesh:
-    """``mesh`` with rule-based fibres (:func:`~simgen.meshes.fibres.ldrb_fibres`) when ``fibres`` and it has none."""
-    if not fibres or mesh.fibres is not None:
-        return mesh
+def _rule_fibres(mesh: Mesh) -> tuple[Mesh, dict[str, np.ndarray]]:
+    """``mesh`` with rule-based fibres (:func:`~simgen.meshes.fibres.ldrb_fibres`) unless it has its own, and the
+    ventricular coordinates of the rule."""
     from simgen.meshes.fibres import ldrb_fibres
 
-    return dataclasses.replace(mesh, fibres=ldrb_fibres(mesh)[0])
+    rule, coordinates = ldrb_fibres(mesh)
+    return (mesh if mesh.fibres is not None else dataclasses.replace(mesh, fibres=rule)), coordinates
+
+
+def _with_fibres(mesh: Mesh, fibres: bool) -> Mesh:
+    """``mesh`` with rule-based fibres when ``fibres`` and it has none."""
+    return _rule_fibres(mesh)[0] if fibres and mesh.fibres is None else mesh
 
 
 #: What ``simulate --observe`` records: potentials or activation-time maps.
