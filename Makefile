@@ -57,6 +57,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.predict --out report/bench
 	$(BIN)/python -m bench.scaling --out report/bench
 	$(BIN)/python -m bench.anisotropy --out report/bench
+	$(BIN)/python -m bench.fill --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

@@ -61,7 +61,8 @@ from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.heart import load_heart
 from simgen.solver.fem import diffusion_operator
-from simgen.solver.simulate import BLOCK_SIZE, INTEGRATORS, SimulationResult, Simulator, SolverConfig
+from simgen.solver.integrators import INTEGRATORS
+from simgen.solver.simulate import BLOCK_SIZE, SimulationResult, Simulator, SolverConfig
 from simgen.solver.stimulus import patch_mask
 
 MESHES = [(2000, "tetra"), (2000, "triangle"), (10000, "tetra")]

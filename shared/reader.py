@@ -38,6 +38,8 @@ __all__ = [
     "read_split",
     "read_solver_settings",
     "read_integrator",
+    "integrator_of",
+    "LEGACY_INTEGRATOR",
     "read_times",
     "subject_array",
     "read_rows",
@@ -224,14 +226,20 @@ def read_solver_settings(path: str | Path) -> dict:
     return dict(zarr.open_group(str(path), mode="r").attrs["spec"]["solver"])
 
 
-def read_integrator(path: str | Path, subject_id: str) -> str:
-    """The time integrator that ran on the subject: ``"euler"``, ``"rkc"`` or ``"imex"``.
+#: The integrator that ran on subjects of stores recording none, neither per subject nor in the spec.
+LEGACY_INTEGRATOR = "euler"
 
-    Its ``solver.integrator`` attribute; stores written before that record ran
-    the spec's integrator, forward Euler where the spec left it unset.
-    """
-    recorded = (subject_attrs(path, subject_id).get("solver") or {}).get("integrator")
-    return recorded or read_solver_settings(path).get("integrator") or "euler"
+
+def integrator_of(solver: dict, spec_solver: dict) -> str:
+    """The time integrator that ran on a subject whose ``solver`` attribute is ``solver``, in a store whose
+    spec's ``[solver]`` table is ``spec_solver``: its record; stores written before that record ran the spec's
+    integrator, :data:`LEGACY_INTEGRATOR` where the spec left it unset."""
+    return solver.get("integrator") or spec_solver.get("integrator") or LEGACY_INTEGRATOR
+
+
+def read_integrator(path: str | Path, subject_id: str) -> str:
+    """The time integrator that ran on the subject: ``"euler"``, ``"rkc"`` or ``"imex"`` (:func:`integrator_of`)."""
+    return integrator_of(subject_attrs(path, subject_id).get("solver") or {}, read_solver_settings(path))
 
 
 def read_times(path: str | Path, subject_id: str, unit: Literal["time", "ms"] = "time") -> NDArray[np.float64]:

@@ -24,7 +24,9 @@ from shared.vtk import write_time_series
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
-from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
+from simgen.solver.cells import CELL_MODELS, APParams, cell_model
+from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
+from simgen.solver.integrators import AUTO, integrator_help
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
 
@@ -52,6 +54,14 @@ NodesOpt = Annotated[
 KindOpt = Annotated[
     str | None,
     typer.Option("--kind", help="'tetra' (volume) or 'triangle' (surface); default: a file's own, tetra otherwise."),
+]
+FillerOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="How a surface is filled with tetrahedra (--kind tetra with --nodes): 'ftetwild' (any surface, one "
+        "that crosses itself or is merged from parts included), 'tetgen' (keeps the surface; needs the tetra "
+        "extra), or 'auto' (default: tetgen where installed and the surface is clean, else ftetwild).",
+    ),
 ]
 HeartOpt = Annotated[
     bool,
@@ -110,13 +120,14 @@ def mesh(
     heart: HeartOpt = True,
     units: UnitsOpt = None,
     fibres: FibresOpt = False,
+    filler: FillerOpt = None,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
     region labels (AHA segments, RV free wall) as point data: what sites by region need. With --fibres also
     its fibres (point data fibre), the ventricular coordinates they come from (transmural, apicobasal,
     rv_share) and a picture of them (OUT with suffix .fibres.png)."""
     try:
-        m = get_mesh(source, nodes, kind, units=units, heart=heart)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
         m, coordinates = _rule_fibres(m) if fibres else (m, {})
         out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, {**(_labels(m).arrays() if heart else {}), **coordinates})
@@ -160,6 +171,7 @@ def simulate(
     heart: HeartOpt = True,
     units: UnitsOpt = None,
     fibres: FibresOpt = False,
+    filler: FillerOpt = None,
     anisotropy: Annotated[
         float | None,
         typer.Option(
@@ -178,13 +190,16 @@ def simulate(
     site_tolerance: SiteToleranceOpt = SITE_TOLERANCE,
     threads: ThreadsOpt = 2,
     dt: Annotated[float | None, typer.Option(callback=finite, help="Time step; automatic when omitted.")] = None,
-    integrator: Annotated[
+    integrator: Annotated[str, typer.Option(help=integrator_help())] = AUTO,
+    cell: Annotated[
         str,
         typer.Option(
-            help="Time integrator: 'euler', 'rkc', 'imex' (implicit diffusion: no element limits the step) or "
-            "'auto' (the cheaper of euler and imex on this mesh)."
+            "--cell-model",
+            help="Cell model: "
+            + ", ".join(f"'{name}'" for name in CELL_MODELS)
+            + " (published parameters; a spec's [solver.model] table sets others).",
         ),
-    ] = "auto",
+    ] = APParams.name,
     backend: Annotated[
         str, typer.Option(help="Solver: 'numba' (CPU), 'torch' (any torch device) or 'auto' (torch on a GPU if any).")
     ] = "numba",
@@ -226,11 +241,13 @@ def simulate(
     try:
         if record not in RECORDINGS:
             raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
-        m = _with_fibres(get_mesh(source, nodes, kind, units=units, heart=heart), fibres)  # type: ignore[arg-type]
+        m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
+        m = _with_fibres(m, fibres)
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
-        config = SolverConfig(dt=dt, integrator=integrator, anisotropy=anisotropy)  # type: ignore[arg-type]
+        model = cell_model(cell)
+        config = SolverConfig(dt=dt, integrator=integrator, anisotropy=anisotropy, model=model)  # type: ignore[arg-type]
         sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
         result = sim.run(site_ids, threads=threads, centres=centres)
     except (InputError, ValueError) as exc:
@@ -536,6 +553,7 @@ def add_subject(
     nodes: NodesOpt = 2000,
     kind: KindOpt = "tetra",
     units: UnitsOpt = None,
+    filler: FillerOpt = None,
     scheduler: SchedulerOpt = None,
     workers: WorkersOpt = 2,
 ) -> None:
@@ -547,7 +565,7 @@ def add_subject(
         specs = [_tissue_spec(t) for t in tissue]
         return run_add(
             store,
-            MeshEntry(mesh_id, mesh_file, nodes, kind, units=units),  # type: ignore[arg-type]
+            MeshEntry(mesh_id, mesh_file, nodes, kind, units=units, filler=filler),  # type: ignore[arg-type]
             specs,
             scheduler=scheduler,
             workers=workers,

@@ -17,7 +17,7 @@ from shared.mesh import Mesh
 from simgen.meshes.catalog import get_mesh
 from simgen.observe.sock import farthest_point_sampling
 from simgen.plot import plot_activation_maps, plot_tissue
-from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT
+from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields
 

@@ -33,6 +33,7 @@ def get_mesh(
     landmarks: Mapping[str, Sequence[float]] | None = None,
     node_set_arrays: Mapping[str, str] | None = None,
     heart: bool = True,
+    filler: str | None = None,
 ) -> Mesh:
     """A procedural geometry (``"lv"``, ``"biv"``), a shipped real mesh (``"real:<name>"``) or a mesh file.
 
@@ -44,12 +45,14 @@ def get_mesh(
     resampling to ``n_nodes`` and ``kind``, node sets and axis), which
     ``units``, ``landmarks`` and ``node_set_arrays`` steer; without
     ``n_nodes`` they are used as they are (their own node ids and cells). A
-    file that is no heart is refused unless ``heart=False``.
+    file that is no heart is refused unless ``heart=False``. ``filler``: how a surface is filled with
+    tetrahedra (:data:`~simgen.meshes.fillers.FILLERS`; ``None``: ``"auto"``).
     """
     if source in GENERATORS:
-        if units is not None or landmarks or node_set_arrays or not heart:
+        if units is not None or landmarks or node_set_arrays or not heart or filler is not None:
             raise MeshError(
-                f"procedural mesh {source!r} takes no units, landmarks, node_set_arrays or heart = false (files do)"
+                f"procedural mesh {source!r} takes no units, landmarks, node_set_arrays, filler or heart = false "
+                "(files do)"
             )
         n_nodes, kind = n_nodes or DEFAULT_NODES, kind or "tetra"
         geometry = None if shape_params is None else shape_from_params(source, shape_params).geometry()
@@ -62,7 +65,8 @@ def get_mesh(
             f"unknown mesh {source!r}: use one of {sorted(GENERATORS)}, a shipped mesh "
             f"{[REAL_PREFIX + n for n in REAL_MESHES]} or the path of an existing mesh file"
         )
-    return load_heart(source, n_nodes, kind, name or Path(source).stem, units, landmarks, node_set_arrays, heart)
+    name = name or Path(source).stem
+    return load_heart(source, n_nodes, kind, name, units, landmarks, node_set_arrays, heart, filler)
 
 
 def source_file(source: str) -> Path | None:

@@ -73,5 +73,6 @@ def refuse_folds(mesh: Mesh, source: str) -> None:
         raise MeshError(
             f"{source}: its surface passes through itself ({len(crossing)} pair(s) of surface triangles cross, "
             f"the first near ({', '.join(f'{x:.1f}' for x in where)}) mm): a folded or self-overlapping surface "
-            "is no heart's; repair the surface (a tetrahedral filler such as pytetwild rebuilds one) first"
+            "is no heart's; fill it with tetrahedra (--nodes N --kind tetra: fTetWild rebuilds the surface) or "
+            "repair it first"
         )

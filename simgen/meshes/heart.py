@@ -11,9 +11,12 @@ file or a shipped real mesh (``"real:<name>"``):
    ids as in the file (:attr:`shared.mesh.Mesh.file_index` maps them back
    where the repairs dropped nodes in no cell); fibres the file carries (point
    data ``fibre``) follow, a resampled node taking its nearest file node's;
-3. the node sets the file carries (its own masks, or those ``node_set_arrays``
-   names) are kept; when it lacks ``epicardium`` or ``endocardium``, all heart
-   sets and the long axis are detected (:func:`~simgen.meshes.nodesets.detect_heart`),
+3. the node sets the file carries (its own masks, those ``node_set_arrays``
+   names, or its labels: facet markers, a class per node,
+   :mod:`~simgen.meshes.labels`) are kept, and the long axis taken from them
+   (:func:`~simgen.meshes.nodesets.labelled_axis`) when the file has none;
+   when it lacks ``epicardium`` or ``endocardium``, all heart sets and the
+   long axis are detected (:func:`~simgen.meshes.nodesets.detect_heart`),
    the file's sets taking precedence. A mesh in which no cavity is found (a
    slab, a solid) is no heart and refused, unless ``heart=False`` accepts it
    as it is: its own sets only, nothing detected;
@@ -25,6 +28,7 @@ file or a shipped real mesh (``"real:<name>"``):
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
@@ -37,13 +41,15 @@ from shared.mesh import CellType, LongAxis, Mesh
 from simgen.meshes.ellipsoid import check_mesh_request
 from simgen.meshes.folds import refuse_folds
 from simgen.meshes.io import load_mesh
-from simgen.meshes.nodesets import detect_heart
+from simgen.meshes.nodesets import detect_heart, labelled_axis
 from simgen.meshes.resample import resample
 from simgen.meshes.shipped import REAL_LANDMARKS, REAL_PREFIX, is_real, unpacked
 from simgen.meshes.units import HEART_EXTENT_MM, UNITS_HINT
 from simgen.meshes.validate import validate_mesh
 
 __all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
+
+log = logging.getLogger("simgen.meshes")
 
 #: Landmark points a spec may give (mm); ``apex`` and ``base`` (base centre) are required together.
 LANDMARKS = ("apex", "base", "septum")
@@ -74,12 +80,17 @@ def load_heart(
     landmarks: Mapping[str, Sequence[float]] | None = None,
     node_set_arrays: Mapping[str, str] | None = None,
     heart: bool = True,
+    filler: str | None = None,
 ) -> Mesh:
     """A mesh file or ``"real:<name>"`` as a validated heart mesh of about ``nodes`` nodes (module docstring).
 
     Raises :class:`MeshError` naming the mesh when its heart node sets cannot
     be detected; ``heart=False`` accepts a mesh that is no heart (a slab for
-    tests and verification) without detecting anything.
+    tests and verification) without detecting anything. ``filler``: the
+    tetrahedral filler of a resampling to tetrahedra
+    (:data:`~simgen.meshes.fillers.FILLERS`); a surface that passes through
+    itself (merged from overlapping parts) is accepted only to be filled by
+    fTetWild, which rebuilds it.
     """
     if is_real(str(source)):
         landmarks = landmarks or REAL_LANDMARKS.get(str(source).removeprefix(REAL_PREFIX))
@@ -92,12 +103,14 @@ def load_heart(
             )
     else:
         mesh = load_mesh(Path(source), name, units=units, node_set_arrays=node_set_arrays, heart=heart)
+    refilled = nodes is not None and (kind or mesh.cell_type) == "tetra" and filler in (None, "auto", "ftetwild")
     if heart:
         check_heart_size(mesh, str(source))
-        refuse_folds(mesh, str(source))
+        if not refilled:
+            refuse_folds(mesh, str(source))
     if nodes is not None:
         check_mesh_request(kind or mesh.cell_type, nodes, 200)  # the range of the procedural meshes
-        original, mesh = mesh, resample(mesh, nodes, kind or mesh.cell_type)
+        original, mesh = mesh, resample(mesh, nodes, kind or mesh.cell_type, filler)
         if original.fibres is not None:  # each new node takes the fibre of the file's nearest node
             nearest = cKDTree(original.points).query(mesh.points)[1]
             mesh = dataclasses.replace(mesh, fibres=original.fibres[nearest])
@@ -107,6 +120,8 @@ def load_heart(
             f"{kind}s, give a node count to resample it to (--nodes N; resampling renumbers its nodes)"
         )
     sets, axis = dict(mesh.node_sets), mesh.axis
+    if heart and {"epicardium", "endocardium"} <= set(sets) and axis is None:
+        axis = _labelled_axis(mesh)
     if heart and ("epicardium" not in sets or "endocardium" not in sets):
         try:
             detected, axis = detect_heart(mesh)
@@ -120,6 +135,15 @@ def load_heart(
     if landmarks:
         axis = axis_from_landmarks(landmarks, axis)
     return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name, mesh.file_index, mesh.fibres))
+
+
+def _labelled_axis(mesh: Mesh) -> LongAxis | None:
+    """The long axis of the file's own node sets; ``None`` (as before they were read) if they give none."""
+    try:
+        return labelled_axis(mesh)
+    except MeshError as exc:
+        log.info("%s: no long axis from its node sets: %s", mesh.name, exc)
+        return None
 
 
 def axis_from_landmarks(landmarks: Mapping[str, Sequence[float]], detected: LongAxis | None = None) -> LongAxis:

@@ -8,16 +8,19 @@
   ``NODE_TOLERANCE / 2`` of the target (the closest try is kept). Dense
   surfaces are first decimated to twice the target by quadric edge
   collapse (fast-simplification, MIT), which keeps the shape closely.
-- Volumes are TetGen tetrahedralisations (the ``tetgen`` wheel; TetGen itself
-  is AGPL-3.0) of the surface remeshed at ``L``, kept as it is (no nodes
-  inserted on it), with tetrahedra no larger than a regular one of edge
-  ``L`` and radius-edge ratio at most 1.5, then optimised by flips and
-  smoothing towards dihedral angles between 15 and 160 degrees (a bound
-  TetGen tries to meet, not a guarantee); ``L`` is corrected from the total
-  node count in the same way (a remeshed surface that crosses itself, at
-  a thin wall, is remeshed 15 % finer before TetGen sees it; where the
-  count then misses the target, the surface alone is remeshed finer, 5 %
-  at a time, and the interior keeps the coarser length). Slivers lying flat
+- Volumes are filled by one of :data:`~simgen.meshes.fillers.FILLERS`
+  (:mod:`simgen.meshes.fillers`; ``auto``: TetGen where it is installed and
+  the surface does not cross itself, else fTetWild). TetGen fills the
+  surface remeshed at ``L``, kept as it is (no nodes inserted on it), with
+  tetrahedra no larger than a regular one of edge ``L`` and radius-edge
+  ratio at most 1.5, then optimised by flips and smoothing towards dihedral
+  angles between 15 and 160 degrees (a bound TetGen tries to meet, not a
+  guarantee); a remeshed surface that crosses itself, at a thin wall, is
+  remeshed 15 % finer before TetGen sees it; where the count then misses the
+  target, the surface alone is remeshed finer, 5 % at a time, and the
+  interior keeps the coarser length. fTetWild fills the decimated surface
+  at ideal edge ``L`` and makes its own surface. Either way ``L`` is
+  corrected from the total node count as for surfaces. Slivers lying flat
   against the surface (two faces on it, a dihedral angle below
   :data:`PEEL_ANGLE`) are removed, which flips the surface diagonal under
   them.
@@ -35,8 +38,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import fast_simplification
 import numpy as np
@@ -46,13 +47,11 @@ from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
 from shared.mesh import CellType, Mesh
+from simgen.meshes.fillers import fill, resolve_filler
 from simgen.meshes.quality import cell_angles
 from simgen.meshes.remesh import closest_points, crossing_edges, edge_length_for, remesh
 from simgen.meshes.topology import boundary_faces, extract_surface, group_rows, signed_volumes, tet_faces
 from simgen.meshes.validate import mesh_problems, validate_mesh
-
-if TYPE_CHECKING:
-    import tetgen
 
 __all__ = [
     "NODE_TOLERANCE",
@@ -71,15 +70,6 @@ log = logging.getLogger("simgen.meshes")
 NODE_TOLERANCE = 0.1
 #: Smallest angle (degrees) of a mesh kept without remeshing: triangle angle, tetrahedron dihedral angle.
 KEEP_ANGLE = {"triangle": 20.0, "tetra": 10.0}
-_TETGEN = {
-    "minratio": 1.5,
-    "mindihedral": 15.0,
-    "nobisect": True,
-    "fixedvolume": True,
-    "opt_iterations": 10,
-    "optmaxdihedral": 160.0,
-    "quiet": True,
-}
 _TRIES = 4
 #: A remeshed surface that crosses itself is filled with edges this much shorter, up to _TRIES times; where
 #: the count then misses the target, its surface alone is remeshed, _UNCROSS_STEP shorter up to _UNCROSS_TRIES times.
@@ -91,16 +81,15 @@ _LENGTH_FACTOR = 1.1
 _VOLUME_PER_NODE = 0.2
 #: Tetrahedra with two faces on the surface and a dihedral angle below this (degrees) are removed.
 PEEL_ANGLE = 10.0
-#: Files TetGen writes into the working directory when the surface intersects itself.
-_TETGEN_DEBRIS = ("_skipped.face", "_skipped.node")
 
 
-def resample(mesh: Mesh, nodes: int, kind: CellType) -> Mesh:
+def resample(mesh: Mesh, nodes: int, kind: CellType, filler: str | None = None) -> Mesh:
     """``mesh`` as ``kind`` cells with about ``nodes`` nodes (see the module docstring).
 
     A tetrahedral mesh asked for as triangles becomes its boundary surface; a
     triangle surface asked for as tetrahedra must be closed. Node sets other
-    than ``surface`` are transferred; the axis is kept.
+    than ``surface`` are transferred; the axis is kept. ``filler``: one of
+    :data:`~simgen.meshes.fillers.FILLERS` (``None``: ``"auto"``).
     """
     if mesh.cell_type == kind and _keep(mesh, nodes):
         return mesh
@@ -114,7 +103,7 @@ def resample(mesh: Mesh, nodes: int, kind: CellType) -> Mesh:
             raise MeshError(
                 f"mesh {mesh.name!r}: an open triangle surface cannot be filled with tetrahedra; use triangles"
             )
-        points, cells = tetrahedralise(surface.points, surface.cells, nodes, mesh.name)
+        points, cells = tetrahedralise(surface.points, surface.cells, nodes, mesh.name, filler)
     resampled = Mesh(points, cells, _transfer_sets(surface, points, cells), axis=mesh.axis, name=mesh.name)
     log.info(
         "mesh %r resampled: %d %s nodes -> %d %s nodes", mesh.name, mesh.n_nodes, mesh.cell_type, len(points), kind
@@ -166,23 +155,18 @@ def remesh_surface(
 
 
 def tetrahedralise(
-    points: NDArray[np.float64], tris: NDArray[np.integer], nodes: int, name: str = "mesh"
+    points: NDArray[np.float64], tris: NDArray[np.integer], nodes: int, name: str = "mesh", filler: str | None = None
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """Tetrahedra filling a closed outward surface, about ``nodes`` nodes in all (TetGen).
+    """Tetrahedra filling a closed outward surface, about ``nodes`` nodes in all.
 
-    The surface is remeshed with edges of length ``L`` and kept as it is
-    (TetGen's ``-Y``); TetGen adds interior nodes until no tetrahedron is
-    larger than a regular one of edge ``L`` and the quality bounds hold.
+    ``filler`` (:func:`~simgen.meshes.fillers.resolve_filler`; ``None``:
+    ``"auto"``): TetGen gets the surface remeshed with edges of length ``L``
+    and keeps it as it is (its ``-Y``), adding interior nodes until no
+    tetrahedron is larger than a regular one of edge ``L`` and the quality
+    bounds hold; fTetWild gets the decimated surface and ideal edge ``L``.
     ``L`` is corrected from the node count over up to :data:`_TRIES` fills.
-    TetGen comes with the optional ``tetra`` extra (its library is AGPL-3.0).
     """
-    try:
-        import tetgen
-    except ImportError:
-        raise MeshError(
-            f"mesh {name!r}: filling a surface with tetrahedra needs the optional TetGen wrapper "
-            "(pip install 'metapns[tetra]'; TetGen is AGPL-3.0), or use kind = 'triangle'"
-        ) from None
+    filler = resolve_filler(filler, points, tris, name)
     solid = trimesh.Trimesh(points, tris, process=False)
     area, volume = float(solid.area), abs(float(solid.volume))
     # nodes ~ surface nodes 2 A / (sqrt(3) L^2) + interior nodes V / (c L^3): solve for L by bisection
@@ -192,8 +176,10 @@ def tetrahedralise(
         estimate = 2 * area / (np.sqrt(3) * length**2) + volume / (_VOLUME_PER_NODE * length**3)
         lo, hi = (length, hi) if estimate > nodes else (lo, length)
     start = decimate_surface(points, tris, 2 * nodes)
+    if filler == "ftetwild":
+        return _oriented(*_fit_length(length, nodes, lambda length: (length, fill(filler, *start, length, name))))
 
-    def fill(length: float, surface_only: bool = False) -> tuple:
+    def fill_tetgen(length: float, surface_only: bool = False) -> tuple:
         """Tetrahedra of edge ``length``; a remeshed surface that crosses itself (a thin wall at a coarse
         ``length``) is remeshed finer, with the interior (``surface_only``) or without it."""
         step, tries = (_UNCROSS_STEP, _UNCROSS_TRIES) if surface_only else (_REFINE_STEP, _TRIES)
@@ -205,25 +191,24 @@ def tetrahedralise(
             surface_length *= step
             sp, st = remesh(*start, surface_length, reference=(points, tris))
         interior = length if surface_only else surface_length
-        try:
-            tet_points, tets, *_ = _tetrahedralize(
-                tetgen.TetGen(sp, st.astype(np.int32)), interior**3 / (6 * np.sqrt(2))
-            )
-        except RuntimeError as exc:  # no second try: TetGen can corrupt memory when it fails twice in a process
-            raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None
-        return interior, (np.asarray(tet_points, dtype=np.float64), np.asarray(tets, dtype=np.int64))
+        return interior, fill(filler, sp, st, interior, name)
 
-    tet_points, tets = _fit_length(length, nodes, fill)
+    tet_points, tets = _fit_length(length, nodes, fill_tetgen)
     if abs(len(tet_points) / nodes - 1) > NODE_TOLERANCE:  # thin walls refined everywhere: refine the surface alone
         tet_points, tets = min(
-            ((tet_points, tets), _fit_length(length, nodes, lambda length: fill(length, surface_only=True))),
+            ((tet_points, tets), _fit_length(length, nodes, lambda length: fill_tetgen(length, surface_only=True))),
             key=lambda mesh: abs(len(mesh[0]) / nodes - 1),
         )
-    negative = signed_volumes(tet_points, tets) < 0
+    return _oriented(tet_points, tets)
+
+
+def _oriented(points: NDArray[np.float64], tets: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Tetrahedra turned to positive volume, without the slivers lying flat on the surface (:func:`_peel`)."""
+    negative = signed_volumes(points, tets) < 0
     tets[negative] = tets[negative][:, [1, 0, 2, 3]]
     for _ in range(3):  # peeling one can lay the next flat on the surface
-        tets = _peel(tet_points, tets)
-    return tet_points, tets
+        tets = _peel(points, tets)
+    return points, tets
 
 
 def _peel(points: NDArray[np.float64], tets: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -270,16 +255,6 @@ def _fit_length(length: float, nodes: int, make: Callable[[float], tuple]) -> tu
         length = float(np.exp(tried[-1][0] + (np.log(nodes) - tried[-1][1]) / slope))
     assert best is not None
     return best[1]
-
-
-def _tetrahedralize(tet: tetgen.TetGen, maxvolume: float) -> tuple:
-    """``tet.tetrahedralize``, removing the files it leaves in the working directory when it fails."""
-    before = {name for name in _TETGEN_DEBRIS if Path(name).exists()}
-    try:
-        return tet.tetrahedralize(maxvolume=maxvolume, **_TETGEN)
-    finally:
-        for name in set(_TETGEN_DEBRIS) - before:
-            Path(name).unlink(missing_ok=True)
 
 
 def hausdorff_distance(a: Mesh, b: Mesh, neighbours: int = 8) -> float:

@@ -224,7 +224,9 @@ def _guess(u, up, free, restart, holding, x):  # pragma: no cover - compiled
 
 
 @njit(nogil=True, cache=True, **_STRICT)
-def _run_block(matrices, a, u0, free, counts, params, solver, perm, col0, frames, act, iterations):  # pragma: no cover
+def _run_block(
+    matrices, a, u0, free, counts, params, cell, solver, perm, col0, frames, act, iterations
+):  # pragma: no cover - compiled
     """Every step of one block of columns, ``col0`` its first column in the run (see :func:`run_imex_cg`).
 
     ``matrices = (indptr, indices, offdiagonal, step diagonal, start diagonal, mass)``;
@@ -233,11 +235,11 @@ def _run_block(matrices, a, u0, free, counts, params, solver, perm, col0, frames
     """
     ptr, idx, off, step_diagonal, start_diagonal, mass = matrices
     stim_steps, n_steps, out_every = counts
-    dt, k, eps0, mu1, mu2, thr = params
+    dt, thr, v_rest = params
     tol2, max_iterations = solver
     s = u0.shape[1]
     u = u0.copy()
-    x, v, up, vp = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
+    x, v, up, vp = np.zeros_like(u), np.full_like(u, v_rest), np.zeros_like(u), np.zeros_like(u)
     fp, gp, rhs, change = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
     columns = np.zeros((6, s), np.float32)
     work = (np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)) + (
@@ -255,7 +257,7 @@ def _run_block(matrices, a, u0, free, counts, params, solver, perm, col0, frames
         restart = step == 0 or step == stim_steps
         holding = step < stim_steps
         _guess(u, up, free, restart, holding, x)
-        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, k, eps0, mu1, mu2)
+        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, cell)
         diagonal, inverse = (start_diagonal, start_inverse) if restart else (step_diagonal, step_inverse)
         _change(rhs, u, mass, np.float32(1.0) if restart else np.float32(1.5), change)
         done = _cg(ptr, idx, off, diagonal, inverse, x, rhs, change, free, holding, tol2, max_iterations, work)
@@ -275,6 +277,7 @@ def run_imex_cg(
     stim: NDArray[np.bool_],
     counts: tuple[int, int, int],
     params: tuple[np.float32, ...],
+    cell: tuple,
     perm: NDArray[np.int64],
     frames: NDArray[np.float32],
     act: NDArray[np.float32],
@@ -306,7 +309,7 @@ def run_imex_cg(
         block = np.ascontiguousarray(block_act[:, columns])
         u_block, free_block = np.ascontiguousarray(u0[:, columns]), np.ascontiguousarray(free[:, columns])
         tally = totals[start // width]
-        _run_block(fields, a, u_block, free_block, counts, params, solver, perm, start, frames, block, tally)
+        _run_block(fields, a, u_block, free_block, counts, params, cell, solver, perm, start, frames, block, tally)
         block_act[:, columns] = block
 
     blocks = each_block(padded.shape[1], width, threads, run_block)

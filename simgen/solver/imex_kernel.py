@@ -45,7 +45,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from shared.errors import InputError
-from simgen.solver.rkc_kernel import fma
+from simgen.solver.cells.ops import cell_rates, fma, splat
 from simgen.solver.simd import LANES, vany, vfma, vload, vsplat, vstore
 
 __all__ = ["Factor", "Factors", "factorise", "Patches", "patches", "run_imex"]
@@ -184,23 +184,23 @@ def patches(factor: Factor, stim: NDArray[np.bool_]) -> Patches:
 
 
 @njit(inline="always", **_STRICT)
-def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, k, eps0, mu1, mu2):  # pragma: no cover - compiled
+def _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, cell):  # pragma: no cover - compiled
     """The explicit half of a step: ``rhs`` of the solve, ``v`` advanced; ``up, vp, fp, gp`` become step n's.
 
     A ``restart`` step is IMEX Euler (``rhs = M (u + dt f)``, ``v += dt g``),
-    the others SBDF2; the rates are :func:`simgen.solver.kernels._reaction`'s
-    terms. LANES columns at a time (the width is a multiple of LANES).
+    the others SBDF2; ``f``, ``g`` are the cell model's rates without diffusion
+    (:func:`~simgen.solver.cells.ops.cell_rates`, ``cell`` its constants).
+    LANES columns at a time (the width is a multiple of LANES).
     """
     n, s = u.shape
-    one, two, half = vsplat(np.float32(1.0)), vsplat(np.float32(2.0)), vsplat(np.float32(0.5))
+    two, half = vsplat(np.float32(2.0)), vsplat(np.float32(0.5))
     three, four = vsplat(np.float32(3.0)), vsplat(np.float32(4.0))
-    vdt, vk, veps0, vmu1, vmu2 = vsplat(dt), vsplat(k), vsplat(eps0), vsplat(mu1), vsplat(mu2)
+    vdt, vcell = vsplat(dt), splat(cell)
     for i in range(n):
         ai, mi = vsplat(a[i]), vsplat(mass[i])
         for o in range(i * s, i * s + s, LANES):
             ui, vi = vload(u, o), vload(v, o)
-            f = vk * ui * (one - ui) * (ui - ai) - ui * vi
-            g = (veps0 + vmu1 * vi / (ui + vmu2)) * (-vi - vk * ui * (ui - ai - one))
+            f, g = cell_rates(ui, vi, None, ai, vcell)
             if restart:
                 vstore(rhs, o, mi * (ui + vdt * f))
                 vstore(v, o, vi + vdt * g)
@@ -322,22 +322,22 @@ def _output(u, perm, col0, frames, frame):  # pragma: no cover - compiled
 
 
 @njit(nogil=True, cache=True, **_STRICT)
-def _run_block(operands, mass, a, u0, col0, counts, params, perm, frames, act):  # pragma: no cover - compiled
+def _run_block(operands, mass, a, u0, col0, counts, params, cell, perm, frames, act):  # pragma: no cover - compiled
     """Every step of one block of columns, ``col0`` its first column in the run (see :func:`run_imex`).
 
     ``operands = (step triangles, step patch tables, start triangles, start patch tables)``.
     """
     step_triangles, step_held, start_triangles, start_held = operands
     stim_steps, n_steps, out_every = counts
-    dt, k, eps0, mu1, mu2, thr = params
+    dt, thr, v_rest = params
     u = u0.copy()
-    rhs, v, up, vp = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
+    rhs, v, up, vp = np.zeros_like(u), np.full_like(u, v_rest), np.zeros_like(u), np.zeros_like(u)
     fp, gp, z = np.zeros_like(u), np.zeros_like(u), np.zeros_like(u)
     frame = 0
     for step in range(n_steps):
         restart = step == 0 or step == stim_steps  # a one-step start wherever the stimulus switches
         triangles, held = (start_triangles, start_held) if restart else (step_triangles, step_held)
-        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, k, eps0, mu1, mu2)
+        _explicit(u, v, up, vp, fp, gp, rhs, mass, a, restart, dt, cell)
         _solve(triangles, rhs)
         if step < stim_steps:
             offsets, rows, squares, inverse = held
@@ -357,6 +357,7 @@ def run_imex(
     stim: NDArray[np.bool_],
     counts: tuple[int, int, int],
     params: tuple[np.float32, ...],
+    cell: tuple,
     frames: NDArray[np.float32],
     act: NDArray[np.float32],
     width: int,
@@ -367,14 +368,15 @@ def run_imex(
 
     Arrays are in factor order (``factors.perm``). ``counts = (stim_steps,
     n_steps, out_every)``: steps the stimulus holds, steps in all, steps per
-    output frame; ``params = (dt, k, eps0, mu1, mu2, thr)`` float32 (the
-    constant-eps variant passes ``eps0 = eps, mu1 = 0``). ``a`` is the
+    output frame; ``params = (dt, thr, v_rest)`` float32 (the time step, the
+    activation threshold, ``v`` at rest); ``cell``: the cell model's constants
+    (:func:`~simgen.solver.cells.ops.cell_rates`). ``a`` is the
     excitability; ``frames`` (S, F, N) receives ``u`` in mesh order every
     ``out_every`` steps; ``act`` (N, S; -1 = never, 0 on the patches) the
     first crossings of ``thr``. ``width``: columns integrated together, a
     multiple of :data:`~simgen.solver.simd.LANES`, in blocks spread over
     ``threads`` threads (the result depends on neither). ``initial``: ``u`` at ``t = 0`` (N, S) instead of
-    1 on the patches and 0 elsewhere (``v`` starts at 0).
+    1 on the patches and 0 elsewhere (``v`` starts at ``v_rest``).
     """
     s = stim.shape[1]
     padded, u0, block_act = padded_blocks(stim, act, width, initial)
@@ -387,7 +389,7 @@ def run_imex(
         columns = slice(start, start + width)
         block = np.ascontiguousarray(block_act[:, columns])
         u_block = np.ascontiguousarray(u0[:, columns])
-        _run_block(operands, factors.mass, a, u_block, start, counts, params, factors.perm, frames, block)
+        _run_block(operands, factors.mass, a, u_block, start, counts, params, cell, factors.perm, frames, block)
         block_act[:, columns] = block
 
     each_block(padded.shape[1], width, threads, run_block)

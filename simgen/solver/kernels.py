@@ -1,4 +1,4 @@
-"""Fused explicit-Euler kernel: sparse diffusion product + Aliev-Panfilov reaction.
+"""Fused explicit-Euler kernel: sparse diffusion product + the cell model's reaction.
 
 One pass per time step reads each node's CSR row once, forms the diffusion
 term for a block of simulations (one column per stimulation site) with
@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from simgen.solver.cells.ops import cell_rates, splat
 from simgen.solver.simd import LANES, vany, vfma, vload, vsplat, vstore
 
 __all__ = ["run_blocks"]
@@ -25,25 +26,21 @@ _FAST = dict(error_model="numpy", boundscheck=False, fastmath={"contract"})
 
 
 @njit(inline="always", **_FAST)
-def _reaction(u, v, lap, params):  # pragma: no cover - compiled
-    """Explicit-Euler update ``(u, v) -> (u', v')`` from the diffusion term ``lap``.
-
-    ``params = (a, k, 1, eps0, mu1, mu2, dt)``; all values float32 or all
-    :data:`~simgen.solver.simd.float32_vector` (same operations, same rounding).
-    The constant-eps variant passes ``eps0 = eps, mu1 = 0``.
-    """
-    a, k, one, eps0, mu1, mu2, dt = params
-    du = lap + k * u * (one - u) * (u - a) - u * v
-    eps = eps0 + mu1 * v / (u + mu2)
-    dv = eps * (-v - k * u * (u - a - one))
+def _reaction(u, v, lap, a, cell, dt):  # pragma: no cover - compiled
+    """Explicit-Euler update ``(u, v) -> (u', v')`` from the diffusion term ``lap`` and the cell model's
+    rates (:func:`~simgen.solver.cells.ops.cell_rates`; ``cell`` its constants). All values float32 or all
+    :data:`~simgen.solver.simd.float32_vector` (same operations, same rounding)."""
+    du, dv = cell_rates(u, v, lap, a, cell)
     return u + dt * du, v + dt * dv
 
 
 @njit(inline="always", **_FAST)
 def _update_lanes(u, v, un, offset, lap, thr, params):  # pragma: no cover - compiled
-    """Update the columns of the vector at flat ``offset`` from their diffusion term; True if one crossed ``thr``."""
+    """Update the columns of the vector at flat ``offset`` from their diffusion term; True if one crossed ``thr``.
+    ``params = (a, cell, dt)`` as :func:`_reaction` takes them."""
     ui, vi = vload(u, offset), vload(v, offset)
-    unew, vnew = _reaction(ui, vi, lap, params)
+    a, cell, dt = params
+    unew, vnew = _reaction(ui, vi, lap, a, cell, dt)
     vstore(un, offset, unew)
     vstore(v, offset, vnew)
     return vany((ui < thr) & (unew >= thr))
@@ -79,7 +76,8 @@ def _sweep(indices, data, u, v, un, row, b, start, end, offsets, n_vec, d, thr, 
 
 @njit(inline="always", **_FAST)
 def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma: no cover - compiled
-    """One time step of node ``i`` in every column: ``un[i]`` and ``v[i]`` from ``u`` and ``v``.
+    """One time step of node ``i`` in every column: ``un[i]`` and ``v[i]`` from ``u`` and ``v``
+    (``params = (a[i], cell, dt)``).
 
     The diffusion term ``diag[i] u[i] + sum_p data[p] u[indices[p]]`` (CSR row
     ``i``) is summed ``4 * LANES`` columns per pass of the row (:func:`_sweep`),
@@ -95,8 +93,8 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
     start, end = indptr[i], indptr[i + 1]
     row = i * b
     d, vthr = vsplat(diag[i]), vsplat(thr)
-    a, k, one, eps0, mu1, mu2, dt = params
-    vparams = (vsplat(a), vsplat(k), vsplat(one), vsplat(eps0), vsplat(mu1), vsplat(mu2), vsplat(dt))
+    a, cell, dt = params
+    vparams = (vsplat(a), splat(cell), vsplat(dt))
     crossed = False
     for c in range(0, b_full, 4 * LANES):  # offsets c + constants: one address per neighbour (4 runtime ones cost 2x)
         offsets = (c, c + LANES, c + 2 * LANES, c + 3 * LANES)
@@ -111,20 +109,22 @@ def _step_row(indptr, indices, data, diag, u, v, un, i, thr, params):  # pragma:
         lap = diag[i] * ui
         for p in range(start, end):
             lap += data[p] * u[indices[p], c]
-        unew, v[i, c] = _reaction(ui, v[i, c], lap, params)
+        unew, v[i, c] = _reaction(ui, v[i, c], lap, a, cell, dt)
         un[i, c] = unew
         crossed |= (ui < thr) & (unew >= thr)
     return crossed
 
 
 @njit(cache=True, **_FAST)
-def _run_block(indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act):  # pragma: no cover
+def _run_block(
+    indptr, indices, data, diag, a, u_init, stim, counts, params, cell, perm, frames, act
+):  # pragma: no cover
     stim_steps, n_steps, out_every = counts
-    dt, k, eps0, mu1, mu2, thr = params
+    dt, thr, v_rest = params
     n, b = u_init.shape
     u = u_init.copy()
     un = np.empty_like(u)
-    v = np.zeros_like(u)
+    v = np.full_like(u, v_rest)
     one = np.float32(1.0)
     zero = np.float32(0.0)
     frame = 0
@@ -132,7 +132,7 @@ def _run_block(indptr, indices, data, diag, a, u_init, stim, counts, params, per
         t0 = np.float32(step) * dt
         stimulating = step < stim_steps
         for i in range(n):
-            crossed = _step_row(indptr, indices, data, diag, u, v, un, i, thr, (a[i], k, one, eps0, mu1, mu2, dt))
+            crossed = _step_row(indptr, indices, data, diag, u, v, un, i, thr, (a[i], cell, dt))
             if stimulating:  # stimulated nodes are held at u = 1 (their activation time is 0)
                 for c in range(b):
                     if stim[i, c]:
@@ -154,7 +154,9 @@ def _run_block(indptr, indices, data, diag, a, u_init, stim, counts, params, per
 
 # nogil: a build worker's writer thread (simgen.store.worker.BackgroundWriter) runs while a chunk simulates
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
-def run_blocks(indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act):  # pragma: no cover
+def run_blocks(
+    indptr, indices, data, diag, a, u_init, stim, counts, params, cell, perm, frames, act
+):  # pragma: no cover
     """Integrate ``n_steps`` steps for every block of sites.
 
     Parameters
@@ -166,11 +168,13 @@ def run_blocks(indptr, indices, data, diag, a, u_init, stim, counts, params, per
     stim : (n_blocks, N, B) bool mask of stimulated nodes, held at ``u = 1``
         for the first ``stim_steps`` steps.
     counts : ``(stim_steps, n_steps, out_every)``: steps of stimulus, steps in all, steps per output frame.
-    params : ``(dt, k, eps0, mu1, mu2, thr)`` float32: the time step, the model's constants and the
-        activation threshold ``thr``; the constant-eps variant passes ``eps0 = eps``, ``mu1 = 0``.
+    params : ``(dt, thr, v_rest)`` float32: the time step, the activation threshold and ``v`` at rest.
+    cell : the cell model's constants (:meth:`~simgen.solver.cells.aliev_panfilov.APParams.constants`),
+        whose class chooses its rates when the kernel compiles.
     perm : (N,) mesh node of each kernel row (the rows are renumbered for locality).
     frames : (n_blocks, B, F, N) float32 output, written every ``out_every`` steps, nodes in mesh order.
     act : (n_blocks, N, B) float32 activation times, initialised to -1 (never).
     """
     for blk in prange(u_init.shape[0]):
-        _run_block(indptr, indices, data, diag, a, u_init[blk], stim[blk], counts, params, perm, frames[blk], act[blk])
+        u0, stim0, frames0, act0 = u_init[blk], stim[blk], frames[blk], act[blk]
+        _run_block(indptr, indices, data, diag, a, u0, stim0, counts, params, cell, perm, frames0, act0)

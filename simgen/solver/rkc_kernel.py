@@ -41,13 +41,11 @@ is the same on either path and with either compiled copy of the kernel
 from __future__ import annotations
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, prange, types
-from numba.core import cgutils
-from numba.extending import intrinsic, overload
+from numba import njit, prange
 from numpy.typing import NDArray
 
-from simgen.solver.simd import LANES, float32_vector, vfma, vload, vsplat, vstore
+from simgen.solver.cells.ops import cell_rates, fma, splat
+from simgen.solver.simd import LANES, vload, vsplat, vstore
 
 __all__ = ["DAMPING", "chebyshev", "stability_bound", "coefficients", "run_blocks_rkc"]
 
@@ -101,45 +99,6 @@ def coefficients(s: int) -> NDArray[np.float64]:
     return rows
 
 
-@intrinsic
-def _fma32(typingctx, a, b, c):
-    """Float32 ``a * b + c`` with one rounding (``llvm.fma.f32``)."""
-
-    def codegen(context, builder, sig, args):
-        f32 = ir.FloatType()
-        fma = cgutils.get_or_insert_function(builder.module, ir.FunctionType(f32, [f32] * 3), "llvm.fma.f32")
-        return builder.call(fma, args)
-
-    return types.float32(types.float32, types.float32, types.float32), codegen
-
-
-def fma(a, b, c):
-    """``a * b + c`` with one rounding, lane-wise for vectors (numba only)."""
-    raise NotImplementedError("fma is compiled by numba")
-
-
-@overload(fma, inline="always")
-def _fma(a, b, c):
-    if a is float32_vector:
-        return lambda a, b, c: vfma(a, b, c)
-    return lambda a, b, c: _fma32(a, b, c)
-
-
-@njit(inline="always", **_STRICT)
-def _rates(u, v, lap, params):  # pragma: no cover - compiled
-    """``(du/dt, dv/dt)`` from the diffusion term ``lap``, the terms of :func:`simgen.solver.kernels._reaction`.
-
-    ``params = (a, k, 1, eps0, mu1, mu2)``; all float32 or all vectors. Every
-    product that is added is an explicit :func:`fma` and no other product
-    meets an addition, so nothing is left for the compiler to fuse: scalars and
-    vectors round alike whatever it decides.
-    """
-    a, k, one, eps0, mu1, mu2 = params
-    du = fma(-u, v, fma(k * u * (one - u), u - a, lap))
-    eps = eps0 + mu1 * v / (u + mu2)
-    return du, eps * fma(-(k * u), u - a - one, -v)
-
-
 @njit(inline="always", **_STRICT)
 def _combine(y0, y1, y2, f1, f0, weights):  # pragma: no cover - compiled
     """``Y_j`` from ``Y_0, Y_{j-1}, Y_{j-2}, F(Y_{j-1}), F(Y_0)`` and the stage's ``weights`` (dt folded in)."""
@@ -152,7 +111,8 @@ def _stage_row(indptr, indices, data, diag, y, yn, f0, i, first, params, weights
     """Row ``i`` of stage ``j`` in every column: ``yn[i] = (u, v)`` of ``Y_j`` from ``y = (Y_0, Y_{j-1}, Y_{j-2})``.
 
     ``y`` and ``yn`` hold (N, B) ``u`` and ``v`` arrays, ``f0`` those of
-    ``F(Y_0)``, written in stage 1 (``first``). :data:`~simgen.solver.simd.LANES`
+    ``F(Y_0)``, written in stage 1 (``first``); ``params = (a[i], cell)``,
+    ``cell`` the cell model's constants. :data:`~simgen.solver.simd.LANES`
     columns at a time, the last ``B % LANES`` one by one, with the same
     operations: the diffusion term in CSR order, one fused multiply-add per neighbour.
     """
@@ -162,8 +122,8 @@ def _stage_row(indptr, indices, data, diag, y, yn, f0, i, first, params, weights
     b = u1.shape[1]
     b_vec = b - b % LANES
     start, end = indptr[i], indptr[i + 1]
-    a, k, one, eps0, mu1, mu2 = params
-    vparams = (vsplat(a), vsplat(k), vsplat(one), vsplat(eps0), vsplat(mu1), vsplat(mu2))
+    a, cell = params
+    va, vcell = vsplat(a), splat(cell)
     c0, mu, nu, mu_dt, gamma_dt = weights
     vweights = (vsplat(c0), vsplat(mu), vsplat(nu), vsplat(mu_dt), vsplat(gamma_dt))
     d = vsplat(diag[i])
@@ -172,7 +132,7 @@ def _stage_row(indptr, indices, data, diag, y, yn, f0, i, first, params, weights
         lap = d * vload(u1, o)
         for p in range(start, end):
             lap = fma(vsplat(data[p]), vload(u1, indices[p] * b + c), lap)
-        du, dv = _rates(vload(u1, o), vload(v1, o), lap, vparams)
+        du, dv = cell_rates(vload(u1, o), vload(v1, o), lap, va, vcell)
         if first:
             vstore(fu0, o, du)
             vstore(fv0, o, dv)
@@ -182,7 +142,7 @@ def _stage_row(indptr, indices, data, diag, y, yn, f0, i, first, params, weights
         lap = diag[i] * u1[i, c]
         for p in range(start, end):
             lap = fma(data[p], u1[indices[p], c], lap)
-        du, dv = _rates(u1[i, c], v1[i, c], lap, params)
+        du, dv = cell_rates(u1[i, c], v1[i, c], lap, a, cell)
         if first:
             fu0[i, c], fv0[i, c] = du, dv
         un[i, c] = _combine(u0[i, c], u1[i, c], u2[i, c], du, fu0[i, c], weights)
@@ -197,14 +157,14 @@ def _slot(j):  # pragma: no cover - compiled
 
 @njit(cache=True, **_STRICT)
 def _run_block(
-    indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act, stages
+    indptr, indices, data, diag, a, u_init, stim, counts, params, cell, perm, frames, act, stages
 ):  # pragma: no cover
     stim_steps, n_steps, out_every = counts
-    dt, k, eps0, mu1, mu2, thr = params
+    dt, thr, v_rest = params
     n, b = u_init.shape
     s = stages.shape[0]
     yu = np.empty((4, n, b), np.float32)  # Y_0 and three rotating stages, u and v
-    yv = np.zeros((4, n, b), np.float32)
+    yv = np.full((4, n, b), v_rest, np.float32)
     yu[0] = u_init
     f0 = (np.empty((n, b), np.float32), np.empty((n, b), np.float32))  # F(Y_0), u and v
     one, zero = np.float32(1.0), np.float32(0.0)
@@ -218,8 +178,7 @@ def _run_block(
             y = ((yu[0], yv[0]), (yu[p1], yv[p1]), (yu[p2], yv[p2]))
             yn = (yu[cur], yv[cur])
             for i in range(n):
-                params = (a[i], k, one, eps0, mu1, mu2)
-                _stage_row(indptr, indices, data, diag, y, yn, f0, i, j == 1, params, weights)
+                _stage_row(indptr, indices, data, diag, y, yn, f0, i, j == 1, (a[i], cell), weights)
                 if step < stim_steps:  # stimulated nodes are held at u = 1 in every stage
                     for c in range(b):
                         if stim[i, c]:
@@ -241,7 +200,7 @@ def _run_block(
 
 @njit(parallel=True, nogil=True, cache=True, error_model="numpy")
 def run_blocks_rkc(
-    indptr, indices, data, diag, a, u_init, stim, counts, params, perm, frames, act, stages
+    indptr, indices, data, diag, a, u_init, stim, counts, params, cell, perm, frames, act, stages
 ):  # pragma: no cover - compiled
     """Integrate ``n_steps`` RKC2 steps for every block of sites.
 
@@ -251,4 +210,4 @@ def run_blocks_rkc(
     """
     for blk in prange(u_init.shape[0]):
         u0, stim0, frames0, act0 = u_init[blk], stim[blk], frames[blk], act[blk]
-        _run_block(indptr, indices, data, diag, a, u0, stim0, counts, params, perm, frames0, act0, stages)
+        _run_block(indptr, indices, data, diag, a, u0, stim0, counts, params, cell, perm, frames0, act0, stages)

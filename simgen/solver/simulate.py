@@ -29,11 +29,12 @@ from shared.errors import ConfigError, InputError, TimeStepError, TissueError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
-from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import check_backend, resolve_backend
+from simgen.solver.cells import APParams, CellModel
 from simgen.solver.fem import Geometry, element_gradients, lumped_mass, operator_from, stiffness_matrix
 from simgen.solver.imex_cg import MAX_ITERATIONS, implicit_matrices, run_imex_cg
 from simgen.solver.imex_kernel import Factor, factorise, run_imex
+from simgen.solver.integrators import AUTO, check_integrator, choose_step
 from simgen.solver.kernels import run_blocks
 from simgen.solver.rkc_kernel import coefficients, run_blocks_rkc
 from simgen.solver.simd import LANES
@@ -42,16 +43,12 @@ from simgen.solver.timestep import (
     cg_iterations,
     cg_solve_cost,
     cheaper_integrator,
-    choose_imex_step,
-    choose_rkc_step,
-    choose_time_step,
     factor_solve_cost,
     largest_eigenvalue,
     stability_limit,
 )
 
 __all__ = [
-    "INTEGRATORS",
     "STIMULUS_RADIUS",
     "SolverConfig",
     "SimulationResult",
@@ -84,10 +81,6 @@ STIMULUS_RADIUS = 10.0
 #: Most time steps a simulation may take (a ``dt`` that implies more is refused with its count).
 MAX_STEPS = 1_000_000
 
-#: Time integrators: forward Euler, second-order Runge-Kutta-Chebyshev (:mod:`simgen.solver.rkc_kernel`),
-#: implicit-explicit SBDF2 (:mod:`simgen.solver.imex_kernel`), and the cheaper of Euler and IMEX per mesh.
-INTEGRATORS = ("euler", "rkc", "imex", "auto")
-
 
 @dataclass(frozen=True)
 class SolverConfig:
@@ -116,7 +109,7 @@ class SolverConfig:
     left out of a build spec's hash, so that stores built before the setting
     existed resume.
 
-    ``integrator`` (:data:`INTEGRATORS`) changes the results: ``"euler"``
+    ``integrator`` (:data:`~simgen.solver.integrators.INTEGRATORS`) changes the results: ``"euler"``
     (forward Euler at the stable step), ``"rkc"`` (RKC2 at the accuracy step
     with as many stages as the mesh's stiffness needs), ``"imex"`` (SBDF2 with
     implicit diffusion at :data:`~simgen.solver.timestep.DT_IMEX`, whatever
@@ -138,7 +131,7 @@ class SolverConfig:
     """
 
     diffusivity: float = 100.0
-    model: APParams = field(default_factory=APParams)
+    model: CellModel = field(default_factory=APParams)
     dt: float | None = None
     output_interval: float = 0.6
     frames: int = 55
@@ -171,17 +164,15 @@ class SolverConfig:
             raise InputError(f"anisotropy must be a finite ratio D_l / D_t >= 1, got {self.anisotropy}")
         if self.backend is not None:
             check_backend(self.backend)
-        if self.integrator is not None and self.integrator not in INTEGRATORS:
-            raise ConfigError(
-                f"unknown time integrator {self.integrator!r}; allowed: {', '.join(map(repr, INTEGRATORS))}"
-            )
+        if self.integrator is not None:
+            check_integrator(self.integrator)
         if self.dt is not None and np.isfinite(self.dt) and self.dt > 0 and self.duration / self.dt > MAX_STEPS:
             raise TimeStepError(
                 f"time step dt={self.dt:g} implies {self.duration / self.dt:,.0f} steps ({self.duration:g} time units "
                 f"of {self.frames} frames): more than {MAX_STEPS:,} is refused; give a larger dt or leave it unset "
                 "(chosen for the mesh)"
             )
-        for name, default in (("integrator", "auto"), ("backend", "numba"), ("anisotropy", 1.0)):  # a default: unset
+        for name, default in (("integrator", AUTO), ("backend", "numba"), ("anisotropy", 1.0)):  # a default: unset
             if getattr(self, name) == default:
                 object.__setattr__(self, name, None)
 
@@ -274,22 +265,26 @@ def assemble(
     mass = lumped_mass(mesh, geometry)
     A = operator_from(K, mass)
     lambda_max = largest_eigenvalue(A, mass)
-    k, dt, interval = config.model.k, config.dt, config.output_interval
-    integrator = config.integrator or "auto"
+    model, dt, interval = config.model, config.dt, config.output_interval
+    integrator = config.integrator or AUTO
     matrices = (K, mass)
-    if integrator == "rkc":
-        return Assembly(A, lambda_max, "rkc", *choose_rkc_step(lambda_max, k, dt, interval), *matrices)
-    if integrator == "euler" or (integrator == "auto" and dt is not None and dt < stability_limit(lambda_max, k)):
-        return Assembly(A, lambda_max, "euler", *choose_time_step(lambda_max, k, dt, interval), 1, *matrices)
-    imex_dt, imex_steps = choose_imex_step(dt, k, interval)
-    if integrator == "auto" and dt is None:
-        euler_dt, euler_steps = choose_time_step(lambda_max, k, None, interval)
-        if euler_steps <= imex_steps:  # as few steps, each cheaper
-            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1, *matrices)
+
+    def resolved(name: str) -> Assembly:
+        return Assembly(A, lambda_max, name, *choose_step(name, lambda_max, model, dt, interval), *matrices)
+
+    if integrator in ("rkc", "euler"):
+        return resolved(integrator)
+    if integrator == AUTO and dt is not None and dt < stability_limit(lambda_max, model.max_rate):
+        return resolved("euler")
+    imex_dt, imex_steps, _ = choose_step("imex", lambda_max, model, dt, interval)
+    if integrator == AUTO and dt is None:
+        euler = resolved("euler")
+        if euler.steps_per_frame <= imex_steps:  # as few steps, each cheaper
+            return euler
     factor, solve_cost = _imex_solve(K, mass, imex_dt, imex_solve)
-    if integrator == "auto" and dt is None:
-        if cheaper_integrator(euler_steps, A.nnz, imex_steps, solve_cost, mesh.n_nodes) == "euler":
-            return Assembly(A, lambda_max, "euler", euler_dt, euler_steps, 1, *matrices)
+    if integrator == AUTO and dt is None:
+        if cheaper_integrator(euler.steps_per_frame, A.nnz, imex_steps, solve_cost, mesh.n_nodes) == "euler":
+            return euler
     return Assembly(A, lambda_max, "imex", imex_dt, imex_steps, 1, *matrices, factor)
 
 
@@ -428,14 +423,14 @@ class Simulator:
             raise InputError(f"stimulus mask must have shape ({self.mesh.n_nodes}, S>0), got {mask.shape}")
         mask = mask[self.perm]
         s = mask.shape[1]
-        m = cfg.model
-        f32 = np.float32
-        eps0, mu1 = (m.eps_simple, 0.0) if m.variant == "simple" else (m.eps0, m.mu1)
         constants = (
-            int(round(cfg.stimulus_duration / self.dt)),  # stim_steps
-            cfg.frames * self.steps_per_frame,  # n_steps
-            self.steps_per_frame,  # out_every
-            *map(f32, (self.dt, m.k, eps0, mu1, m.mu2, cfg.activation_threshold)),
+            (
+                int(round(cfg.stimulus_duration / self.dt)),  # stim_steps
+                cfg.frames * self.steps_per_frame,  # n_steps
+                self.steps_per_frame,  # out_every
+            ),
+            tuple(map(np.float32, (self.dt, cfg.activation_threshold, cfg.model.resting_v))),
+            cfg.model.constants(),
         )
         if self.integrator == "imex":
             u, act = (self._run_torch_imex if self.backend == "torch" else self._run_imex)(mask, constants, threads)
@@ -469,9 +464,9 @@ class Simulator:
         numba.set_num_threads(max(1, min(int(threads), n_blocks, numba.config.NUMBA_NUM_THREADS)))
         args = (self._indptr, self._indices, self._data, self._diag, self._a, stim.astype(np.float32), stim)
         if self._rkc is None:
-            run_blocks(*args, constants[:3], constants[3:], self.perm, frames, act)
+            run_blocks(*args, *constants, self.perm, frames, act)
         else:
-            run_blocks_rkc(*args, constants[:3], constants[3:], self.perm, frames, act, self._rkc)
+            run_blocks_rkc(*args, *constants, self.perm, frames, act, self._rkc)
         u = frames.reshape(n_blocks * width, self.config.frames, n)[:s]  # a view: no copy of the largest array
         return u, act.transpose(0, 2, 1).reshape(n_blocks * width, n)[:s]
 
@@ -487,7 +482,7 @@ class Simulator:
         width = -(-min(per_thread, IMEX_BLOCK) // LANES) * LANES  # whole vectors
         if self.factor is None:
             act = np.where(mask, np.float32(0.0), np.float32(-1.0))
-            args = (np.ascontiguousarray(mask), constants[:3], constants[3:], self.perm, frames, act, width, threads)
+            args = (np.ascontiguousarray(mask), *constants, self.perm, frames, act, width, threads)
             solves, iterations, stalled = run_imex_cg(self._implicit, self._a, *args)
             if stalled:
                 raise InputError(
@@ -500,7 +495,7 @@ class Simulator:
         stim = np.ascontiguousarray(mask[to_factor])
         act = np.where(stim, np.float32(0.0), np.float32(-1.0))
         a = np.asarray(self.tissue.a, np.float32)[self.factor.perm]
-        run_imex(self.factor, a, stim, constants[:3], constants[3:], frames, act, width, threads)
+        run_imex(self.factor, a, stim, *constants, frames, act, width, threads)
         kernel_act = np.empty((s, n), np.float32)
         kernel_act[:, to_factor] = act.T
         return frames, kernel_act
@@ -524,7 +519,7 @@ class Simulator:
         n, s = mask.shape
         frames = page_aligned_empty((s, self.config.frames, n), np.float32)
         act = np.where(mask, np.float32(0.0), np.float32(-1.0))
-        run_imex_torch(self._torch_kernel(), self._mass, mask, constants[:3], constants[3:], frames, act, threads)
+        run_imex_torch(self._torch_kernel(), self._mass, mask, *constants, frames, act, threads)
         return frames, act.T
 
     def _run_torch(

@@ -2,8 +2,9 @@
 
 Forward Euler on ``du/dt = A u + f(u, v)`` is stable while ``dt`` times the
 largest magnitude of the linearised operator stays below 2. The diffusion
-part contributes ``lambda_max(M^{-1} K)``; the cubic reaction adds at most
-``k`` (its slope on [0, 1] is bounded by ``k (1 - a) < k``). The RKC2
+part contributes ``lambda_max(M^{-1} K)``; the reaction adds at most the cell
+model's ``max_rate`` (for Aliev-Panfilov ``k``: the cubic's slope on [0, 1] is
+bounded by ``k (1 - a) < k``), called ``rate`` below. The RKC2
 integrator (:mod:`simgen.solver.rkc_kernel`) runs at the accuracy step with as
 many stages as that stiffness needs. The IMEX integrator
 (:mod:`simgen.solver.imex_kernel`) has no stability limit from diffusion: its
@@ -35,7 +36,8 @@ __all__ = [
     "cheaper_integrator",
 ]
 
-#: Largest time step used for accuracy of the reaction (time units).
+#: Largest time step used for accuracy of the Aliev-Panfilov reaction (time units; a cell model's
+#: ``dt_accuracy``).
 DT_ACCURACY = 0.05
 #: Fraction of the stability limit used by the automatic time step.
 SAFETY = 0.8
@@ -65,76 +67,84 @@ def largest_eigenvalue(A: sp.csr_matrix, mass: np.ndarray) -> float:
         return float(np.abs(sym).sum(axis=1).max())
 
 
-def stability_limit(lam_max: float, k: float) -> float:
-    """Largest stable forward-Euler step for diffusion eigenvalue ``lam_max`` and reaction rate ``k``."""
-    return 2.0 / (lam_max + k)
+def stability_limit(lam_max: float, rate: float) -> float:
+    """Largest stable forward-Euler step for diffusion eigenvalue ``lam_max`` and reaction rate ``rate``."""
+    return 2.0 / (lam_max + rate)
 
 
-def choose_time_step(lam_max: float, k: float, dt: float | None, output_interval: float) -> tuple[float, int]:
+def choose_time_step(
+    lam_max: float, rate: float, dt: float | None, output_interval: float, accuracy: float = DT_ACCURACY
+) -> tuple[float, int]:
     """The time step and the number of steps per output frame.
 
-    With ``dt=None`` the step is ``min(SAFETY * limit, DT_ACCURACY)``, shrunk so
+    With ``dt=None`` the step is ``min(SAFETY * limit, accuracy)``, shrunk so
     that a whole number of steps fits one output interval. A user ``dt`` above
     the limit raises :class:`TimeStepError` quoting the limit.
     """
-    limit = stability_limit(lam_max, k)
+    limit = stability_limit(lam_max, rate)
     if dt is not None:
         if not np.isfinite(dt) or dt <= 0:
             raise TimeStepError(f"time step dt={dt} must be finite and > 0")
         if dt >= limit:
             raise TimeStepError(
                 f"time step dt={dt:g} is unstable: the explicit limit for this mesh and diffusivity is "
-                f"{limit:.4g} (2 / (lambda_max {lam_max:.4g} + k {k:g})); use dt < {limit:.4g} or leave it automatic"
+                f"{limit:.4g} (2 / (lambda_max {lam_max:.4g} + reaction rate {rate:g})); use dt < {limit:.4g} or "
+                "leave it automatic"
             )
         target = dt
     else:
-        target = min(SAFETY * limit, DT_ACCURACY)
+        target = min(SAFETY * limit, accuracy)
     return _fit(target, output_interval)
 
 
-def rkc_stages(dt: float, lam_max: float, k: float) -> int:
-    """Fewest RKC2 stages (at least 2) whose stability bound covers ``dt (lam_max + k) / SAFETY``."""
-    need = dt * (lam_max + k) / SAFETY
+def rkc_stages(dt: float, lam_max: float, rate: float) -> int:
+    """Fewest RKC2 stages (at least 2) whose stability bound covers ``dt (lam_max + rate) / SAFETY``."""
+    need = dt * (lam_max + rate) / SAFETY
     s = 2
     while stability_bound(s) < need:
         s += 1
     return s
 
 
-def choose_rkc_step(lam_max: float, k: float, dt: float | None, output_interval: float) -> tuple[float, int, int]:
+def choose_rkc_step(
+    lam_max: float, rate: float, dt: float | None, output_interval: float, accuracy: float = DT_ACCURACY
+) -> tuple[float, int, int]:
     """The RKC2 time step, steps per output frame and stages.
 
-    The step is ``dt`` (``None``: :data:`DT_ACCURACY`), shrunk so that a whole
+    The step is ``dt`` (``None``: ``accuracy``), shrunk so that a whole
     number of steps fits one output interval; any stiffness is then covered by
     stages (:func:`rkc_stages`), so a ``dt`` above the forward-Euler limit is allowed.
     """
     if dt is not None and (not np.isfinite(dt) or dt <= 0):
         raise TimeStepError(f"time step dt={dt} must be finite and > 0")
-    dt, steps = _fit(DT_ACCURACY if dt is None else dt, output_interval)
-    return dt, steps, rkc_stages(dt, lam_max, k)
+    dt, steps = _fit(accuracy if dt is None else dt, output_interval)
+    return dt, steps, rkc_stages(dt, lam_max, rate)
 
 
-def reaction_limit(k: float) -> float:
+def reaction_limit(rate: float) -> float:
     """Largest stable IMEX step for the explicit reaction: SBDF2's explicit part is stable on ``y' = -r y``
-    for ``dt r < 2/3``, and the reaction's rates are at most ``k`` in magnitude."""
-    return 2.0 / (3.0 * k)
+    for ``dt r < 2/3``, and the reaction's rates are at most ``rate`` in magnitude."""
+    return 2.0 / (3.0 * rate)
 
 
-def choose_imex_step(dt: float | None, k: float, output_interval: float) -> tuple[float, int]:
-    """The IMEX step (``dt``, ``None``: :data:`DT_IMEX`) fitted to whole steps per output interval, and their number.
+def choose_imex_step(
+    dt: float | None, rate: float, output_interval: float, accuracy: float = DT_IMEX
+) -> tuple[float, int]:
+    """The IMEX step fitted to whole steps per output interval, and their number: ``dt``, or with ``None``
+    ``accuracy`` (at most ``SAFETY`` times :func:`reaction_limit`).
 
     No diffusion limit applies; a ``dt`` at or above :func:`reaction_limit`
     raises :class:`TimeStepError` quoting it.
     """
     if dt is not None and (not np.isfinite(dt) or dt <= 0):
         raise TimeStepError(f"time step dt={dt} must be finite and > 0")
-    limit = reaction_limit(k)
+    limit = reaction_limit(rate)
     if dt is not None and dt >= limit:
         raise TimeStepError(
             f"time step dt={dt:g} is unstable for the reaction, which the IMEX integrator takes explicitly: "
-            f"use dt < {limit:.4g} (2 / (3 k), k {k:g}) or leave it automatic"
+            f"use dt < {limit:.4g} (2 / (3 x reaction rate {rate:g})) or leave it automatic"
         )
-    return _fit(DT_IMEX if dt is None else dt, output_interval)
+    return _fit(min(accuracy, SAFETY * limit) if dt is None else dt, output_interval)
 
 
 def cg_iterations(dt: float, stiffness_diagonal: np.ndarray, mass: np.ndarray) -> float:

@@ -20,7 +20,8 @@ import torch
 from numpy.typing import NDArray
 
 from shared.errors import InputError
-from simgen.solver.torch_kernel import TorchKernel, _FrameSink, cpu_threads, rates
+from simgen.solver.cells.ops import cell_rates
+from simgen.solver.torch_kernel import TorchKernel, _FrameSink, cpu_threads, tensors
 
 __all__ = ["RTOL", "MAX_ITERATIONS", "run_imex_torch"]
 
@@ -38,6 +39,7 @@ def run_imex_torch(
     stim: NDArray[np.bool_],
     counts: tuple[int, int, int],
     params: tuple[np.float32, ...],
+    cell: tuple,
     frames: NDArray[np.float32],
     act: NDArray[np.float32],
     threads: int = 1,
@@ -51,19 +53,19 @@ def run_imex_torch(
     stim_steps, n_steps, out_every = counts
     with cpu_threads(kernel.device, threads):
         dev = kernel.device
-        dt, thr = float(params[0]), float(params[5])
-        constants = torch.tensor(params, dtype=torch.float32, device=dev).unbind()
+        dt, thr = float(params[0]), float(params[1])
+        constants = tensors(cell, dev)
         m = torch.from_numpy(np.asarray(mass, np.float32)).reshape(-1, 1).to(dev)
         hold = torch.from_numpy(stim).to(dev)
         free = (~hold).to(torch.float32)
         u = hold.to(torch.float32)
-        v = torch.zeros_like(u)
+        v = torch.full_like(u, float(params[2]))
         act_t = torch.from_numpy(act).to(dev)
         diagonal = _operator_diagonal(kernel)
         sink = _FrameSink(frames, dev)
         up = vp = fp = gp = None
         for i in range(n_steps):
-            f, g = rates(u, v, 0.0, kernel.a, constants)  # the reaction alone
+            f, g = cell_rates(u, v, None, kernel.a, constants)  # the reaction alone
             if i == 0 or i == stim_steps:  # a one-step start wherever the stimulus switches
                 scale, rhs, vn, guess = 1.0, m * (u + dt * f), v + dt * g, u
             else:

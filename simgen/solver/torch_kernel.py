@@ -1,4 +1,4 @@
-"""The explicit-Euler Aliev-Panfilov steps of :mod:`simgen.solver.kernels` in torch, on any torch device.
+"""The explicit-Euler steps of :mod:`simgen.solver.kernels` in torch, on any torch device.
 
 :class:`TorchKernel` takes the numba kernel's inputs (the off-diagonal CSR
 part and diagonal of the diffusion operator, excitability, stimulus,
@@ -22,7 +22,7 @@ gives the measured differences), not bitwise.
 
 With the RKC2 stage table of :func:`simgen.solver.rkc_kernel.coefficients`
 (``stages``), each step is instead the stages of :mod:`simgen.solver.rkc_kernel`,
-one sparse product and an elementwise update (:func:`rates`, eager) per stage.
+one sparse product and an elementwise update (eager) per stage.
 """
 
 from __future__ import annotations
@@ -37,8 +37,9 @@ import torch
 from numpy.typing import NDArray
 
 from shared.errors import InputError
+from simgen.solver.cells.ops import cell_rates
 
-__all__ = ["TorchKernel", "step", "rates", "compiles_on", "torch_device", "cpu_threads"]
+__all__ = ["TorchKernel", "step", "compiles_on", "torch_device", "cpu_threads", "tensors"]
 
 
 def torch_device(device: str | torch.device | None) -> torch.device:
@@ -98,32 +99,23 @@ def step(
     act: torch.Tensor,
     a: torch.Tensor,
     t0: torch.Tensor,
-    c: torch.Tensor,
+    c: tuple[torch.Tensor, torch.Tensor],
+    cell: tuple[torch.Tensor, ...],
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One Euler step from the diffusion term ``lap``: ``(u, v, act) -> (u', v', act')``.
 
     ``a``: (N, 1) excitability; ``t0``: the step's start time (0-d);
-    ``c = (dt, k, eps0, mu1, mu2, thr)`` (0-d float32 tensors, so that a
-    compiled step serves every subject). The reaction is
-    :func:`simgen.solver.kernels._reaction` term by term; ``act`` takes the
-    interpolated time at which ``u`` first crosses ``thr`` (it is -1 until then).
+    ``c = (dt, thr)`` and ``cell``, the cell model's constants, as 0-d float32
+    tensors (so that a compiled step serves every subject). The rates are the
+    cell model's (:func:`~simgen.solver.cells.ops.cell_rates`, the numba
+    kernels' text); ``act`` takes the interpolated time at which ``u`` first
+    crosses ``thr`` (it is -1 until then).
     """
-    dt, thr = c[0], c[5]
-    du, dv = rates(u, v, lap, a, c)
+    dt, thr = c
+    du, dv = cell_rates(u, v, lap, a, cell)
     un = u + dt * du
     crossed = (u < thr) & (un >= thr) & (act < 0.0)
     return un, v + dt * dv, torch.where(crossed, t0 + dt * (thr - u) / (un - u), act)
-
-
-def rates(
-    u: torch.Tensor, v: torch.Tensor, lap: torch.Tensor, a: torch.Tensor, c: tuple[torch.Tensor, ...]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(du/dt, dv/dt)`` from the diffusion term ``lap`` (``c`` as in :func:`step`), term by term
-    :func:`simgen.solver.kernels._reaction`'s."""
-    _, k, eps0, mu1, mu2, _ = c
-    du = lap + k * u * (1.0 - u) * (u - a) - u * v
-    eps = eps0 + mu1 * v / (u + mu2)
-    return du, eps * (-v - k * u * (u - a - 1.0))
 
 
 class _FrameSink:
@@ -214,48 +206,46 @@ class TorchKernel:
         self,
         u_init: NDArray[np.float32],
         stim: NDArray[np.bool_],
-        stim_steps: int,
-        n_steps: int,
-        out_every: int,
-        dt: float,
-        k: float,
-        eps0: float,
-        mu1: float,
-        mu2: float,
-        thr: float,
+        counts: tuple[int, int, int],
+        params: tuple[np.float32, np.float32, np.float32],
+        cell: tuple,
         frames: NDArray[np.float32],
         act: NDArray[np.float32],
         threads: int = 1,
         stages: NDArray[np.float32] | None = None,
     ) -> None:
-        """Integrate ``n_steps`` steps of the (N, S) initial state ``u_init`` (``v`` starts at 0).
+        """Integrate ``n_steps`` steps of the (N, S) initial state ``u_init`` (``v`` starts at ``v_rest``).
 
         ``stim`` (N, S): nodes held at ``u = 1`` for the first ``stim_steps``
-        steps. ``frames`` (S, F, N) receives ``u`` every ``out_every`` steps in
-        mesh node order; ``act`` (N, S), -1 for never and 0 at stimulated
-        nodes on entry, receives the activation times (both filled in place,
-        as by the numba kernel). On the CPU torch runs ``threads`` threads
-        meanwhile (its setting is restored afterwards). ``stages``: the (s, 5)
-        RKC2 table; ``None`` is forward Euler.
+        steps; ``counts = (stim_steps, n_steps, out_every)``, ``params = (dt,
+        thr, v_rest)`` and ``cell`` (the cell model's constants) as the numba
+        kernel takes them. ``frames`` (S, F, N) receives ``u`` every
+        ``out_every`` steps in mesh node order; ``act`` (N, S), -1 for never
+        and 0 at stimulated nodes on entry, receives the activation times (both
+        filled in place, as by the numba kernel). On the CPU torch runs
+        ``threads`` threads meanwhile (its setting is restored afterwards).
+        ``stages``: the (s, 5) RKC2 table; ``None`` is forward Euler.
         """
+        stim_steps, n_steps, out_every = counts
         with cpu_threads(self.device, threads):
             dev = self.device
             u = torch.from_numpy(u_init).to(dev)
-            v = torch.zeros_like(u)
+            v = torch.full_like(u, float(params[2]))
             hold = torch.from_numpy(stim).to(dev)
             act_t = torch.from_numpy(act).to(dev)
-            c = torch.tensor((dt, k, eps0, mu1, mu2, thr), dtype=torch.float32, device=dev).unbind()
+            c = tensors(params[:2], dev)
+            constants = tensors(cell, dev)
             t0 = torch.arange(n_steps, dtype=torch.float32, device=dev) * c[0]  # float32(step) * dt, as numba
             sink = _FrameSink(frames, dev)
-            table = None if stages is None else self._stage_table(stages, dt)
+            table = None if stages is None else self._stage_table(stages, float(params[0]))
             for i in range(n_steps):
                 if table is None:
                     lap = self.operator @ u
-                    u, v, act_t = self._run_step(u, v, lap, act_t, self.a, t0[i], c)
+                    u, v, act_t = self._run_step(u, v, lap, act_t, self.a, t0[i], c, constants)
                 else:
-                    un, v = self._rkc_step(u, v, hold if i < stim_steps else None, table, c)
-                    crossed = (u < c[5]) & (un >= c[5]) & (act_t < 0.0)
-                    u, act_t = un, torch.where(crossed, t0[i] + c[0] * (c[5] - u) / (un - u), act_t)
+                    un, v = self._rkc_step(u, v, hold if i < stim_steps else None, table, constants)
+                    crossed = (u < c[1]) & (un >= c[1]) & (act_t < 0.0)
+                    u, act_t = un, torch.where(crossed, t0[i] + c[0] * (c[1] - u) / (un - u), act_t)
                 if i < stim_steps:
                     u.masked_fill_(hold, 1.0)
                 if (i + 1) % out_every == 0:
@@ -269,15 +259,15 @@ class TorchKernel:
         v: torch.Tensor,
         hold: torch.Tensor | None,
         table: list[tuple[torch.Tensor, ...]],
-        c: tuple[torch.Tensor, ...],
+        cell: tuple[torch.Tensor, ...],
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """One RKC2 step ``(u, v) -> (u', v')`` through the stages of ``table`` (:meth:`_stage_table`);
         ``hold``: the stimulated nodes, set to ``u = 1`` in every stage (``None``: no stimulus)."""
-        f0 = rates(u, v, self.operator @ u, self.a, c)
+        f0 = cell_rates(u, v, self.operator @ u, self.a, cell)
         prev2, prev, f = (u, v), (u, v), f0
         for j, (c0, mu, nu, mu_dt, gamma_dt) in enumerate(table):
             if j > 0:
-                f = rates(*prev, self.operator @ prev[0], self.a, c)
+                f = cell_rates(*prev, self.operator @ prev[0], self.a, cell)
             stage = tuple(
                 c0 * y0 + mu * y1 + nu * y2 + mu_dt * fy + gamma_dt * fy0
                 for y0, y1, y2, fy, fy0 in zip((u, v), prev, prev2, f, f0)
@@ -304,3 +294,10 @@ class TorchKernel:
             warnings.warn(f"torch.compile of the solver step failed, running it eagerly: {exc}", stacklevel=2)
             self._step, self.compiled = step, False
             return step(*args)
+
+
+def tensors(values: tuple, device: torch.device) -> tuple:
+    """``values`` (float32 numbers, or a cell model's constants tuple) as 0-d float32 tensors on ``device``,
+    in a tuple of the same class."""
+    items = torch.tensor(tuple(map(float, values)), dtype=torch.float32, device=device).unbind()
+    return type(values)(*items) if hasattr(values, "_fields") else tuple(items)

@@ -11,18 +11,21 @@ import numpy as np
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
-from simgen.solver.aliev_panfilov import APParams, front_speed
+from simgen.solver.cells import APParams, CellModel
 from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig
 
 __all__ = ["planar_run", "measured_front_speed", "speed_error", "action_potential_duration"]
 
 
 def planar_run(mesh: Mesh, a: float, diffusivity: float = 1.0, **config) -> SimulationResult:
-    """Excite the ``x <= 1`` end with uniform excitability ``a``; run until the front can cross."""
+    """Excite the ``x <= 1`` end with uniform excitability ``a``; run until the front can cross
+    (``config``: :class:`SolverConfig` settings, ``model`` the cell model)."""
     n = mesh.n_nodes
     tissue = TissueFields(np.full(n, a), np.ones(n), np.zeros(n, np.int8))
     length = float(np.ptp(mesh.points[:, 0]))
-    frames = int(length / front_speed(diffusivity, min(a, 0.4))) + 5
+    model = config.get("model", APParams())
+    speed = max(model.front_speed(diffusivity, a), 0.2 * model.front_speed(diffusivity, 0.0))  # slow fronts too
+    frames = int(length / speed) + 5
     cfg = SolverConfig(**{"diffusivity": diffusivity, "output_interval": 1.0, "frames": frames, **config})
     return Simulator(mesh, tissue, cfg).run_patches((mesh.points[:, 0] <= 1.0 + 1e-9)[:, None])
 
@@ -38,15 +41,22 @@ def measured_front_speed(mesh: Mesh, result: SimulationResult) -> float:
 
 
 def speed_error(mesh: Mesh, a: float, diffusivity: float = 1.0, **config) -> float:
-    """Relative error of the measured planar speed against ``sqrt(2kD)(1/2 - a)``."""
+    """Relative error of the measured planar speed against the cell model's closed form
+    (:meth:`~simgen.solver.cells.aliev_panfilov.APParams.front_speed`; Aliev-Panfilov: ``sqrt(2kD)(1/2 - a)``)."""
     result = planar_run(mesh, a, diffusivity, **config)
-    return measured_front_speed(mesh, result) / front_speed(diffusivity, a) - 1.0
+    expected = config.get("model", APParams()).front_speed(diffusivity, a)
+    return measured_front_speed(mesh, result) / expected - 1.0
 
 
-def action_potential_duration(mesh: Mesh, x: float, model: APParams | None = None, level: float = 0.5) -> float:
-    """Time ``u`` stays above ``level`` at the node nearest ``(x, 0)`` after a planar stimulus (APD50)."""
+def action_potential_duration(
+    mesh: Mesh, x: float, model: CellModel | None = None, level: float = 0.5, a: float = 0.15
+) -> float:
+    """Time (time units) ``u`` stays above ``level`` at the node nearest ``(x, 0)`` after a planar stimulus
+    of tissue with excitability ``a`` (APD50)."""
+    n = mesh.n_nodes
+    tissue = TissueFields(np.full(n, a), np.ones(n), np.zeros(n, np.int8))
     cfg = SolverConfig(diffusivity=1.0, output_interval=0.05, frames=1000, model=model or APParams())
-    result = Simulator(mesh, config=cfg).run_patches((mesh.points[:, 0] <= 1.0)[:, None])
+    result = Simulator(mesh, tissue, cfg).run_patches((mesh.points[:, 0] <= 1.0)[:, None])
     node = int(np.argmin(np.hypot(mesh.points[:, 0] - x, mesh.points[:, 1])))
     u, t = result.u[0, :, node], result.times
     up = int(np.argmax(u >= level))

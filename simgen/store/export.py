@@ -18,7 +18,7 @@ from shared.integrity import SubjectReader, read_checked
 from shared.reader import checked_subject_ids
 from shared.schema import subject_path
 from shared.vtk import write_time_series
-from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
+from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 from simgen.store.layout import check_store, read_mesh
 from simgen.store.location import store_location
 

@@ -172,6 +172,7 @@ def entry_mesh(entry: MeshEntry) -> Mesh:
         landmarks=entry.axis,
         node_set_arrays=entry.node_set_arrays,
         heart=entry.heart is not False,
+        filler=entry.filler,
     )
 
 

@@ -20,13 +20,13 @@ from shared.errors import ConfigError
 from shared.mesh import Mesh
 from shared.reader import read_integrator, subject_attrs
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
+from simgen.solver.integrators import AUTO, INTEGRATORS
 from simgen.solver.simulate import SolverConfig
 from simgen.store.manifest import SubjectSetup
 from simgen.tissue.fields import SCAR_BORDERS
 
 __all__ = [
     "PACKAGE",
-    "AP_EQUATIONS",
     "provenance",
     "simulation_attrs",
     "solver_attrs",
@@ -42,13 +42,6 @@ LEGACY_SCAR_BORDER = "nodes"
 
 #: The distribution that writes stores.
 PACKAGE = "metapns"
-
-#: The Aliev-Panfilov model as simulated (docs/method.md).
-AP_EQUATIONS = (
-    "du/dt = div(D grad u) + k u (1 - u)(u - a) - u v",
-    "dv/dt = eps(u, v) (-v - k u (u - a - 1))",
-    "eps(u, v) = eps0 + mu1 v / (u + mu2)   (variant 'standard'; 'simple': eps = eps_simple)",
-)
 
 
 def provenance() -> dict:
@@ -86,23 +79,14 @@ def _created() -> str:
     return when.isoformat(timespec="seconds")
 
 
-#: How the root attribute ``simulation.model`` names each integrator setting.
-INTEGRATOR_NAMES = {
-    "euler": "forward Euler",
-    "rkc": "second-order Runge-Kutta-Chebyshev (RKC2)",
-    "imex": "implicit-explicit SBDF2 (implicit diffusion)",
-    "auto": "forward Euler or implicit-explicit SBDF2 per subject (subject attribute solver.integrator)",
-}
-
-
 def simulation_attrs(solver: SolverConfig) -> dict:
     """Root attribute ``simulation``: the model, its constants and the settings every subject shares
     (``anisotropy``, ``D_l / D_t`` along the meshes' fibres, only where set: stores without it are isotropic)."""
     anisotropy = {} if solver.anisotropy is None else {"anisotropy": solver.anisotropy}
     return {
-        "model": "Aliev-Panfilov (1996), monodomain, P1 finite elements, "
-        + INTEGRATOR_NAMES.get(solver.integrator or "auto"),
-        "equations": list(AP_EQUATIONS),
+        "model": f"{solver.model.title}, monodomain, P1 finite elements, "
+        + INTEGRATORS[solver.integrator or AUTO].title,
+        "equations": list(solver.model.equations),
         "constants": dataclasses.asdict(solver.model),
         "diffusivity": solver.diffusivity,
         **anisotropy,

@@ -56,6 +56,7 @@ from shared.mesh import NODE_SETS, OPTIONAL_NODE_SETS
 from shared.tissue import TissueSpec
 from simgen.meshes.anatomy import sample_shapes
 from simgen.meshes.catalog import GENERATORS
+from simgen.meshes.fillers import FILLERS
 from simgen.meshes.heart import LANDMARKS
 from simgen.meshes.shapes import shape_from_params
 from simgen.meshes.shipped import is_real, real_mesh_file
@@ -120,7 +121,10 @@ class MeshEntry:
     and ``node_set_arrays`` (node set -> the file's 0/1 point-data array)
     replacing detected sets; ``heart = false`` accepts a mesh that is no heart
     (a slab: no node sets detected, no sock, so ``[output] sock_electrodes = 0``),
-    which is refused otherwise. Unset keys stay out of the spec's hash.
+    which is refused otherwise; ``filler`` fills a surface with tetrahedra
+    (:data:`~simgen.meshes.fillers.FILLERS`; unset: ``"auto"``, TetGen where
+    installed and the surface is clean, else fTetWild). Unset keys stay out of
+    the spec's hash.
     """
 
     id: str
@@ -132,6 +136,7 @@ class MeshEntry:
     axis: dict[str, tuple[float, float, float]] | None = field(default=None, hash=False)
     node_set_arrays: dict[str, str] | None = field(default=None, hash=False)
     heart: bool | None = None
+    filler: Literal["auto", "ftetwild", "tetgen"] | None = None
 
     def __post_init__(self) -> None:
         _check_id(self.id, "[[meshes]] id")
@@ -151,8 +156,9 @@ class MeshEntry:
             object.__setattr__(self, "shape_params", shape.params())
 
     def _check_file_keys(self) -> None:
-        """``units``, ``axis``, ``node_set_arrays`` and ``heart``: real meshes and files only, with known names."""
-        given = [k for k in ("units", "axis", "node_set_arrays", "heart") if getattr(self, k) is not None]
+        """``units``, ``axis``, ``node_set_arrays``, ``heart`` and ``filler``: real meshes and files only, with known
+        names."""
+        given = [k for k in ("units", "axis", "node_set_arrays", "heart", "filler") if getattr(self, k) is not None]
         if given and self.source in GENERATORS:
             raise ConfigError(f"mesh {self.id!r}: {given} apply to mesh files and real meshes, not to {self.source!r}")
         if is_real(self.source):
@@ -160,6 +166,8 @@ class MeshEntry:
                 real_mesh_file(self.source)
             except InputError as exc:
                 raise ConfigError(f"mesh {self.id!r}: {exc}") from None
+        if self.filler is not None and self.filler not in FILLERS:
+            raise ConfigError(f"mesh {self.id!r}: filler {self.filler!r} is not one of {list(FILLERS)}")
         if self.units is not None and self.units not in MM_PER_UNIT:
             raise ConfigError(f"mesh {self.id!r}: units {self.units!r} is not one of {list(MM_PER_UNIT)}")
         if self.axis is not None and not ({"apex", "base"} <= set(self.axis) <= set(LANDMARKS)):

@@ -13,7 +13,7 @@ from scipy.linalg import eigh
 
 from shared.mesh import Mesh
 from simgen.meshes.slab import strip
-from simgen.solver.aliev_panfilov import APParams
+from simgen.solver.cells.aliev_panfilov import APParams
 from simgen.solver.fem import diffusion_operator, element_gradients, lumped_mass
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from shared.errors import InputError
 from simgen.meshes.slab import slab, strip
-from simgen.solver.aliev_panfilov import APParams, front_speed
+from simgen.solver.cells.aliev_panfilov import APParams, front_speed
 from simgen.solver.verification import (
     action_potential_duration,
     measured_front_speed,

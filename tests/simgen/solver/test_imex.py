@@ -15,8 +15,8 @@ from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.slab import slab, strip
-from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import BACKEND_TOLERANCE
+from simgen.solver.cells.aliev_panfilov import APParams
 from simgen.solver.fem import element_gradients, lumped_mass, stiffness_matrix
 from simgen.solver.imex_cg import TOL, implicit_matrices, run_imex_cg
 from simgen.solver.imex_kernel import factorise, run_imex
@@ -58,15 +58,15 @@ def smooth_error(problem, dt: float, solve: str) -> float:
     steps = round(end / dt)
     frames, act = np.empty((1, 1, mesh.n_nodes), f32), np.full((mesh.n_nodes, 1), -1, f32)
     stim = np.zeros((mesh.n_nodes, 1), bool)
-    params = tuple(map(f32, (dt, p.k, p.eps0, p.mu1, p.mu2, 0.5)))
+    params = (tuple(map(f32, (dt, 0.5, 0.0))), p.constants())
     threshold = np.full(mesh.n_nodes, a, f32)
     if solve == "factor":
         factor = factorise(K, mass, dt)
         initial = u0[factor.perm].astype(f32)[:, None]
-        run_imex(factor, threshold, stim, (0, steps, steps), params, frames, act, LANES, 1, initial)
+        run_imex(factor, threshold, stim, (0, steps, steps), *params, frames, act, LANES, 1, initial)
     else:
         order = np.arange(mesh.n_nodes)
-        args = (stim, (0, steps, steps), params, order, frames, act, LANES, 1, u0.astype(f32)[:, None])
+        args = (stim, (0, steps, steps), *params, order, frames, act, LANES, 1, u0.astype(f32)[:, None])
         run_imex_cg(implicit_matrices(K, mass, dt, order), threshold, *args)
     return float(np.abs(frames[0, 0] - exact).max())
 
@@ -305,9 +305,9 @@ def test_cg_step_solves_the_implicit_system_to_the_tolerance(lv):
     f0 = p.k * u0 * (1 - u0) * (u0 - 0.15)  # v = 0
     exact = sp.linalg.spsolve((sp.diags(mass) + dt * K).tocsc(), mass * (u0 + dt * f0))
     frames, act = np.empty((1, 1, n), f32), np.full((n, 1), -1, f32)
-    params = tuple(map(f32, (dt, p.k, p.eps0, p.mu1, p.mu2, 0.5)))
+    params = (tuple(map(f32, (dt, 0.5, 0.0))), p.constants())
     stim, a, initial = np.zeros((n, 1), bool), np.full(n, 0.15, f32), u0.astype(f32)[:, None]
-    args = (stim, (0, 1, 1), params, order, frames, act, LANES, 1, initial)
+    args = (stim, (0, 1, 1), *params, order, frames, act, LANES, 1, initial)
     solves, iterations, stalled = run_imex_cg(implicit_matrices(K, mass, dt, order), a, *args)
     assert solves == 1 and stalled == 0 and 1 <= iterations <= 20
     change = np.abs(exact - u0).max()

@@ -13,8 +13,8 @@ from shared.errors import ConfigError, InputError
 from shared.tissue import TissueFields
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.solver import torch_kernel
-from simgen.solver.aliev_panfilov import APParams
 from simgen.solver.backends import resolve_backend
+from simgen.solver.cells.aliev_panfilov import APParams
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.tissue import default_settings, tissue_fields
 

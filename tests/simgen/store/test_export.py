@@ -11,7 +11,7 @@ import pytest
 import zarr
 
 from shared.errors import InputError
-from simgen.solver.aliev_panfilov import MS_PER_TIME_UNIT
+from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT
 from simgen.store.export import export_vtk
 
 
