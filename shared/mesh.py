@@ -47,7 +47,10 @@ class LongAxis:
 
 
 def _unit_fibres(fibres: NDArray, n_nodes: int, name: str) -> NDArray[np.float64]:
-    """``fibres`` as (N, 3) float64 unit vectors; :class:`MeshError` for another shape, non-finite or zero rows."""
+    """``fibres`` as (N, 3) float64 unit vectors; :class:`MeshError` for another shape, non-finite or zero rows.
+
+    Vectors already of unit length to float32 precision are kept as given, so fibres read back from float32
+    (a store) are the ones written."""
     f = np.asarray(fibres, dtype=np.float64)
     if f.shape != (n_nodes, 3):
         raise MeshError(f"mesh {name!r}: fibres must have shape ({n_nodes}, 3), one vector per node, got {f.shape}")
@@ -55,7 +58,7 @@ def _unit_fibres(fibres: NDArray, n_nodes: int, name: str) -> NDArray[np.float64
     bad = np.flatnonzero(~np.isfinite(norm) | (norm <= 0))
     if bad.size:
         raise MeshError(f"mesh {name!r}: {bad.size} fibre vector(s) zero or not finite, first nodes {bad[:5].tolist()}")
-    return f / norm[:, None]
+    return np.where(np.abs(norm - 1.0)[:, None] <= 1e-6, f, f / norm[:, None])
 
 
 @dataclass(frozen=True)

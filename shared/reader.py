@@ -158,7 +158,7 @@ def _mesh_group(path: str | Path, mesh_id: str) -> zarr.Group:
 
 
 def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
-    """The mesh as stored (points, cells, node sets, axis); each array checked by
+    """The mesh as stored (points, cells, node sets, axis, fibres where stored); each array checked by
     :func:`~shared.integrity.read_checked`."""
     g = _mesh_group(path, mesh_id)
     where = f"mesh {mesh_id}"
@@ -168,12 +168,14 @@ def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
         for name in MESH_INDEX_SETS
         if name != "electrodes" and g[name].shape[0]
     }
+    fibres = read_checked(g, "fibre", str(path), where).astype(np.float64) if "fibre" in g else None
     return Mesh(
         points=read_checked(g, "points", str(path), where),
         cells=read_checked(g, "cells", str(path), where),
         node_sets=sets,
         name=g.attrs["name"],
         axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
+        fibres=fibres,
     )
 
 

@@ -49,6 +49,7 @@ __all__ = [
     "SHARDED_ARRAYS",
     "ArraySpec",
     "MESH_ARRAYS",
+    "FIBRE_ARRAYS",
     "MESH_INDEX_SETS",
     "SUBJECT_ARRAYS",
     "MOMENT_VARIABLES",
@@ -110,6 +111,12 @@ MESH_ARRAYS: dict[str, ArraySpec] = {
     **{
         name: ArraySpec("int32", (f"{name}_node",), "1", f"node ids of the {name} node set") for name in MESH_INDEX_SETS
     },
+}
+
+#: Arrays a mesh group holds only where its spec entry gives it fibres (``[meshes.fibres]``): without them
+#: the mesh conducts isotropically.
+FIBRE_ARRAYS: dict[str, ArraySpec] = {
+    "fibre": ArraySpec("float32", ("node", "xyz"), "1", "unit fibre direction at each node"),
 }
 
 #: Variables and moments of a subject's ``moments`` array (its last two dimensions).

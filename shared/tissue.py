@@ -120,11 +120,17 @@ class ScarSpec:
 
 @dataclass(frozen=True)
 class TissueSpec:
-    """A named tissue setting: healthy material plus zero or more scars."""
+    """A named tissue setting: healthy material plus zero or more scars, and optionally its own ratio
+    ``anisotropy = D_l / D_t`` of conduction along and across the mesh's fibres (``None``: the solver's)."""
 
     name: str = "healthy"
     healthy: Material = HEALTHY
     scars: tuple[ScarSpec, ...] = ()
+    anisotropy: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.anisotropy is not None and not (np.isfinite(self.anisotropy) and self.anisotropy >= 1):
+            raise TissueError(f"tissue {self.name!r}: anisotropy must be a ratio D_l / D_t >= 1, got {self.anisotropy}")
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from shared.observation import observe as observe_field
 from shared.sites import SITE_TOLERANCE
 from shared.vtk import write_time_series
 from simgen.meshes.catalog import get_mesh
+from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
 from simgen.solver.cells import CELL_MODELS, APParams, cell_model
@@ -86,6 +87,14 @@ FibresOpt = Annotated[
         "where the mesh carries none (a file's own point data 'fibre' is used as it is).",
     ),
 ]
+HelixEndoOpt = Annotated[
+    float,
+    typer.Option(min=-90, max=90, callback=finite, help="Rule-based fibres: helix angle at the endocardium (deg)."),
+]
+HelixEpiOpt = Annotated[
+    float,
+    typer.Option(min=-90, max=90, callback=finite, help="Rule-based fibres: helix angle at the epicardium (deg)."),
+]
 TISSUE_HELP = (
     "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; scars, each with region "
     "('segments' + segments 1-17, or 'sphere' + node or centre and radius in mm), border_width in mm, core and "
@@ -120,6 +129,8 @@ def mesh(
     heart: HeartOpt = True,
     units: UnitsOpt = None,
     fibres: FibresOpt = False,
+    helix_endo: HelixEndoOpt = HELIX_ENDO,
+    helix_epi: HelixEpiOpt = HELIX_EPI,
     filler: FillerOpt = None,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
@@ -128,7 +139,7 @@ def mesh(
     rv_share) and a picture of them (OUT with suffix .fibres.png)."""
     try:
         m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
-        m, coordinates = _rule_fibres(m) if fibres else (m, {})
+        m, coordinates = _rule_fibres(m, (helix_endo, helix_epi)) if fibres else (m, {})
         out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, {**(_labels(m).arrays() if heart else {}), **coordinates})
         if fibres:
@@ -171,6 +182,8 @@ def simulate(
     heart: HeartOpt = True,
     units: UnitsOpt = None,
     fibres: FibresOpt = False,
+    helix_endo: HelixEndoOpt = HELIX_ENDO,
+    helix_epi: HelixEpiOpt = HELIX_EPI,
     filler: FillerOpt = None,
     anisotropy: Annotated[
         float | None,
@@ -242,7 +255,7 @@ def simulate(
         if record not in RECORDINGS:
             raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
         m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
-        m = _with_fibres(m, fibres)
+        m = _with_fibres(m, fibres, (helix_endo, helix_epi))
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
@@ -296,18 +309,20 @@ def simulate(
     _report_no_wave(site_ids, result.activated_fraction)
 
 
-def _rule_fibres(mesh: Mesh) -> tuple[Mesh, dict[str, np.ndarray]]:
-    """``mesh`` with rule-based fibres (:func:`~simgen.meshes.fibres.ldrb_fibres`) unless it has its own, and the
-    ventricular coordinates of the rule."""
+def _rule_fibres(
+    mesh: Mesh, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)
+) -> tuple[Mesh, dict[str, np.ndarray]]:
+    """``mesh`` with rule-based fibres (:func:`~simgen.meshes.fibres.ldrb_fibres`, helix angles ``helix`` at the
+    endocardium and epicardium) unless it has its own, and the ventricular coordinates of the rule."""
     from simgen.meshes.fibres import ldrb_fibres
 
-    rule, coordinates = ldrb_fibres(mesh)
+    rule, coordinates = ldrb_fibres(mesh, *helix)
     return (mesh if mesh.fibres is not None else dataclasses.replace(mesh, fibres=rule)), coordinates
 
 
-def _with_fibres(mesh: Mesh, fibres: bool) -> Mesh:
+def _with_fibres(mesh: Mesh, fibres: bool, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)) -> Mesh:
     """``mesh`` with rule-based fibres when ``fibres`` and it has none."""
-    return _rule_fibres(mesh)[0] if fibres and mesh.fibres is None else mesh
+    return _rule_fibres(mesh, helix)[0] if fibres and mesh.fibres is None else mesh
 
 
 #: What ``simulate --observe`` records: potentials or activation-time maps.

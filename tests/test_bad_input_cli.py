@@ -247,7 +247,7 @@ CASES: dict[str, dict[str, Case]] = {
         "a length unit for a procedural mesh": Case(
             ("simgen", "simulate", "{d}/o", "--mesh", "lv", "--units", "cm"), ("procedural mesh 'lv' takes no units",)
         ),
-        "anisotropy in a build spec": Case(build("anisotropic"), ("[solver] anisotropy", "holds no fibres")),
+        "anisotropy in a build spec": Case(build("anisotropic"), ("conducts along fibres", "[meshes.fibres]")),
         "anisotropy on a mesh without fibres": Case(
             ("simgen", "simulate", "{d}/o", "--nodes", "300", "--anisotropy", "4"), ("has no fibres", "--fibres")
         ),

@@ -39,7 +39,15 @@ from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.solver.fem import element_gradients, stiffness_matrix
 
-__all__ = ["HELIX_ENDO", "HELIX_EPI", "laplace", "node_gradients", "ventricular_coordinates", "ldrb_fibres"]
+__all__ = [
+    "HELIX_ENDO",
+    "HELIX_EPI",
+    "laplace",
+    "node_gradients",
+    "ventricular_coordinates",
+    "rotational_coordinate",
+    "ldrb_fibres",
+]
 
 #: Default helix angles (degrees) at the endocardium and the epicardium.
 HELIX_ENDO, HELIX_EPI = 60.0, -60.0
@@ -203,14 +211,35 @@ def _coordinates(solves: _Solves) -> dict[str, NDArray[np.float64]]:
 def ventricular_coordinates(mesh: Mesh) -> dict[str, NDArray[np.float64]]:
     """The Laplace coordinates the rule builds on, per node: ``transmural`` (0 endocardium, 1 epicardium),
     ``apicobasal`` (0 apex, 1 base) and, on a biventricle, ``rv_share`` (0 on the LV endocardium, 1 on the
-    RV's).
+    RV's); and the ``rotational`` coordinate (:func:`rotational_coordinate`).
 
     Needs a tetrahedral mesh with ``endocardium`` (an LV) or ``lv_endocardium``
     and ``rv_endocardium`` (a biventricle), ``epicardium`` and ``base`` node
     sets and a long axis (:attr:`shared.mesh.Mesh.axis`, whose apex point fixes
     the apex nodes); :class:`MeshError` names what is missing.
     """
-    return _coordinates(_solves(mesh))
+    return {**_coordinates(_solves(mesh)), "rotational": rotational_coordinate(mesh)}
+
+
+def rotational_coordinate(mesh: Mesh) -> NDArray[np.float64]:
+    """Angle (radians, in (-pi, pi]) of each node around the long axis, 0 along the axis's reference direction.
+
+    As the rotational coordinate of universal ventricular coordinates: 0
+    towards the RV (the reference of a detected BiV axis points to the RV
+    cavity's centre, the septum's landmark of a given one), growing
+    counter-clockwise seen from the base, the sign of the AHA angle of
+    :func:`simgen.tissue.aha.longitudinal_angular`. Needs the long axis.
+    """
+    if mesh.axis is None:
+        raise MeshError(f"mesh {mesh.name!r}: the rotational coordinate needs its long axis (apex and base)")
+    d = mesh.axis.direction
+    r = np.asarray(mesh.axis.reference, dtype=np.float64)
+    r = r - (r @ d) * d
+    if np.linalg.norm(r) < 1e-9:
+        raise MeshError(f"mesh {mesh.name!r}: axis reference is parallel to the long axis")
+    r /= np.linalg.norm(r)
+    x = mesh.points - np.asarray(mesh.axis.apex, dtype=np.float64)
+    return np.arctan2(x @ np.cross(d, r), x @ r)
 
 
 def ldrb_fibres(

@@ -8,11 +8,12 @@
   triangle soup, a surface that passes through itself or one merged from
   overlapping parts included (its inside is decided by winding number), and
   rebuilds the surface within an envelope of the input (:data:`ENVELOPE`
-  times ``length``), so surface nodes are new ones. About 4-60 s for 1,000 to
-  5,000 nodes on two cores.
+  times ``length``), so surface nodes are new ones. 18-120 s for 2,000 nodes
+  on two cores, with smallest dihedral angles of 13-27 degrees (bench/fill.py).
 - ``"tetgen"``: TetGen through the ``tetgen`` wheel, keeping the given
   surface as it is (no nodes inserted on it) with a radius-edge bound; it
-  refuses a surface that intersects itself. About 1 s at these sizes.
+  refuses a surface that intersects itself. 3-16 s for 2,000 nodes, smallest
+  dihedral angles 4-5 degrees.
 - ``"auto"`` (the default, :func:`resolve_filler`): TetGen where it is
   installed and the surface does not cross itself, so that meshes it made
   before stay the same; fTetWild otherwise.
@@ -26,6 +27,8 @@ from __future__ import annotations
 
 import importlib.machinery
 import importlib.util
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
 from types import ModuleType
@@ -55,6 +58,8 @@ _TETGEN = {
 }
 #: Files TetGen writes into the working directory when the surface intersects itself.
 _TETGEN_DEBRIS = ("_skipped.face", "_skipped.node")
+#: The file fTetWild writes into the working directory on every run.
+_FTETWILD_DEBRIS = ("__tracked_surface.stl",)
 
 
 def tetgen_available() -> bool:
@@ -105,26 +110,27 @@ def _ftetwild_fill(
     wrapper = _ftetwild(name)
     optimize, skip_simplify, length_factor, stop_energy, coarsen = True, False, 0.05, 10.0, False
     threads, iterations, log_level, quiet, vtk_order, no_filter = 2, 80, 6, True, False, False
-    tet_points, tets = wrapper.tetrahedralize_mesh(
-        np.ascontiguousarray(points, np.float64),
-        np.ascontiguousarray(tris, np.uint32),
-        optimize,
-        skip_simplify,
-        length_factor,
-        float(length),
-        epsilon,
-        stop_energy,
-        coarsen,
-        threads,
-        iterations,
-        log_level,
-        quiet,
-        vtk_order,
-        no_filter,
-        np.empty((0, 3), np.float64),  # no background sizing field
-        np.empty((0, 4), np.int32),
-        np.empty(0, np.float64),
-    )
+    with _cleaned(_FTETWILD_DEBRIS):
+        tet_points, tets = wrapper.tetrahedralize_mesh(
+            np.ascontiguousarray(points, np.float64),
+            np.ascontiguousarray(tris, np.uint32),
+            optimize,
+            skip_simplify,
+            length_factor,
+            float(length),
+            epsilon,
+            stop_energy,
+            coarsen,
+            threads,
+            iterations,
+            log_level,
+            quiet,
+            vtk_order,
+            no_filter,
+            np.empty((0, 3), np.float64),  # no background sizing field
+            np.empty((0, 4), np.int32),
+            np.empty(0, np.float64),
+        )
     if len(tets) == 0:
         raise MeshError(f"mesh {name!r}: fTetWild found no volume inside the surface")
     return np.asarray(tet_points, np.float64), np.asarray(tets, np.int64)
@@ -151,14 +157,22 @@ def _tetgen(
     """TetGen with the surface kept and tetrahedra no larger than a regular one of edge ``length``."""
     import tetgen
 
-    before = {debris for debris in _TETGEN_DEBRIS if Path(debris).exists()}
     try:
-        tet_points, tets, *_ = tetgen.TetGen(points, np.asarray(tris, np.int32)).tetrahedralize(
-            maxvolume=length**3 / (6 * np.sqrt(2)), **_TETGEN
-        )
+        with _cleaned(_TETGEN_DEBRIS):
+            tet_points, tets, *_ = tetgen.TetGen(points, np.asarray(tris, np.int32)).tetrahedralize(
+                maxvolume=length**3 / (6 * np.sqrt(2)), **_TETGEN
+            )
     except RuntimeError as exc:  # no second try: TetGen can corrupt memory when it fails twice in a process
         raise MeshError(f"mesh {name!r}: TetGen could not fill the surface ({exc})") from None
-    finally:
-        for debris in set(_TETGEN_DEBRIS) - before:
-            Path(debris).unlink(missing_ok=True)
     return np.asarray(tet_points, np.float64), np.asarray(tets, np.int64)
+
+
+@contextmanager
+def _cleaned(debris: tuple[str, ...]) -> Iterator[None]:
+    """Remove the files of ``debris`` a filler leaves in the working directory (those there before stay)."""
+    before = {name for name in debris if Path(name).exists()}
+    try:
+        yield
+    finally:
+        for name in set(debris) - before:
+            Path(name).unlink(missing_ok=True)

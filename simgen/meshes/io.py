@@ -4,6 +4,9 @@ Node sets travel as point-data masks (1 = member): the standard sets of
 :data:`shared.mesh.NODE_SETS` under their own names (so files from other
 tools that mark, e.g., ``epicardium`` are understood), any other set under
 ``nodeset:<name>``; ``node_set_arrays`` names other masks of a file as sets.
+Heart labels in other forms (facet markers such as gmsh physical groups on
+the boundary triangles, a class per node) are read too
+(:func:`simgen.meshes.labels.file_labels`); masks take precedence.
 ``surface`` is always recomputed on load. meshio formats carry no field data,
 so the long axis travels as three point-data vectors, the same at every node
 (:data:`AXIS_ARRAYS`: apex, base centre, angle-0 direction), read back when
@@ -28,6 +31,7 @@ from numpy.typing import NDArray
 
 from shared.errors import MeshError
 from shared.mesh import NODE_SETS, LongAxis, Mesh
+from simgen.meshes.labels import file_labels
 from simgen.meshes.repair import drop_unused_nodes, orient_triangles, remove_degenerate_cells, split_hexahedra
 from simgen.meshes.topology import boundary_faces
 from simgen.meshes.units import UNIT_KEY, file_units, mm_per_unit
@@ -103,6 +107,7 @@ def load_mesh(
         key: _mask(raw.point_data[array], len(points), array, path)
         for key, array in _set_arrays(raw, node_set_arrays, path).items()
     }
+    masks = {**_labels(raw, masks, path), **masks}
     cells = remove_degenerate_cells(points, cells, where)
     points, cells, kept = drop_unused_nodes(points, cells, where)
     if cells.shape[1] == 3:
@@ -206,6 +211,17 @@ def _set_arrays(raw: meshio.Mesh, node_set_arrays: Mapping[str, str] | None, pat
             )
         names[set_name] = array
     return names
+
+
+def _labels(raw: meshio.Mesh, masks: Mapping[str, NDArray], path: Path) -> dict[str, NDArray[np.bool_]]:
+    """The file's heart labels (:func:`~simgen.meshes.labels.file_labels`); unmappable ones refused only
+    where the masks do not already give the epicardium and endocardium."""
+    try:
+        return file_labels(raw, path)
+    except MeshError:
+        if {"epicardium", "endocardium"} <= set(masks):
+            return {}
+        raise
 
 
 def _mask(values: NDArray, n: int, key: str, path: Path) -> NDArray[np.bool_]:

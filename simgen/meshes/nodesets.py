@@ -7,7 +7,10 @@ ventricles whose cavities open at the base:
 1. **Cavity or outside.** From each triangle a ray is cast along its outward
    normal. On the endocardium it crosses the cavity and hits the opposite
    wall; on the epicardium (and on the base cut) it escapes. A node is
-   endocardial when most of its triangles' area is.
+   endocardial when most of its triangles' area is. Rays walk a grid of the
+   triangles (:func:`simgen.meshes.rays.rays_hit`), so the surface is
+   labelled at its own resolution: a decimated copy would close thin
+   walls, such as the top of the septum, and join the two cavities.
 2. **Cleaning.** Endocardial patches are split into connected pieces; the two
    largest holding at least :data:`MIN_CAVITY_SHARE` of the endocardial nodes
    are the cavities, smaller pieces (concave epicardium, e.g. the
@@ -25,23 +28,26 @@ ventricles whose cavities open at the base:
    made orthogonal to the axis, as :func:`simgen.tissue.aha.estimate_axis`.
 5. **Base.** Non-endocardial nodes in the basal half whose normal is within
    :data:`BASE_ANGLE` degrees of the axis direction (the flat or rounded cut
-   and the valve rims). Base nodes are neither epicardium nor endocardium,
-   so the three sets are disjoint and cover the surface.
+   and the valve rims), and those next to an endocardial node: on a closed
+   surface the endocardium meets the rest only at the cavities' openings,
+   whose rim nodes face half up, half into the cavity. Base nodes are
+   neither epicardium nor endocardium, so the three sets are disjoint and
+   cover the surface.
 
 Limits: the cavities must open towards the base (a ray from a basal
 endocardial triangle pointing out of the opening escapes and is taken for
 epicardium, then re-joined to its cavity only if it touches it); the long
 axis is the LV cavity's, so a very short, round LV gives an uncertain
-direction; an LV alone has no anatomical angle 0. Surfaces with more than
-:data:`DETECTION_NODES` nodes are labelled on a decimated copy and the
-labels carried to the nearest nodes. Meshes without a cavity are refused.
+direction; an LV alone has no anatomical angle 0. Meshes without a cavity
+are refused. :func:`labelled_axis` gives the axis of step 4 for a mesh whose
+node sets came from its file (:mod:`simgen.meshes.labels`); the agreement
+of detection with such labels is measured in ``bench/labels.py``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import trimesh
-from numba import njit
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -49,17 +55,15 @@ from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
 from shared.mesh import LongAxis, Mesh
-from simgen.meshes.resample import decimate_surface
+from simgen.meshes.rays import rays_hit
 from simgen.meshes.topology import boundary_faces
 
-__all__ = ["MIN_CAVITY_SHARE", "BASE_ANGLE", "DETECTION_NODES", "detect_heart"]
+__all__ = ["MIN_CAVITY_SHARE", "BASE_ANGLE", "detect_heart", "labelled_axis"]
 
 #: Smallest share of the endocardial nodes a cavity holds.
 MIN_CAVITY_SHARE = 0.05
 #: Largest angle (degrees) between a base node's normal and the long axis.
 BASE_ANGLE = 45.0
-#: Surfaces larger than this are labelled on a decimated copy.
-DETECTION_NODES = 3000
 
 
 def detect_heart(mesh: Mesh) -> tuple[dict[str, NDArray[np.int64]], LongAxis]:
@@ -69,11 +73,7 @@ def detect_heart(mesh: Mesh) -> tuple[dict[str, NDArray[np.int64]], LongAxis]:
     ``lv_endocardium`` and ``rv_endocardium`` (their union is
     ``endocardium``). See the module docstring for the method.
     """
-    faces = boundary_faces(mesh.cells) if mesh.cell_type == "tetra" else mesh.cells
-    keep = np.unique(faces)
-    local = np.full(mesh.n_nodes, -1, dtype=np.int64)
-    local[keep] = np.arange(len(keep))
-    surface = trimesh.Trimesh(mesh.points[keep], local[faces], process=False)
+    keep, surface = _surface(mesh)
     endo = _endocardial_nodes(surface)
     graph = _graph(surface, len(keep))
     cavities = _cavities(graph, endo, mesh.name)
@@ -85,8 +85,7 @@ def detect_heart(mesh: Mesh) -> tuple[dict[str, NDArray[np.int64]], LongAxis]:
     endo[np.concatenate(cavities)] = True
     axis = _axis(surface, graph, cavities, endo)
     height = (surface.vertices - axis.apex) @ axis.direction / axis.length
-    normal_up = surface.vertex_normals @ axis.direction > np.cos(np.radians(BASE_ANGLE))
-    base = ~endo & normal_up & (height > 0.5)
+    base = _base_nodes(surface, graph, endo, axis.direction, height)
     sets = {"epicardium": ~endo & ~base, "endocardium": endo, "base": base}
     if len(cavities) == 2:
         for name, cavity in zip(("lv_endocardium", "rv_endocardium"), cavities):
@@ -95,51 +94,59 @@ def detect_heart(mesh: Mesh) -> tuple[dict[str, NDArray[np.int64]], LongAxis]:
     return {name: keep[np.flatnonzero(member)] for name, member in sets.items()}, axis
 
 
+def labelled_axis(mesh: Mesh) -> LongAxis:
+    """The long axis (module docstring, step 4) of a mesh whose node sets a file gave.
+
+    The LV cavity is ``lv_endocardium`` (with ``rv_endocardium`` giving angle
+    0) or, for an LV alone, ``endocardium``; :class:`MeshError` if the mesh
+    has neither or its cavity has no opening.
+    """
+    keep, surface = _surface(mesh)
+    local = np.full(mesh.n_nodes, -1, dtype=np.int64)
+    local[keep] = np.arange(len(keep))
+    names = ["lv_endocardium", "rv_endocardium"] if "rv_endocardium" in mesh.node_sets else ["endocardium"]
+    cavities = [local[mesh.nodes(name)] for name in names]
+    cavities = [c[c >= 0] for c in cavities]
+    if any(len(c) == 0 for c in cavities):
+        raise MeshError(f"mesh {mesh.name!r}: node sets {names} hold no surface node")
+    endo = np.zeros(len(keep), dtype=bool)
+    endo[np.concatenate(cavities)] = True
+    return _axis(surface, _graph(surface, len(keep)), cavities, endo)
+
+
+def _surface(mesh: Mesh) -> tuple[NDArray[np.int64], trimesh.Trimesh]:
+    """The mesh nodes on its boundary surface, and that surface on them (nodes numbered in that order)."""
+    faces = boundary_faces(mesh.cells) if mesh.cell_type == "tetra" else mesh.cells
+    keep = np.unique(faces)
+    local = np.full(mesh.n_nodes, -1, dtype=np.int64)
+    local[keep] = np.arange(len(keep))
+    return keep, trimesh.Trimesh(mesh.points[keep], local[faces], process=False)
+
+
+def _base_nodes(
+    surface: trimesh.Trimesh,
+    graph: coo_matrix,
+    endo: NDArray[np.bool_],
+    direction: NDArray[np.float64],
+    height: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """Base nodes (module docstring, step 5): the basal cut facing along the axis, and the cavities' rims."""
+    facing = surface.vertex_normals @ direction > np.cos(np.radians(BASE_ANGLE))
+    rim = ~endo & (graph @ endo.astype(np.int64) + graph.T @ endo.astype(np.int64) > 0)
+    return ~endo & (facing | rim) & (height > 0.5)
+
+
 def _endocardial_nodes(surface: trimesh.Trimesh) -> NDArray[np.bool_]:
     """Nodes most of whose incident area faces a cavity (their normal rays hit the surface)."""
-    if len(surface.vertices) > DETECTION_NODES:
-        points, tris = decimate_surface(surface.vertices, surface.faces, DETECTION_NODES)
-        coarse = trimesh.Trimesh(points, tris, process=False)
-        _, nearest = cKDTree(points).query(surface.vertices)
-        return _endocardial_nodes(coarse)[nearest]
     normals = surface.face_normals
     edge = surface.edges_unique_length.mean()
-    hits = _ray_hits(surface.triangles_center + 1e-3 * edge * normals, normals, surface.triangles)
+    hits = rays_hit(surface.triangles_center + 1e-3 * edge * normals, normals, surface.triangles)
     weight = np.zeros(len(surface.vertices))
     total = np.zeros(len(surface.vertices))
     for corner in surface.faces.T:
         np.add.at(weight, corner, surface.area_faces * hits)
         np.add.at(total, corner, surface.area_faces)
     return weight > 0.5 * total
-
-
-@njit(cache=True)
-def _ray_hits(origins: NDArray, directions: NDArray, triangles: NDArray) -> NDArray[np.bool_]:  # pragma: no cover
-    """Whether each ray ``origin + t direction`` (t > 0) hits any triangle (Moller-Trumbore)."""
-    hits = np.zeros(len(origins), dtype=np.bool_)
-    for i in range(len(origins)):
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        for j in range(len(triangles)):
-            ax, ay, az = triangles[j, 0, 0], triangles[j, 0, 1], triangles[j, 0, 2]
-            e1x, e1y, e1z = triangles[j, 1, 0] - ax, triangles[j, 1, 1] - ay, triangles[j, 1, 2] - az
-            e2x, e2y, e2z = triangles[j, 2, 0] - ax, triangles[j, 2, 1] - ay, triangles[j, 2, 2] - az
-            hx, hy, hz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
-            det = e1x * hx + e1y * hy + e1z * hz
-            if abs(det) < 1e-12:
-                continue
-            sx, sy, sz = ox - ax, oy - ay, oz - az
-            u = (sx * hx + sy * hy + sz * hz) / det
-            if u < 0.0 or u > 1.0:
-                continue
-            qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
-            v = (dx * qx + dy * qy + dz * qz) / det
-            if v < 0.0 or u + v > 1.0:
-                continue
-            if (e2x * qx + e2y * qy + e2z * qz) / det > 0.0:
-                hits[i] = True
-                break
-    return hits
 
 
 def _graph(surface: trimesh.Trimesh, n: int) -> coo_matrix:

@@ -169,6 +169,18 @@ def _scar_text(scar: dict) -> str:
     return f"{where}: core a {scar['core']['a']:g}, D {scar['core']['D']:g}" + (border if scar["border_width"] else "")
 
 
+def _fibres_text(meshes: list[dict]) -> str:
+    """The fibre rule of each mesh of a recorded spec, or that none has fibres."""
+    rules = {
+        m["id"]: m["fibres"]["rule"]
+        if m["fibres"]["rule"] == "file"
+        else f"LDRB, helix {m['fibres']['helix_endo']:+g} to {m['fibres']['helix_epi']:+g} deg"
+        for m in meshes
+        if m.get("fibres")
+    }
+    return "; ".join(f"{mesh_id}: {rule}" for mesh_id, rule in rules.items()) or "none (isotropic)"
+
+
 def _model(facts: StoreFacts) -> list[str]:
     sim = facts.simulation
     units = sim["units"]
@@ -201,6 +213,11 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
     spec_solver = facts.attrs["spec"]["solver"]
     rows = [
         ("diffusivity (mm2 per time unit)", f"{sim['diffusivity']:g}"),
+        ("fibres (per mesh)", _fibres_text(facts.attrs["spec"]["meshes"])),
+        (
+            "anisotropy D_l / D_t (subjects)",
+            _tally([f"{s['anisotropy']:g}" if "anisotropy" in s else "isotropic" for s in solvers]),
+        ),
         ("time integrator (subjects)", _tally([integrator_of(s, spec_solver) for s in solvers])),
         ("time step dt (time units, per subject)", resolved("dt")),
         ("solver steps per frame", resolved("steps_per_frame")),

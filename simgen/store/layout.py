@@ -37,6 +37,7 @@ from shared.integrity import DIGESTS, array_digest
 from shared.mesh import Mesh
 from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from shared.schema import (
+    FIBRE_ARRAYS,
     MESH_ARRAYS,
     MESH_INDEX_SETS,
     MOMENT_VARIABLES,
@@ -56,7 +57,7 @@ from simgen.store import location
 from simgen.store.chunk_files import writable_store, write_rows
 from simgen.store.fingerprint import chunk_fingerprint
 from simgen.store.lock import LOCK_NAME
-from simgen.store.manifest import Subject, SubjectSetup, Task, validate_plan
+from simgen.store.manifest import Subject, SubjectSetup, Task, subject_solver, validate_plan
 from simgen.store.metadata import provenance, simulation_attrs, solver_attrs
 from simgen.store.spec import OutputSpec, recorded_hashes
 from simgen.store.stats import chunk_moments, statistics
@@ -305,7 +306,7 @@ def subject_attrs(
         "mesh_id": s.mesh_id,
         "tissue": spec_dict_of(s.tissue),
         "chunk_sites": output.chunk_sites,
-        "solver": solver_attrs(setup, solver),
+        "solver": solver_attrs(setup, subject_solver(solver, s.tissue)),
         "split": canonical_part(s.id),
         DIGESTS: {name: array_digest(value) for name, value in values.items()},
     }
@@ -397,7 +398,8 @@ def _mesh_chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
 
 def mesh_array_metadata(name: str, shape: tuple[int, ...]) -> ArrayV3Metadata:
     """Zarr metadata of mesh array ``name`` of ``shape`` as :func:`write_mesh_group` writes it."""
-    return _array(zarr.open_group(MemoryStore(), mode="w"), name, MESH_ARRAYS, shape, _mesh_chunks(shape)).metadata
+    specs = {**MESH_ARRAYS, **FIBRE_ARRAYS}
+    return _array(zarr.open_group(MemoryStore(), mode="w"), name, specs, shape, _mesh_chunks(shape)).metadata
 
 
 def spec_dict_of(obj: Any) -> Any:
@@ -406,10 +408,13 @@ def spec_dict_of(obj: Any) -> Any:
 
 
 def mesh_values(mesh: Mesh, sites: NDArray, electrodes: NDArray) -> dict[str, NDArray]:
-    """The arrays of a mesh group, in the stored dtypes."""
+    """The arrays of a mesh group, in the stored dtypes (``fibre`` where the mesh has fibres)."""
     sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
     values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
-    return {name: np.asarray(value, MESH_ARRAYS[name].dtype) for name, value in values.items()}
+    if mesh.fibres is not None:
+        values["fibre"] = mesh.fibres
+    specs = {**MESH_ARRAYS, **FIBRE_ARRAYS}
+    return {name: np.asarray(value, specs[name].dtype) for name, value in values.items()}
 
 
 def mesh_attrs(mesh: Mesh, values: dict[str, NDArray]) -> dict[str, Any]:

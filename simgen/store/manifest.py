@@ -20,20 +20,21 @@ Site selection on a mesh (node set ``P`` = ``spec.sites.node_set``):
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from shared.errors import InputError, StimulusError
+from shared.errors import InputError, MeshError, StimulusError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields, TissueSpec
 from simgen.meshes.catalog import get_mesh
+from simgen.meshes.fibres import ldrb_fibres
 from simgen.meshes.topology import edge_graph
 from simgen.observe.sock import Sock, farthest_point_sampling
 from simgen.solver.fem import element_gradients
-from simgen.solver.simulate import assemble
+from simgen.solver.simulate import SolverConfig, assemble
 from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection
 from simgen.tissue.fields import SCAR_BORDERS, tissue_fields
 
@@ -160,9 +161,15 @@ def sock_electrodes(mesh: Mesh, n_electrodes: int) -> NDArray[np.int64]:
     return Sock(n_electrodes=n_electrodes).indices(mesh).astype(np.int64)
 
 
+def subject_solver(solver: SolverConfig, tissue: TissueSpec) -> SolverConfig:
+    """The solver settings of a subject of ``tissue``: its own ``anisotropy`` where it sets one."""
+    return solver if tissue.anisotropy is None else replace(solver, anisotropy=tissue.anisotropy)
+
+
 def entry_mesh(entry: MeshEntry) -> Mesh:
-    """The mesh of a ``[[meshes]]`` entry, named by its id."""
-    return get_mesh(
+    """The mesh of a ``[[meshes]]`` entry, named by its id, with the fibres its ``fibres`` rule gives (in
+    float32, as the store keeps them) and none without one (a file's own are then left out)."""
+    mesh = get_mesh(
         entry.source,
         entry.nodes,
         entry.kind,
@@ -174,6 +181,16 @@ def entry_mesh(entry: MeshEntry) -> Mesh:
         heart=entry.heart is not False,
         filler=entry.filler,
     )
+    rule = entry.fibres
+    if rule is None:
+        fibres = None
+    elif rule.rule == "file":
+        if mesh.fibres is None:
+            raise MeshError(f"mesh {entry.id!r}: fibre rule 'file', but {entry.source} has no point data 'fibre'")
+        fibres = mesh.fibres
+    else:
+        fibres = ldrb_fibres(mesh, rule.helix_endo, rule.helix_epi)[0]
+    return replace(mesh, fibres=None if fibres is None else np.asarray(fibres, np.float32).astype(np.float64))
 
 
 def make_plan(spec: BuildSpec) -> Plan:
@@ -230,7 +247,7 @@ def validate_plan(plan: Plan, scar_border: str = SCAR_BORDERS[0]) -> dict[str, S
         geometry, graph = per_mesh[subject.mesh_id]
         try:
             fields = tissue_fields(mesh, subject.tissue, graph=graph, border=scar_border)
-            assembly = assemble(mesh, fields, solver, geometry)
+            assembly = assemble(mesh, fields, subject_solver(solver, subject.tissue), geometry)
         except InputError as exc:
             raise type(exc)(f"subject {subject.id!r} (mesh {subject.mesh_id!r}): {exc}") from exc
         setups[subject.id] = SubjectSetup(

@@ -107,8 +107,11 @@ def simulation_attrs(solver: SolverConfig) -> dict:
 
 
 def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
-    """Subject attribute ``solver``: integrator, time step and stimulus as the solver resolved them on its mesh."""
+    """Subject attribute ``solver``: integrator, time step and stimulus as the solver resolved them on its mesh,
+    and the subject's ``anisotropy`` where it conducts along fibres."""
+    anisotropy = {} if solver.anisotropy is None else {"anisotropy": solver.anisotropy}
     return {
+        **anisotropy,
         "integrator": setup.integrator,
         "dt": setup.dt,
         "steps_per_frame": setup.steps_per_frame,
@@ -119,7 +122,8 @@ def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
 
 
 def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mesh) -> SolverConfig:
-    """``solver`` as it ran on the subject (``mesh`` its mesh): its recorded integrator and stimulus.
+    """``solver`` as it ran on the subject (``mesh`` its mesh): its recorded integrator, stimulus and
+    anisotropy (none recorded: isotropic).
 
     A resumed build, a repair and ``verify`` simulate with these, so a store
     keeps its results whatever the defaults of the code that resumes it.
@@ -131,6 +135,7 @@ def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mes
     radius = record.get("stimulus_radius", solver.stimulus_radius)
     return dataclasses.replace(
         solver,
+        anisotropy=record.get("anisotropy"),
         integrator=read_integrator(store, subject_id),
         stimulus_radius=LEGACY_EDGES * mesh.mean_edge_length() if radius is None else radius,
         stimulus_region=record.get("stimulus_region", LEGACY_REGION),

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +57,7 @@ from shared.mesh import NODE_SETS, OPTIONAL_NODE_SETS
 from shared.tissue import TissueSpec
 from simgen.meshes.anatomy import sample_shapes
 from simgen.meshes.catalog import GENERATORS
+from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI
 from simgen.meshes.fillers import FILLERS
 from simgen.meshes.heart import LANDMARKS
 from simgen.meshes.shapes import shape_from_params
@@ -102,6 +104,26 @@ def _check_int(value: Any, lo: int, what: str) -> None:
 
 
 @dataclass(frozen=True)
+class FibreRule:
+    """The fibres of a mesh (``[meshes.fibres]``): ``rule = "ldrb"``, the rule of Bayer et al. 2012 on a
+    ventricular volume (:func:`simgen.meshes.fibres.ldrb_fibres`) with helix angles ``helix_endo`` and
+    ``helix_epi`` (degrees, at the endocardium and the epicardium), or ``"file"``, the mesh file's own point
+    data ``fibre`` (a resampled file's: each node takes its nearest file node's)."""
+
+    rule: Literal["ldrb", "file"] = "ldrb"
+    helix_endo: float = HELIX_ENDO
+    helix_epi: float = HELIX_EPI
+
+    def __post_init__(self) -> None:
+        if self.rule not in ("ldrb", "file"):
+            raise ConfigError(f"fibres: rule {self.rule!r} is not one of ['ldrb', 'file']")
+        for name in ("helix_endo", "helix_epi"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and -90.0 <= value <= 90.0):
+                raise ConfigError(f"fibres: {name} = {value!r} must be an angle in [-90, 90] degrees")
+
+
+@dataclass(frozen=True)
 class MeshEntry:
     """One geometry of the dataset.
 
@@ -124,7 +146,9 @@ class MeshEntry:
     which is refused otherwise; ``filler`` fills a surface with tetrahedra
     (:data:`~simgen.meshes.fillers.FILLERS`; unset: ``"auto"``, TetGen where
     installed and the surface is clean, else fTetWild). Unset keys stay out of
-    the spec's hash.
+    the spec's hash. ``fibres`` (:class:`FibreRule`; unset: none, the mesh conducts
+    isotropically) gives the mesh fibres, which the store keeps (mesh array ``fibre``)
+    and an ``anisotropy`` (``[solver]`` or a tissue setting's) conducts along.
     """
 
     id: str
@@ -137,9 +161,14 @@ class MeshEntry:
     node_set_arrays: dict[str, str] | None = field(default=None, hash=False)
     heart: bool | None = None
     filler: Literal["auto", "ftetwild", "tetgen"] | None = None
+    fibres: FibreRule | None = None
 
     def __post_init__(self) -> None:
         _check_id(self.id, "[[meshes]] id")
+        if self.fibres is not None and self.kind != "tetra":
+            raise ConfigError(f"mesh {self.id!r}: fibres need a volume mesh (kind = 'tetra'), not {self.kind!r}")
+        if self.fibres is not None and self.fibres.rule == "file" and self.source in GENERATORS:
+            raise ConfigError(f"mesh {self.id!r}: fibre rule 'file' needs a mesh file, not {self.source!r}")
         if not isinstance(self.source, str) or not self.source:
             raise ConfigError(
                 f"mesh {self.id!r}: source must be 'lv', 'biv', 'real:<name>' or a mesh file path, got {self.source!r}"
@@ -268,11 +297,6 @@ class BuildSpec:
         object.__setattr__(self, "custom_tissue", tuple(self.custom_tissue))
         if not self.meshes:
             raise ConfigError("the spec has no meshes: add at least one [[meshes]] table")
-        if self.solver.anisotropy is not None:
-            raise ConfigError(
-                "[solver] anisotropy: a dataset store holds no fibres yet, so builds are isotropic; "
-                "anisotropic simulations run with `simgen simulate --fibres --anisotropy R`"
-            )
         ids = [m.id for m in self.meshes]
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
@@ -285,6 +309,13 @@ class BuildSpec:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ConfigError(f"duplicate tissue setting names {dup}: each setting may appear once")
+        anisotropic = self.solver.anisotropy is not None or any(s.anisotropy for s in self.settings())
+        plain = [m.id for m in self.meshes if m.fibres is None]
+        if anisotropic and plain:
+            raise ConfigError(
+                f"anisotropy (in [solver] or a tissue setting) conducts along fibres, and meshes {plain} have "
+                "none: give each a [meshes.fibres] table (rule = 'ldrb', or 'file' for a file's own)"
+            )
         subjects = [f"{m}-{s}" for m in ids for s in names]
         dup = sorted({s for s in subjects if subjects.count(s) > 1})
         if dup:

@@ -41,7 +41,15 @@ from zarr.storage._common import make_store_path
 from shared.config import from_mapping
 from shared.errors import InputError
 from shared.integrity import DIGESTS, array_problem, read_failure
-from shared.schema import MESH_ARRAYS, METADATA_VERSION, SCHEMA_VERSION, SUBJECT_ARRAYS, mesh_path, subject_path
+from shared.schema import (
+    FIBRE_ARRAYS,
+    MESH_ARRAYS,
+    METADATA_VERSION,
+    SCHEMA_VERSION,
+    SUBJECT_ARRAYS,
+    mesh_path,
+    subject_path,
+)
 from shared.split import canonical_part
 from shared.units import MS_PER_TIME_UNIT
 from simgen.store.layout import mesh_array_metadata, spec_dict_of, subject_array_metadata, subject_shapes
@@ -139,7 +147,7 @@ class Recorded:
 
     ``sites``: number of sites by mesh id; ``subjects``: mesh id by subject id;
     ``tissue``: the tissue table by subject id; ``added``: the mesh ids added by
-    ``add-subject`` (the others are the spec's).
+    ``add-subject`` (the others are the spec's); ``fibres``: whether each mesh has fibres.
     """
 
     spec: BuildSpec
@@ -147,6 +155,7 @@ class Recorded:
     subjects: dict[str, str]
     tissue: dict[str, dict]
     added: frozenset[str] = field(default_factory=frozenset)
+    fibres: dict[str, bool] = field(default_factory=dict)
 
 
 def _n_sites(selection: SiteSelection) -> int:
@@ -166,7 +175,9 @@ def recorded_structure(attrs: dict) -> Recorded:
         subjects.update(dict.fromkeys(entry["subjects"], mesh_id))
         tissue.update(zip(entry["subjects"], entry["tissue"]))
     added = frozenset(entry["mesh"]["id"] for entry in attrs.get("added", []))
-    return Recorded(spec, sites, subjects, tissue, added)
+    fibres = {m.id: m.fibres is not None for m in spec.meshes}
+    fibres.update({entry["mesh"]["id"]: entry["mesh"].get("fibres") is not None for entry in attrs.get("added", [])})
+    return Recorded(spec, sites, subjects, tissue, added, fibres)
 
 
 def _required(table: dict[int, tuple[str, ...]], version: int) -> list[str]:
@@ -330,15 +341,17 @@ class _Checker:
             self.digests[path] = DIGESTS in attrs
         shape_params = self.version >= METADATA_VERSION and mesh_id not in self.recorded.added
         self.attributes(path, attrs, _required(_MESH_ATTRS, self.version) + ["shape_params"] * shape_params)
-        self.extras(path, members, set(_MESH_NAMES))
+        names = (*_MESH_NAMES, *FIBRE_ARRAYS) if self.recorded.fibres.get(mesh_id) else _MESH_NAMES
+        self.extras(path, members, set(names))
         before = len(self.damage)
         values, sizes = {}, {}
         cell_type = (attrs or {}).get("cell_type")
-        for name in _MESH_NAMES:
+        for name in names:
             arr = members.get(name)
             stored = tuple(arr.shape) if isinstance(arr, zarr.Array) and arr.ndim else (0,)
             shape = {
                 "points": (stored[0], 3),
+                "fibre": (sizes.get("points", stored[0]), 3),
                 "cells": (stored[0], _VERTICES.get(cell_type, 4)),
                 "stim_nodes": (self.recorded.sites[mesh_id],),
             }.get(name, stored[:1])

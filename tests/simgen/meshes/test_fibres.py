@@ -9,9 +9,10 @@ import pytest
 from shared.errors import MeshError
 from simgen.meshes import save_mesh
 from simgen.meshes.catalog import get_mesh
-from simgen.meshes.fibres import ldrb_fibres
+from simgen.meshes.fibres import ldrb_fibres, ventricular_coordinates
 from simgen.meshes.io import load_mesh
 from simgen.meshes.topology import boundary_faces
+from simgen.tissue import longitudinal_angular
 
 
 @pytest.fixture(scope="module")
@@ -121,3 +122,14 @@ def test_simgen_mesh_writes_fibres_that_simulate_conducts_along(tmp_path):
         assert result.exit_code == 0, result.output
         latest[ratio] = np.nanmax(np.load(out / "simulation.npz")["activation_ms"])
     assert latest["4"] > 1.2 * latest["1"]  # slower across the fibres: the wall takes longer to activate
+
+
+def test_rotational_coordinate_turns_around_the_axis_from_the_rv():
+    mesh = get_mesh("biv", 1500, "tetra")
+    coordinates = ventricular_coordinates(mesh)
+    assert sorted(coordinates) == ["apicobasal", "rotational", "rv_share", "transmural"]
+    rotational = coordinates["rotational"]
+    np.testing.assert_allclose(np.degrees(rotational), longitudinal_angular(mesh)[1], atol=1e-9)  # the AHA angle
+    assert rotational.min() < -0.95 * np.pi and rotational.max() > 0.95 * np.pi
+    rv = rotational[mesh.nodes("rv_endocardium")]
+    assert abs(np.angle(np.exp(1j * rv).mean())) < np.radians(20)  # the RV lies at angle 0
