@@ -82,6 +82,10 @@ class Mesh:
         and ``-f`` are one direction), tangent to a triangle surface; the
         conduction is faster along them when the solver's ``anisotropy`` is
         set (:func:`simgen.solver.fem.stiffness_matrix`).
+    sheets : optional (N, 3) unit sheet direction at each node, orthogonal to
+        its fibre (needs ``fibres``; made orthogonal to them where it is not
+        quite); conduction along the sheets, between the fibres' and the sheet
+        normal's, when the solver's ``sheet_anisotropy`` is set.
     """
 
     points: NDArray[np.float64]
@@ -91,6 +95,7 @@ class Mesh:
     name: str = "mesh"
     file_index: NDArray[np.int64] | None = None
     fibres: NDArray[np.float64] | None = None
+    sheets: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float64)
@@ -115,6 +120,13 @@ class Mesh:
             object.__setattr__(self, "file_index", index)
         if self.fibres is not None:
             object.__setattr__(self, "fibres", _unit_fibres(self.fibres, len(pts), self.name))
+        if self.sheets is not None:
+            if self.fibres is None:
+                raise MeshError(f"mesh {self.name!r}: sheets need fibres (each sheet lies across its fibre)")
+            sheets = np.asarray(self.sheets, dtype=np.float64)
+            if sheets.shape == (len(pts), 3):  # the part orthogonal to the fibre
+                sheets = sheets - np.einsum("nd,nd->n", sheets, self.fibres)[:, None] * self.fibres
+            object.__setattr__(self, "sheets", _unit_fibres(sheets, len(pts), self.name))
 
     @property
     def n_nodes(self) -> int:

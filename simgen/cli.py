@@ -194,6 +194,15 @@ def simulate(
             "the diffusivity is the along-fibre one. Unset: isotropic.",
         ),
     ] = None,
+    sheet_anisotropy: Annotated[
+        float | None,
+        typer.Option(
+            min=1.0,
+            callback=finite,
+            help="Conduction along the mesh's sheets over normal to them, D_s / D_n (orthotropic tissue; the "
+            "rule-based fibres of --fibres come with sheets). Unset: transversely isotropic about the fibres.",
+        ),
+    ] = None,
     tissue: Annotated[str, typer.Option(help=TISSUE_HELP)] = "healthy",
     sites: Annotated[
         str | None, typer.Option(help="Comma-separated stimulation node ids of the mesh (default 0 without others).")
@@ -260,7 +269,13 @@ def simulate(
         observed = None if observe is None else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
         model = cell_model(cell)
-        config = SolverConfig(dt=dt, integrator=integrator, anisotropy=anisotropy, model=model)  # type: ignore[arg-type]
+        config = SolverConfig(
+            dt=dt,
+            integrator=integrator,  # type: ignore[arg-type]
+            anisotropy=anisotropy,
+            sheet_anisotropy=sheet_anisotropy,
+            model=model,
+        )
         sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
         result = sim.run(site_ids, threads=threads, centres=centres)
     except (InputError, ValueError) as exc:
@@ -312,12 +327,14 @@ def simulate(
 def _rule_fibres(
     mesh: Mesh, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)
 ) -> tuple[Mesh, dict[str, np.ndarray]]:
-    """``mesh`` with rule-based fibres (:func:`~simgen.meshes.fibres.ldrb_fibres`, helix angles ``helix`` at the
-    endocardium and epicardium) unless it has its own, and the ventricular coordinates of the rule."""
-    from simgen.meshes.fibres import ldrb_fibres
+    """``mesh`` with rule-based fibres and sheets (:func:`~simgen.meshes.fibres.ldrb_frames`, helix angles
+    ``helix`` at the endocardium and epicardium) unless it has its own, and the ventricular coordinates of the
+    rule."""
+    from simgen.meshes.fibres import ldrb_frames
 
-    rule, coordinates = ldrb_fibres(mesh, *helix)
-    return (mesh if mesh.fibres is not None else dataclasses.replace(mesh, fibres=rule)), coordinates
+    rule = ldrb_frames(mesh, *helix)
+    own = mesh.fibres is not None
+    return (mesh if own else dataclasses.replace(mesh, fibres=rule.fibres, sheets=rule.sheets)), rule.coordinates
 
 
 def _with_fibres(mesh: Mesh, fibres: bool, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)) -> Mesh:

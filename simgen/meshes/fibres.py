@@ -46,11 +46,17 @@ __all__ = [
     "node_gradients",
     "ventricular_coordinates",
     "rotational_coordinate",
+    "SHEET_ENDO",
+    "SHEET_EPI",
+    "Frames",
+    "ldrb_frames",
     "ldrb_fibres",
 ]
 
 #: Default helix angles (degrees) at the endocardium and the epicardium.
 HELIX_ENDO, HELIX_EPI = 60.0, -60.0
+#: Default sheet angles (degrees) at the endocardium and the epicardium (Bayer et al. 2012).
+SHEET_ENDO, SHEET_EPI = -65.0, 25.0
 
 
 def laplace(mesh: Mesh, values: dict[float, NDArray[np.integer]]) -> NDArray[np.float64]:
@@ -242,10 +248,29 @@ def rotational_coordinate(mesh: Mesh) -> NDArray[np.float64]:
     return np.arctan2(x @ np.cross(d, r), x @ r)
 
 
-def ldrb_fibres(
-    mesh: Mesh, helix_endo: float = HELIX_ENDO, helix_epi: float = HELIX_EPI
-) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
-    """Fibres (N, 3) of a ventricular volume mesh (module docstring) and its :func:`ventricular_coordinates`."""
+class Frames(NamedTuple):
+    """The LDRB rule's directions per node: ``fibres`` and ``sheets`` (N, 3) unit vectors, orthogonal to each
+    other, and the ventricular coordinates they come from."""
+
+    fibres: NDArray[np.float64]
+    sheets: NDArray[np.float64]
+    coordinates: dict[str, NDArray[np.float64]]
+
+
+def ldrb_frames(
+    mesh: Mesh,
+    helix_endo: float = HELIX_ENDO,
+    helix_epi: float = HELIX_EPI,
+    sheet_endo: float = SHEET_ENDO,
+    sheet_epi: float = SHEET_EPI,
+) -> Frames:
+    """Fibres and sheets of a ventricular volume mesh (module docstring) and its coordinates.
+
+    The sheet direction turns about the fibre, from the frame's in-wall direction orthogonal to the fibre
+    towards the transmural one, by the sheet angle ``beta(d) = sheet_endo (1 - d) + sheet_epi d`` (Bayer et
+    al.'s defaults -65 and +25 degrees). On a biventricle the frames are blended first and turned after, so
+    that the fibres do not depend on the sheet angles.
+    """
     solves = _solves(mesh)
     d, psi = solves.transmural, node_gradients(mesh, solves.apicobasal)
     wall = _rotated(_frames(mesh, node_gradients(mesh, d), psi), helix_endo * (1.0 - d) + helix_epi * d)
@@ -254,4 +279,14 @@ def ldrb_fibres(
         q_lv = _rotated(_frames(mesh, -node_gradients(mesh, solves.lv), psi), septal)
         q_rv = _rotated(_frames(mesh, node_gradients(mesh, solves.rv), psi), septal)
         wall = _bislerp(_bislerp(q_lv, q_rv, solves.rv_share), wall, d)
-    return _unit(wall[:, :, 0]), _coordinates(solves)
+    beta = np.radians(sheet_endo * (1.0 - d) + sheet_epi * d)[:, None]
+    sheets = np.cos(beta) * wall[:, :, 1] + np.sin(beta) * wall[:, :, 2]
+    return Frames(_unit(wall[:, :, 0]), _unit(sheets), _coordinates(solves))
+
+
+def ldrb_fibres(
+    mesh: Mesh, helix_endo: float = HELIX_ENDO, helix_epi: float = HELIX_EPI
+) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
+    """Fibres (N, 3) of a ventricular volume mesh (module docstring) and its :func:`ventricular_coordinates`."""
+    frames = ldrb_frames(mesh, helix_endo, helix_epi)
+    return frames.fibres, frames.coordinates

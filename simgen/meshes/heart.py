@@ -111,9 +111,10 @@ def load_heart(
     if nodes is not None:
         check_mesh_request(kind or mesh.cell_type, nodes, 200)  # the range of the procedural meshes
         original, mesh = mesh, resample(mesh, nodes, kind or mesh.cell_type, filler)
-        if original.fibres is not None:  # each new node takes the fibre of the file's nearest node
+        if original.fibres is not None:  # each new node takes the fibre (and sheet) of the file's nearest node
             nearest = cKDTree(original.points).query(mesh.points)[1]
-            mesh = dataclasses.replace(mesh, fibres=original.fibres[nearest])
+            sheets = None if original.sheets is None else original.sheets[nearest]
+            mesh = dataclasses.replace(mesh, fibres=original.fibres[nearest], sheets=sheets)
     elif kind is not None and kind != mesh.cell_type:
         raise MeshError(
             f"{source} holds {mesh.cell_type}s: used as it is, it is simulated as {mesh.cell_type}s; to have "
@@ -134,7 +135,7 @@ def load_heart(
         sets = {**detected, **sets}
     if landmarks:
         axis = axis_from_landmarks(landmarks, axis)
-    return validate_mesh(Mesh(mesh.points, mesh.cells, sets, axis, mesh.name, mesh.file_index, mesh.fibres))
+    return validate_mesh(dataclasses.replace(mesh, node_sets=sets, axis=axis))
 
 
 def _labelled_axis(mesh: Mesh) -> LongAxis | None:

@@ -37,12 +37,14 @@ from simgen.meshes.topology import boundary_faces
 from simgen.meshes.units import UNIT_KEY, file_units, mm_per_unit
 from simgen.meshes.validate import validate_mesh
 
-__all__ = ["AXIS_ARRAYS", "FIBRE_KEYS", "load_mesh", "save_mesh"]
+__all__ = ["AXIS_ARRAYS", "FIBRE_KEYS", "SHEET_KEYS", "load_mesh", "save_mesh"]
 
 #: Point-data vectors (the same at every node) that carry a mesh's long axis in its file.
 AXIS_ARRAYS = ("axis_apex", "axis_base", "axis_reference")
 #: Point data holding a fibre direction per node, read in this order; :func:`save_mesh` writes the first.
 FIBRE_KEYS = ("fibre", "fibres", "fiber", "fibers")
+#: Point data holding a sheet direction per node (with fibres only), read in this order.
+SHEET_KEYS = ("sheet", "sheets")
 
 _PREFIX = "nodeset:"
 _IGNORED = {"vertex", "line", "line3"}  # lower-dimensional markers (e.g. gmsh physical groups)
@@ -116,14 +118,21 @@ def load_mesh(
     node_sets["surface"] = np.arange(len(points)) if cells.shape[1] == 3 else np.unique(boundary_faces(cells))
     if axis is None:
         axis = _file_axis(raw, scale, path)
-    fibres = _file_fibres(raw, path)
+    fibres, sheets = _file_vectors(raw, path, FIBRE_KEYS), _file_vectors(raw, path, SHEET_KEYS)
     file_index = None
     if len(kept) < len(raw.points):  # nodes in no cell were dropped: keep the way back to the file's ids
         file_index = np.full(len(raw.points), -1, np.int64)
         file_index[kept] = np.arange(len(kept))
     try:
         mesh = Mesh(
-            points, cells, node_sets, axis, name or path.stem, file_index, None if fibres is None else fibres[kept]
+            points,
+            cells,
+            node_sets,
+            axis,
+            name or path.stem,
+            file_index,
+            None if fibres is None else fibres[kept],
+            None if sheets is None or fibres is None else sheets[kept],
         )
         return validate_mesh(mesh)
     except MeshError as exc:
@@ -157,6 +166,8 @@ def save_mesh(mesh: Mesh, path: str | PathLike, point_data: Mapping[str, NDArray
         data[key if key in NODE_SETS else _PREFIX + key] = mask
     if mesh.fibres is not None:
         data[FIBRE_KEYS[0]] = mesh.fibres
+    if mesh.sheets is not None:
+        data[SHEET_KEYS[0]] = mesh.sheets
     if mesh.axis is not None:
         for name, value in zip(AXIS_ARRAYS, (mesh.axis.apex, mesh.axis.base, mesh.axis.reference)):
             data[name] = np.tile(np.asarray(value, np.float64), (mesh.n_nodes, 1))
@@ -233,15 +244,15 @@ def _mask(values: NDArray, n: int, key: str, path: Path) -> NDArray[np.bool_]:
     return values.astype(bool)
 
 
-def _file_fibres(raw: meshio.Mesh, path: Path) -> NDArray[np.float64] | None:
-    """The fibre vector at each node of the file (point data :data:`FIBRE_KEYS`), else ``None``."""
-    key = next((k for k in FIBRE_KEYS if k in raw.point_data), None)
+def _file_vectors(raw: meshio.Mesh, path: Path, keys: tuple[str, ...]) -> NDArray[np.float64] | None:
+    """A direction at each node of the file (the first point data of ``keys``: fibres, sheets), else ``None``."""
+    key = next((k for k in keys if k in raw.point_data), None)
     if key is None:
         return None
-    fibres = np.asarray(raw.point_data[key], np.float64)
-    if fibres.shape != (len(raw.points), 3):
-        raise MeshError(f"{path}: point data {key!r} must be one 3-vector per node, got shape {fibres.shape}")
-    return fibres
+    vectors = np.asarray(raw.point_data[key], np.float64)
+    if vectors.shape != (len(raw.points), 3):
+        raise MeshError(f"{path}: point data {key!r} must be one 3-vector per node, got shape {vectors.shape}")
+    return vectors
 
 
 def _file_axis(raw: meshio.Mesh, scale: float, path: Path) -> LongAxis | None:

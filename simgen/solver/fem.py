@@ -14,7 +14,15 @@ the conductivity is a tensor per element,
 :math:`\overline{f f^T}` the mean over the element's nodes of their fibres'
 outer products (sign-free: ``f`` and ``-f`` give the same tensor; exact for
 uniform fibres). On triangles only the fibres' component in the element's
-plane counts, as the gradients lie in it.
+plane counts, as the gradients lie in it. With sheets
+(:attr:`shared.mesh.Mesh.sheets`) and a second ratio ``q = D_s / D_n`` of
+conduction along the sheets and across them (orthotropic tissue), the sheet
+normal conducts ``q`` times slower than the sheet:
+
+.. math::
+
+    D_e = d_e \left(\tfrac{1}{r q} I + \left(1 - \tfrac{1}{r q}\right) \overline{f f^T}
+          + \left(\tfrac{1}{r} - \tfrac{1}{r q}\right) \overline{s s^T}\right).
 """
 
 from __future__ import annotations
@@ -74,18 +82,22 @@ def stiffness_matrix(
     node_diffusivity: NDArray[np.float64],
     geometry: Geometry | None = None,
     anisotropy: float | None = None,
+    sheet_anisotropy: float | None = None,
 ) -> sp.csr_matrix:
     """Symmetric stiffness matrix ``K_ij = sum_e |e| grad(phi_i) . D_e grad(phi_j)``.
 
-    ``anisotropy``: ``D_l / D_t`` along the mesh's fibres (module docstring);
-    ``None`` or 1: isotropic, ``D_e = d_e I`` (the fibres are not read).
+    ``anisotropy``: ``D_l / D_t`` along the mesh's fibres, ``sheet_anisotropy``
+    ``D_s / D_n`` along its sheets (module docstring); ``None`` or 1:
+    isotropic, ``D_e = d_e I`` (the fibres are not read), and transversely
+    isotropic about the fibres.
     """
     grads, measure = geometry or element_gradients(mesh.points, mesh.cells)
     d_cell = np.asarray(node_diffusivity, float)[mesh.cells].mean(axis=1)
-    if anisotropy is None or anisotropy == 1.0:
+    if (anisotropy or 1.0) == 1.0 and (sheet_anisotropy or 1.0) == 1.0:
         local = np.einsum("mid,mjd->mij", grads, grads)
     else:
-        local = np.einsum("mid,mde,mje->mij", grads, conductivity_tensors(mesh, anisotropy), grads)
+        tensors = conductivity_tensors(mesh, anisotropy or 1.0, sheet_anisotropy or 1.0)
+        local = np.einsum("mid,mde,mje->mij", grads, tensors, grads)
     local = local * (d_cell * measure)[:, None, None]
     k = mesh.cells.shape[1]
     rows = np.repeat(mesh.cells, k, axis=1).ravel()
@@ -94,9 +106,9 @@ def stiffness_matrix(
     return sp.csr_matrix((local.ravel(), (rows, cols)), shape=(n, n))
 
 
-def conductivity_tensors(mesh: Mesh, anisotropy: float) -> NDArray[np.float64]:
+def conductivity_tensors(mesh: Mesh, anisotropy: float, sheet_anisotropy: float = 1.0) -> NDArray[np.float64]:
     """(M, 3, 3) relative conductivity of each element: ``I / r + (1 - 1 / r)`` times the mean of its nodes'
-    ``f f^T`` (module docstring)."""
+    ``f f^T``, and with ``sheet_anisotropy`` ``q`` the sheets' term (module docstring)."""
     if mesh.fibres is None:
         raise MeshError(
             f"mesh {mesh.name!r} has no fibres: anisotropic conduction (anisotropy = {anisotropy:g}) needs them: "
@@ -106,7 +118,19 @@ def conductivity_tensors(mesh: Mesh, anisotropy: float) -> NDArray[np.float64]:
         raise MeshError(f"anisotropy {anisotropy!r} must be a finite ratio D_l / D_t >= 1")
     f = mesh.fibres[mesh.cells]  # (M, k, 3)
     outer = np.einsum("mki,mkj->mij", f, f) / mesh.cells.shape[1]
-    return np.eye(3) / anisotropy + (1.0 - 1.0 / anisotropy) * outer
+    if sheet_anisotropy == 1.0:
+        return np.eye(3) / anisotropy + (1.0 - 1.0 / anisotropy) * outer
+    if mesh.sheets is None:
+        raise MeshError(
+            f"mesh {mesh.name!r} has no sheets: orthotropic conduction (sheet_anisotropy = {sheet_anisotropy:g}) "
+            "needs them: a mesh file's point data 'sheet', or rule-based ones (simgen.meshes.fibres.ldrb_frames)"
+        )
+    if not np.isfinite(sheet_anisotropy) or sheet_anisotropy < 1.0:
+        raise MeshError(f"sheet_anisotropy {sheet_anisotropy!r} must be a finite ratio D_s / D_n >= 1")
+    s = mesh.sheets[mesh.cells]
+    sheet_outer = np.einsum("mki,mkj->mij", s, s) / mesh.cells.shape[1]
+    normal = 1.0 / (anisotropy * sheet_anisotropy)
+    return np.eye(3) * normal + (1.0 - normal) * outer + (1.0 / anisotropy - normal) * sheet_outer
 
 
 def lumped_mass(mesh: Mesh, geometry: Geometry | None = None) -> NDArray[np.float64]:
@@ -121,10 +145,11 @@ def diffusion_operator(
     node_diffusivity: NDArray[np.float64],
     geometry: Geometry | None = None,
     anisotropy: float | None = None,
+    sheet_anisotropy: float | None = None,
 ) -> sp.csr_matrix:
     """``A = -M^{-1} K`` so that the diffusion step reads ``du/dt = A u``."""
     geometry = geometry or element_gradients(mesh.points, mesh.cells)
-    stiffness = stiffness_matrix(mesh, node_diffusivity, geometry, anisotropy)
+    stiffness = stiffness_matrix(mesh, node_diffusivity, geometry, anisotropy, sheet_anisotropy)
     return operator_from(stiffness, lumped_mass(mesh, geometry))
 
 

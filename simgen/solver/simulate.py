@@ -127,7 +127,10 @@ class SolverConfig:
     along-fibre value, :mod:`simgen.solver.fem`), a front about
     ``sqrt(anisotropy)`` times faster along them; ``None`` (or 1): isotropic,
     and out of a spec's hash. Every integrator and backend takes it, through
-    the assembled operator.
+    the assembled operator. ``sheet_anisotropy``: the ratio ``D_s / D_n`` of
+    conduction along the mesh's sheets (:attr:`shared.mesh.Mesh.sheets`) and
+    normal to them, on top of ``anisotropy`` (orthotropic tissue); ``None`` (or
+    1): transversely isotropic about the fibres.
     """
 
     diffusivity: float = 100.0
@@ -142,6 +145,7 @@ class SolverConfig:
     backend: Literal["numba", "torch", "auto"] | None = None
     integrator: Literal["euler", "rkc", "imex", "auto"] | None = None
     anisotropy: float | None = None
+    sheet_anisotropy: float | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.diffusivity) or self.diffusivity <= 0:
@@ -160,8 +164,10 @@ class SolverConfig:
             raise InputError(f"stimulus_duration must be >= 0 time units, got {self.stimulus_duration}")
         if not 0 < self.activation_threshold < 1:
             raise InputError(f"activation_threshold must be in (0, 1), got {self.activation_threshold}")
-        if self.anisotropy is not None and not (np.isfinite(self.anisotropy) and self.anisotropy >= 1):
-            raise InputError(f"anisotropy must be a finite ratio D_l / D_t >= 1, got {self.anisotropy}")
+        for name in ("anisotropy", "sheet_anisotropy"):
+            value = getattr(self, name)
+            if value is not None and not (np.isfinite(value) and value >= 1):
+                raise InputError(f"{name} must be a finite ratio >= 1, got {value}")
         if self.backend is not None:
             check_backend(self.backend)
         if self.integrator is not None:
@@ -172,7 +178,8 @@ class SolverConfig:
                 f"of {self.frames} frames): more than {MAX_STEPS:,} is refused; give a larger dt or leave it unset "
                 "(chosen for the mesh)"
             )
-        for name, default in (("integrator", AUTO), ("backend", "numba"), ("anisotropy", 1.0)):  # a default: unset
+        defaults = (("integrator", AUTO), ("backend", "numba"), ("anisotropy", 1.0), ("sheet_anisotropy", 1.0))
+        for name, default in defaults:  # a default: unset
             if getattr(self, name) == default:
                 object.__setattr__(self, name, None)
 
@@ -261,7 +268,8 @@ def assemble(
         raise TissueError(f"tissue fields have {len(tissue.a)} nodes but mesh {mesh.name!r} has {mesh.n_nodes}")
     if geometry is None:
         geometry = element_gradients(mesh.points, mesh.cells)
-    K = stiffness_matrix(mesh, config.diffusivity * np.asarray(tissue.D, float), geometry, config.anisotropy)
+    D = config.diffusivity * np.asarray(tissue.D, float)
+    K = stiffness_matrix(mesh, D, geometry, config.anisotropy, config.sheet_anisotropy)
     mass = lumped_mass(mesh, geometry)
     A = operator_from(K, mass)
     lambda_max = largest_eigenvalue(A, mass)

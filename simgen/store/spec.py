@@ -309,6 +309,11 @@ class BuildSpec:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ConfigError(f"duplicate tissue setting names {dup}: each setting may appear once")
+        if self.solver.sheet_anisotropy is not None:
+            raise ConfigError(
+                "[solver] sheet_anisotropy: a store keeps fibres but no sheets yet, so builds are transversely "
+                "isotropic; orthotropic simulations run with `simgen simulate --fibres --sheet-anisotropy Q`"
+            )
         anisotropic = self.solver.anisotropy is not None or any(s.anisotropy for s in self.settings())
         plain = [m.id for m in self.meshes if m.fibres is None]
         if anisotropic and plain:

@@ -9,7 +9,7 @@ import pytest
 from shared.errors import MeshError
 from simgen.meshes import save_mesh
 from simgen.meshes.catalog import get_mesh
-from simgen.meshes.fibres import ldrb_fibres, ventricular_coordinates
+from simgen.meshes.fibres import ldrb_fibres, ldrb_frames, node_gradients, ventricular_coordinates
 from simgen.meshes.io import load_mesh
 from simgen.meshes.topology import boundary_faces
 from simgen.tissue import longitudinal_angular
@@ -133,3 +133,20 @@ def test_rotational_coordinate_turns_around_the_axis_from_the_rv():
     assert rotational.min() < -0.95 * np.pi and rotational.max() > 0.95 * np.pi
     rv = rotational[mesh.nodes("rv_endocardium")]
     assert abs(np.angle(np.exp(1j * rv).mean())) < np.radians(20)  # the RV lies at angle 0
+
+
+def test_sheets_turn_out_of_the_wall_by_the_sheet_angle(lv, tmp_path):
+    """Sheets are unit vectors orthogonal to the fibres, at beta(d) = -65 (1 - d) + 25 d degrees out of the
+    wall's tangent plane (the plane normal to grad d): within 2 degrees at the mid-ventricle; files carry them."""
+    import dataclasses
+
+    mesh, _, d = lv
+    frames = ldrb_frames(mesh)
+    np.testing.assert_allclose(np.einsum("nd,nd->n", frames.fibres, frames.sheets), 0.0, atol=1e-12)
+    normal = node_gradients(mesh, d)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    out = np.degrees(np.arcsin(np.clip(np.einsum("nd,nd->n", frames.sheets, normal), -1.0, 1.0)))
+    mid = (mesh.points[:, 2] > -45.0) & (mesh.points[:, 2] < -5.0)
+    assert np.abs(out - (-65.0 * (1.0 - d) + 25.0 * d))[mid].max() < 2.0
+    path = save_mesh(dataclasses.replace(mesh, fibres=frames.fibres, sheets=frames.sheets), tmp_path / "lv.vtu")
+    np.testing.assert_allclose(load_mesh(path).sheets, frames.sheets, atol=1e-12)

@@ -105,3 +105,22 @@ def test_imex_matches_euler_on_an_anisotropic_real_heart():
     both = np.isfinite(euler)
     assert np.abs(euler - imex)[both].max() < 0.02 * (np.nanmax(euler) - np.nanmin(euler))
     assert min(np.corrcoef(e[k], i[k])[0, 1] for e, i, k in ((euler[s], imex[s], both[s]) for s in range(3))) >= 0.99
+
+
+def test_sheets_make_the_tensor_orthotropic():
+    """Fibres along x, sheets along y, r = D_l / D_t = 4, q = D_s / D_n = 4: D = diag(1, 1/4, 1/16), the
+    isotropic stiffness of the mesh stretched 2x in y and 4x in z over the volume's growth, 8."""
+    mesh = with_fibres(slab(4.0, 3.0, 2.0, 1.0), [1, 0, 0])
+    mesh = dataclasses.replace(mesh, sheets=np.tile([0.2, 1.0, 0.0], (mesh.n_nodes, 1)))  # made orthogonal to x
+    d = np.linspace(1.0, 2.0, mesh.n_nodes)
+    stretched = dataclasses.replace(mesh, points=mesh.points * [1.0, 2.0, 4.0], fibres=None, sheets=None)
+    found = stiffness_matrix(mesh, d, anisotropy=4.0, sheet_anisotropy=4.0)
+    np.testing.assert_allclose(found.toarray(), (stiffness_matrix(stretched, d) / 8.0).toarray(), atol=1e-12)
+    same = stiffness_matrix(mesh, d, anisotropy=4.0, sheet_anisotropy=1.0).toarray()
+    np.testing.assert_array_equal(same, stiffness_matrix(mesh, d, anisotropy=4.0).toarray())
+    with pytest.raises(MeshError, match="has no sheets: orthotropic conduction"):
+        stiffness_matrix(dataclasses.replace(mesh, sheets=None), d, anisotropy=4.0, sheet_anisotropy=2.0)
+    with pytest.raises(MeshError, match="sheets need fibres"):
+        Mesh(mesh.points, mesh.cells, sheets=mesh.sheets)
+    with pytest.raises(InputError, match="sheet_anisotropy must be a finite ratio"):
+        SolverConfig(sheet_anisotropy=0.5)
