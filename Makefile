@@ -58,6 +58,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.scaling --out report/bench
 	$(BIN)/python -m bench.anisotropy --out report/bench
 	$(BIN)/python -m bench.fill --out report/bench
+	$(BIN)/python -m bench.ecg --out report/bench
 
 clean:
 	rm -rf $(VENV) report .pytest_cache

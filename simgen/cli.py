@@ -25,6 +25,7 @@ from simgen.meshes.catalog import get_mesh
 from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
+from simgen.observe.ecg import LEADS
 from simgen.solver.cells import CELL_MODELS, APParams, cell_model
 from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 from simgen.solver.integrators import AUTO, integrator_help
@@ -232,7 +233,15 @@ def simulate(
         str | None,
         typer.Option(
             help="Also write observations.npz, the recordings `learner personalize --observations` reads: u on this "
-            "node set (surface, epicardium, endocardium, electrodes: the 247-electrode sock, or all)."
+            "node set (surface, epicardium, endocardium, electrodes: the 247-electrode sock, or all); or 'ecg': "
+            "ecg.npz and ecg.png, the 12-lead pseudo-ECG of each site (mV against ms)."
+        ),
+    ] = None,
+    electrodes: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --observe ecg: a text file of 'name, x, y, z' lines (mm, the mesh's coordinates) instead of "
+            "the standard placement; the 12 leads need RA, LA, LL and V1-V6, other sets give potentials only.",
         ),
     ] = None,
     record: Annotated[
@@ -258,7 +267,7 @@ def simulate(
 ) -> None:
     """Simulate stimulation sites (node ids, points or regions) on one mesh + tissue and save the potential (mV),
     activation times (ms) and a figure; a mesh file without --nodes is used as it is, results on its own node ids."""
-    from simgen.plot import plot_activation_maps
+    from simgen.plot import plot_activation_maps, plot_ecg
 
     try:
         if record not in RECORDINGS:
@@ -266,7 +275,7 @@ def simulate(
         m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
         m = _with_fibres(m, fibres, (helix_endo, helix_epi))
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
-        observed = None if observe is None else _observed_nodes(m, observe)
+        observed = None if observe in (None, "ecg") else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
         model = cell_model(cell)
         config = SolverConfig(
@@ -276,8 +285,12 @@ def simulate(
             sheet_anisotropy=sheet_anisotropy,
             model=model,
         )
-        sim = Simulator(m, tissue_fields(m, spec), config, backend=backend, device=device)
+        fields = tissue_fields(m, spec)
+        started = time.perf_counter()
+        sim = Simulator(m, fields, config, backend=backend, device=device)
         result = sim.run(site_ids, threads=threads, centres=centres)
+        seconds = time.perf_counter() - started
+        ecg = None if observe != "ecg" else _ecg(m, fields, config, result, seconds, electrodes)
     except (InputError, ValueError) as exc:
         _fail(exc)
     act_ms = result.activation * MS_PER_TIME_UNIT
@@ -310,6 +323,11 @@ def simulate(
                 **_recording(result, observed, record, noise, rng),
                 **labels,
             )
+        if ecg is not None:
+            np.savez_compressed(out / "ecg.npz", sites=file_sites, **ecg)
+            if "ecg_mv" in ecg:
+                title = f"{m.name}: pseudo-ECG, site {file_sites[0]}"
+                plot_ecg(times_ms, ecg["ecg_mv"][0], LEADS, out / "ecg.png", title)
         if vtk is not None:
             for site, u, act in zip(file_sites, result.u, act_ms):
                 frames = {"V_mV": to_millivolts(u), "u": u}
@@ -322,6 +340,32 @@ def simulate(
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
     _report_no_wave(site_ids, result.activated_fraction)
+
+
+def _ecg(m: Mesh, fields, config: SolverConfig, result, seconds: float, file: Path | None) -> dict[str, np.ndarray]:
+    """The arrays of ``ecg.npz`` (docs/formats.md): the electrodes' potentials and, where they make them, the
+    12 leads of every site's simulation, in mV against ms; prints the ECG's cost against the simulation's."""
+    from simgen.observe.ecg import ELECTRODES, PseudoECG, leads, read_electrodes, standard_electrodes
+
+    started = time.perf_counter()
+    electrodes = standard_electrodes(m) if file is None else read_electrodes(file)
+    operator = PseudoECG.assemble(m, electrodes, fields.D, config.anisotropy)
+    assembled = time.perf_counter()
+    potentials = operator.potentials(result.u)
+    twelve = set(ELECTRODES) <= set(electrodes.names)
+    ecg = {"ecg_mv": leads(potentials, electrodes).astype(np.float32), "leads": np.array(LEADS)} if twelve else {}
+    done = time.perf_counter()
+    console.print(
+        f"pseudo-ECG: operator {assembled - started:.2f} s, {len(result.u)} ECG(s) {1e3 * (done - assembled):.1f} ms "
+        f"(the simulation: {seconds:.2f} s)"
+    )
+    return {
+        **ecg,
+        "potentials_mv": potentials.astype(np.float32),
+        "ecg_times_ms": result.times * MS_PER_TIME_UNIT,
+        "electrodes": np.array(electrodes.names),
+        "electrode_xyz_mm": electrodes.positions,
+    }
 
 
 def _rule_fibres(

@@ -354,3 +354,28 @@ def plot_fibres(
         )
     fig.suptitle(title, fontsize=9)
     _save(fig, path)
+
+
+def plot_ecg(
+    times_ms: NDArray[np.float64], leads: NDArray[np.float64], names: Sequence[str], path: str | PathLike, title: str
+) -> None:
+    """The 12 leads (12, T) in mV against ms in the usual 3 x 4 layout (I, II, III | aVR, aVL, aVF | V1-V3 |
+    V4-V6), every panel on one voltage scale, over a 1 mV / 40 ms grid."""
+    fig = Figure(figsize=(13, 6.5))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 4, sharex=True, sharey=True)
+    limit = 1.05 * float(np.abs(leads).max(initial=1e-9))
+    for k, name in enumerate(names):
+        ax = axes[k % 3, k // 3]
+        ax.plot(times_ms, leads[k], color="black", lw=1.2)
+        ax.set_xticks(np.arange(0.0, times_ms[-1] + 1.0, 40.0), minor=True)
+        ax.grid(which="both", color="#f4a6a6", lw=0.4)
+        ax.set_ylim(-limit, limit)
+        ax.text(0.03, 0.85, name, transform=ax.transAxes, fontsize=11, weight="bold")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (ms)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("mV")
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
