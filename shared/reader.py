@@ -38,6 +38,7 @@ __all__ = [
     "read_split",
     "read_solver_settings",
     "read_integrator",
+    "read_ecg",
     "integrator_of",
     "LEGACY_INTEGRATOR",
     "read_times",
@@ -302,6 +303,22 @@ def read_u(
     """
     reader = SubjectReader(path, subject_id, allow_pending=allow_pending)
     return reader.all("u") if rows is None else reader.rows("u", rows)
+
+
+def read_ecg(path: str | Path, subject_id: str, rows: ArrayLike | None = None) -> tuple[NDArray[np.float32], list[str]]:
+    """The stored 12-lead pseudo-ECGs ``(site, lead, time)`` in mV of ``rows`` (default: all) and the lead names,
+    in a store built with ``[output] ecg = true``; rows of chunks not yet done are refused (each chunk file
+    carries a checksum that a damaged one fails)."""
+    reader = SubjectReader(path, subject_id)
+    if "ecg" not in reader.group:
+        raise InputError(f"store {path}: subject {subject_id} has no ECG (built without [output] ecg = true)")
+    rows = np.arange(reader.n_sites) if rows is None else np.asarray(rows, np.int64).ravel()
+    pending = sorted({int(r) for r in rows if not reader.done[int(r) // reader.chunk_sites]})
+    if pending:
+        raise InputError(f"store {path}: subject {subject_id}, sites {pending[:5]} not simulated yet")
+    mesh_id = reader.group.attrs["mesh_id"]
+    leads = list(zarr.open_group(str(path), path=mesh_path(mesh_id), mode="r").attrs["ecg"]["leads"])
+    return reader.group["ecg"].get_orthogonal_selection((rows, slice(None), slice(None))), leads
 
 
 def read_activation(

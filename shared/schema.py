@@ -50,6 +50,8 @@ __all__ = [
     "ArraySpec",
     "MESH_ARRAYS",
     "FIBRE_ARRAYS",
+    "ECG_MESH_ARRAYS",
+    "ECG_ARRAYS",
     "MESH_INDEX_SETS",
     "SUBJECT_ARRAYS",
     "MOMENT_VARIABLES",
@@ -117,6 +119,16 @@ MESH_ARRAYS: dict[str, ArraySpec] = {
 #: the mesh conducts isotropically.
 FIBRE_ARRAYS: dict[str, ArraySpec] = {
     "fibre": ArraySpec("float32", ("node", "xyz"), "1", "unit fibre direction at each node"),
+}
+
+#: What a build with ``[output] ecg = true`` adds: per mesh the electrode positions (names in its ``ecg``
+#: attribute), per subject each simulation's 12-lead pseudo-ECG (lead names in the mesh's ``ecg`` attribute),
+#: sharded as ``u`` is.
+ECG_MESH_ARRAYS: dict[str, ArraySpec] = {
+    "ecg_electrodes": ArraySpec("float64", ("electrode", "xyz"), "mm", "ECG electrode positions"),
+}
+ECG_ARRAYS: dict[str, ArraySpec] = {
+    "ecg": ArraySpec("float32", ("site", "lead", "time"), "mV", "12-lead pseudo-ECG"),
 }
 
 #: Variables and moments of a subject's ``moments`` array (its last two dimensions).

@@ -39,6 +39,7 @@ from simgen.solver.fem import conductivity_tensors, element_gradients
 __all__ = [
     "LEADS",
     "ELECTRODES",
+    "ECG_ATTRS",
     "SIGMA_I",
     "SIGMA_B",
     "TORSO",
@@ -83,6 +84,18 @@ TORSO = {
         "V5": (90.0, -20.0),
         "V6": (125.0, -20.0),
     },
+}
+
+
+#: The mesh attribute ``ecg`` of a store that keeps ECGs: what its ``ecg_electrodes`` and its subjects' ``ecg``
+#: arrays hold.
+ECG_ATTRS = {
+    "electrodes": list(ELECTRODES),
+    "leads": list(LEADS),
+    "units": "mV",
+    "sigma_i_S_per_m": SIGMA_I,
+    "sigma_b_S_per_m": SIGMA_B,
+    "model": "pseudo-ECG, infinite homogeneous volume conductor; electrodes on the standard torso (docs/method.md)",
 }
 
 

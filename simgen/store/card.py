@@ -215,6 +215,12 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         ("diffusivity (mm2 per time unit)", f"{sim['diffusivity']:g}"),
         ("fibres (per mesh)", _fibres_text(facts.attrs["spec"]["meshes"])),
         (
+            "ECG per simulation",
+            "12-lead pseudo-ECG in mV (subject array ecg; electrodes: mesh array ecg_electrodes)"
+            if facts.attrs["spec"]["output"].get("ecg")
+            else "none",
+        ),
+        (
             "anisotropy D_l / D_t (subjects)",
             _tally([f"{s['anisotropy']:g}" if "anisotropy" in s else "isotropic" for s in solvers]),
         ),

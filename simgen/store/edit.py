@@ -217,7 +217,8 @@ def add_subject(
         remove_partials(store)
         root = _root(store, "r+")
         root.attrs["complete"] = False
-        write_mesh_group(root, mesh.id, plan.meshes[mesh.id], plan.sites[mesh.id], plan.electrodes[mesh.id])
+        ecg = spec.output.ecg
+        write_mesh_group(root, mesh.id, plan.meshes[mesh.id], plan.sites[mesh.id], plan.electrodes[mesh.id], ecg)
         write_subject_groups(root, plan.subjects, plan.meshes, plan.sites, spec.output, spec.solver, setups)
         root.attrs["added"] = [*root.attrs.get("added", []), record]  # the layout is committed
         consolidate_metadata(store)  # readers of consolidated metadata see the new groups

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from shared.errors import InputError
-from shared.schema import MESH_ARRAYS, SUBJECT_ARRAYS
+from shared.schema import ECG_ARRAYS, MESH_ARRAYS, SUBJECT_ARRAYS
 from simgen.solver.simd import LANES
 from simgen.solver.simulate import BLOCK_SIZE, Simulator
 from simgen.store import location
@@ -135,7 +135,7 @@ def disk_bytes(plan: Plan) -> int:
         total += mesh.points.size * 8 + (mesh.cells.size + n_sites + sets) * 4
         subject = 0
         for name, (shape, chunks) in subject_shapes(mesh.n_nodes, n_sites, spec.output, spec.solver).items():
-            stored = _stored_bytes(shape, chunks, SUBJECT_ARRAYS[name].dtype)
+            stored = _stored_bytes(shape, chunks, {**SUBJECT_ARRAYS, **ECG_ARRAYS}[name].dtype)
             subject += round(stored * ratio) if name in ("u", "activation") else stored
         per_mesh[mesh_id] = subject + 2 * METADATA_BYTES * (1 + len(SUBJECT_ARRAYS))
     return total + sum(per_mesh[s.mesh_id] for s in plan.subjects)

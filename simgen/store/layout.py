@@ -37,6 +37,8 @@ from shared.integrity import DIGESTS, array_digest
 from shared.mesh import Mesh
 from shared.reader import check_store, read_mesh, read_sites, read_tissue, subject_ids
 from shared.schema import (
+    ECG_ARRAYS,
+    ECG_MESH_ARRAYS,
     FIBRE_ARRAYS,
     MESH_ARRAYS,
     MESH_INDEX_SETS,
@@ -52,6 +54,7 @@ from shared.schema import (
 )
 from shared.split import canonical_part, split_rule
 from shared.units import MS_PER_TIME_UNIT
+from simgen.observe.ecg import ECG_ATTRS, LEADS, standard_electrodes
 from simgen.solver.simulate import SolverConfig
 from simgen.store import location
 from simgen.store.chunk_files import writable_store, write_rows
@@ -211,7 +214,9 @@ def create_layout(
     root.attrs.update(layout_attrs(spec_dict, spec_hash, plan.spec.solver))
     shape_params = {m.id: m.shape_params for m in plan.spec.meshes}
     for mesh_id, mesh in plan.meshes.items():
-        group = write_mesh_group(root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id])
+        group = write_mesh_group(
+            root, mesh_id, mesh, plan.sites[mesh_id], plan.electrodes[mesh_id], plan.spec.output.ecg
+        )
         group.attrs["shape_params"] = shape_params[mesh_id]  # a sampled anatomy's parameters; None otherwise
     setups = setups if setups is not None else validate_plan(plan)
     write_subject_groups(root, plan.subjects, plan.meshes, plan.sites, plan.spec.output, plan.spec.solver, setups)
@@ -223,14 +228,17 @@ def remove_partials(path: str | Path) -> None:
     location.remove_partials(location.store_location(path))
 
 
-def write_mesh_group(root: zarr.Group, mesh_id: str, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> zarr.Group:
-    """Write group ``meshes/<mesh_id>``: geometry, node index sets, stimulation sites and electrodes.
+def write_mesh_group(
+    root: zarr.Group, mesh_id: str, mesh: Mesh, sites: NDArray, electrodes: NDArray, ecg: bool | None = None
+) -> zarr.Group:
+    """Write group ``meshes/<mesh_id>``: geometry, node index sets, stimulation sites and electrodes (and the
+    ECG's with ``ecg``).
 
     The one code path for mesh groups, used by :func:`create_layout` and by
     :func:`simgen.store.edit.add_subject`.
     """
     g = root.require_group(mesh_path(mesh_id))
-    _write_mesh(g, mesh, sites, electrodes)
+    _write_mesh(g, mesh, sites, electrodes, ecg)
     return g
 
 
@@ -363,6 +371,7 @@ def subject_shapes(
         "times": frames,
         "time_ms": frames,
         "site": ((n_sites,), (n_sites,)),
+        **({"ecg": ((n_sites, len(LEADS), solver.frames), (chunk, len(LEADS), solver.frames))} if output.ecg else {}),
     }
 
 
@@ -375,13 +384,14 @@ def _subject_metadata(
     ``sharded``: a result array's ``chunks`` are shards of inner chunks of one site.
     """
     kw: dict[str, Any] = {}
-    if name in SHARDED_ARRAYS:
+    if name in (*SHARDED_ARRAYS, *ECG_ARRAYS):
         kw = {"compressors": _compressors(compressor, level), "fill_value": np.nan}
         if sharded:
             chunks, kw["shards"] = (1, *chunks[1:]), chunks
     elif name in ("done", "moments", "fingerprint"):  # a chunk of its own per task, written by that task
         kw = {"compressors": _compressors("none", 0), "fill_value": np.nan if name == "moments" else 0}
-    return _array(zarr.open_group(MemoryStore(), mode="w"), name, SUBJECT_ARRAYS, shape, chunks, **kw).metadata
+    table = {**SUBJECT_ARRAYS, **ECG_ARRAYS}
+    return _array(zarr.open_group(MemoryStore(), mode="w"), name, table, shape, chunks, **kw).metadata
 
 
 def subject_array_metadata(
@@ -398,7 +408,7 @@ def _mesh_chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
 
 def mesh_array_metadata(name: str, shape: tuple[int, ...]) -> ArrayV3Metadata:
     """Zarr metadata of mesh array ``name`` of ``shape`` as :func:`write_mesh_group` writes it."""
-    specs = {**MESH_ARRAYS, **FIBRE_ARRAYS}
+    specs = {**MESH_ARRAYS, **FIBRE_ARRAYS, **ECG_MESH_ARRAYS}
     return _array(zarr.open_group(MemoryStore(), mode="w"), name, specs, shape, _mesh_chunks(shape)).metadata
 
 
@@ -407,13 +417,16 @@ def spec_dict_of(obj: Any) -> Any:
     return json.loads(json.dumps(to_mapping(obj)))
 
 
-def mesh_values(mesh: Mesh, sites: NDArray, electrodes: NDArray) -> dict[str, NDArray]:
-    """The arrays of a mesh group, in the stored dtypes (``fibre`` where the mesh has fibres)."""
+def mesh_values(mesh: Mesh, sites: NDArray, electrodes: NDArray, ecg: bool | None = None) -> dict[str, NDArray]:
+    """The arrays of a mesh group, in the stored dtypes (``fibre`` where the mesh has fibres, ``ecg_electrodes``
+    with ``ecg``: :func:`~simgen.observe.ecg.standard_electrodes`)."""
     sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
     values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
     if mesh.fibres is not None:
         values["fibre"] = mesh.fibres
-    specs = {**MESH_ARRAYS, **FIBRE_ARRAYS}
+    if ecg:
+        values["ecg_electrodes"] = standard_electrodes(mesh).positions
+    specs = {**MESH_ARRAYS, **FIBRE_ARRAYS, **ECG_MESH_ARRAYS}
     return {name: np.asarray(value, specs[name].dtype) for name, value in values.items()}
 
 
@@ -423,7 +436,8 @@ def mesh_attrs(mesh: Mesh, values: dict[str, NDArray]) -> dict[str, Any]:
     if mesh.axis is not None:
         axis = {k: np.asarray(getattr(mesh.axis, k), float).tolist() for k in ("apex", "base", "reference")}
     digests = {name: array_digest(value) for name, value in values.items()}
-    return {"name": mesh.name, "cell_type": mesh.cell_type, "axis": axis, DIGESTS: digests}
+    attrs = {"name": mesh.name, "cell_type": mesh.cell_type, "axis": axis, DIGESTS: digests}
+    return attrs if "ecg_electrodes" not in values else {**attrs, "ecg": ECG_ATTRS}
 
 
 def write_array(group: zarr.Group, name: str, metadata: ArrayV3Metadata, value: NDArray | None) -> None:
@@ -443,21 +457,22 @@ def write_group_metadata(root: zarr.Group, path: str, attrs: dict[str, Any]) -> 
     sync(root.store.set(f"{path}/zarr.json", _metadata_file(GroupMetadata(attributes=attrs))))
 
 
-def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray) -> None:
-    values = mesh_values(mesh, sites, electrodes)
+def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray, ecg: bool | None) -> None:
+    values = mesh_values(mesh, sites, electrodes, ecg)
     g.attrs.update(mesh_attrs(mesh, values))
     for name, value in values.items():
         write_array(g, name, mesh_array_metadata(name, value.shape), value)
 
 
 class ResultArrays(NamedTuple):
-    """The arrays a task writes, in the order it writes them."""
+    """The arrays a task writes, in the order it writes them (``ecg`` only in a store that keeps ECGs)."""
 
     u: zarr.Array
     activation: zarr.Array
     moments: zarr.Array
     fingerprint: zarr.Array
     done: zarr.Array
+    ecg: zarr.Array | None = None
 
 
 def result_arrays(path: str | Path, subject_id: str) -> ResultArrays:
@@ -471,7 +486,8 @@ def result_arrays(path: str | Path, subject_id: str) -> ResultArrays:
     # a site's results are never all fill value (NaN): skip Zarr's scan for one before each write
     whole = {"write_empty_chunks": True}
     u, activation = g["u"].with_config(whole), g["activation"].with_config(whole)
-    return ResultArrays(u, activation, g["moments"], g["fingerprint"], g["done"])
+    ecg = g["ecg"].with_config(whole) if "ecg" in g else None
+    return ResultArrays(u, activation, g["moments"], g["fingerprint"], g["done"], ecg)
 
 
 def write_chunk(
@@ -483,8 +499,10 @@ def write_chunk(
     u: NDArray,
     activation: NDArray,
     arrays: ResultArrays | None = None,
+    ecg: NDArray | None = None,
 ) -> None:
-    """Worker: write one chunk of sites, its moments and fingerprint, then (only then) its completion flag.
+    """Worker: write one chunk of sites (and their ``ecg`` in a store that keeps ECGs), its moments and
+    fingerprint, then (only then) its completion flag.
 
     ``arrays``: :func:`result_arrays` of the subject, opened once by a caller
     that writes many chunks (saves five metadata reads per chunk).
@@ -492,6 +510,8 @@ def write_chunk(
     arrays = arrays or result_arrays(path, subject_id)
     _write_rows(arrays.u, start, u)
     _write_rows(arrays.activation, start, activation)
+    if arrays.ecg is not None:
+        _write_rows(arrays.ecg, start, ecg)
     _write_rows(arrays.moments, chunk, chunk_moments(u, activation)[None])
     fingerprint = chunk_fingerprint(subject_id, chunk, start, stop, u, activation)
     _write_rows(arrays.fingerprint, chunk, np.array([fingerprint], arrays.fingerprint.dtype))

@@ -349,7 +349,8 @@ class _Round:
 
     def _mesh_values(self, mesh_id: str) -> dict[str, np.ndarray]:
         made = self.made
-        return mesh_values(made.meshes[mesh_id], made.sites[mesh_id], made.electrodes[mesh_id])
+        ecg = made.spec.output.ecg
+        return mesh_values(made.meshes[mesh_id], made.sites[mesh_id], made.electrodes[mesh_id], ecg)
 
     def _subject_values(self, s) -> dict[str, np.ndarray]:
         made = self.made
@@ -403,7 +404,8 @@ class _Round:
             write_group_metadata(root, path, self._group_attrs(root, path))
         for mesh_id in plan.meshes:
             made = self.made
-            write_mesh_group(root, mesh_id, made.meshes[mesh_id], made.sites[mesh_id], made.electrodes[mesh_id])
+            ecg = made.spec.output.ecg
+            write_mesh_group(root, mesh_id, made.meshes[mesh_id], made.sites[mesh_id], made.electrodes[mesh_id], ecg)
             write_group_metadata(root, mesh_path(mesh_id), self._group_attrs(root, mesh_path(mesh_id)))
         subjects = [s for s in self.made.subjects if s.id in plan.subjects]
         if subjects:

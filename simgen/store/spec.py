@@ -250,12 +250,16 @@ class OutputSpec:
     straight from the simulation's memory, ~5.5 ms of CPU for a 29 MB chunk
     against ~35 ms through blosc-lz4, which stores ``u`` in ~0.71 of the bytes
     (bench/build.py). ``sock_electrodes = 0`` stores no sock electrodes.
+    ``ecg = true`` stores each simulation's 12-lead pseudo-ECG (subject array
+    ``ecg``, the electrodes in the mesh group; :mod:`simgen.observe.ecg`);
+    unset (or false): none, and out of the spec's hash.
     """
 
     chunk_sites: int = 25
     compressor: Literal["zstd", "blosc", "none"] = "none"
     level: int = 3
     sock_electrodes: int = 247
+    ecg: bool | None = None
 
     def __post_init__(self) -> None:
         _check_int(self.chunk_sites, 1, "[output] chunk_sites")
@@ -267,6 +271,8 @@ class OutputSpec:
                 f"[output] level {self.level!r} out of range for compressor {self.compressor!r}: use {lo}..{hi}"
             )
         _check_int(self.sock_electrodes, 0, "[output] sock_electrodes")
+        if self.ecg is False:  # the default written out: unset, out of the hash
+            object.__setattr__(self, "ecg", None)
 
 
 @dataclass(frozen=True)
@@ -313,6 +319,12 @@ class BuildSpec:
             raise ConfigError(
                 "[solver] sheet_anisotropy: a store keeps fibres but no sheets yet, so builds are transversely "
                 "isotropic; orthotropic simulations run with `simgen simulate --fibres --sheet-anisotropy Q`"
+            )
+        surfaces = [m.id for m in self.meshes if m.kind != "tetra"]
+        if self.output.ecg and surfaces:
+            raise ConfigError(
+                f"[output] ecg: the pseudo-ECG integrates over the heart's volume, and meshes {surfaces} are "
+                "surfaces: use kind = 'tetra'"
             )
         anisotropic = self.solver.anisotropy is not None or any(s.anisotropy for s in self.settings())
         plain = [m.id for m in self.meshes if m.fibres is None]

@@ -42,6 +42,8 @@ from shared.config import from_mapping
 from shared.errors import InputError
 from shared.integrity import DIGESTS, array_problem, read_failure
 from shared.schema import (
+    ECG_ARRAYS,
+    ECG_MESH_ARRAYS,
     FIBRE_ARRAYS,
     MESH_ARRAYS,
     METADATA_VERSION,
@@ -52,6 +54,7 @@ from shared.schema import (
 )
 from shared.split import canonical_part
 from shared.units import MS_PER_TIME_UNIT
+from simgen.observe.ecg import ECG_ATTRS
 from simgen.store.layout import mesh_array_metadata, spec_dict_of, subject_array_metadata, subject_shapes
 from simgen.store.lock import LOCK_NAME
 from simgen.store.spec import BuildSpec, SiteSelection, spec_from_mapping
@@ -342,6 +345,7 @@ class _Checker:
         shape_params = self.version >= METADATA_VERSION and mesh_id not in self.recorded.added
         self.attributes(path, attrs, _required(_MESH_ATTRS, self.version) + ["shape_params"] * shape_params)
         names = (*_MESH_NAMES, *FIBRE_ARRAYS) if self.recorded.fibres.get(mesh_id) else _MESH_NAMES
+        names = (*names, *ECG_MESH_ARRAYS) if self.recorded.spec.output.ecg else names
         self.extras(path, members, set(names))
         before = len(self.damage)
         values, sizes = {}, {}
@@ -350,6 +354,7 @@ class _Checker:
             arr = members.get(name)
             stored = tuple(arr.shape) if isinstance(arr, zarr.Array) and arr.ndim else (0,)
             shape = {
+                "ecg_electrodes": (len(ECG_ATTRS["electrodes"]), 3),
                 "points": (stored[0], 3),
                 "fibre": (sizes.get("points", stored[0]), 3),
                 "cells": (stored[0], _VERTICES.get(cell_type, 4)),
@@ -384,6 +389,7 @@ class _Checker:
         if mesh_id not in self.mesh_sizes:  # shapes follow from the mesh: nothing more to compare against
             return
         names = [name for name, s in SUBJECT_ARRAYS.items() if s.since <= self.version]
+        names += list(ECG_ARRAYS) if spec.output.ecg else []
         self.extras(path, members, set(names))
         shapes = subject_shapes(*self.mesh_sizes[mesh_id], spec.output, spec.solver)
         values = {}

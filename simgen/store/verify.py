@@ -43,6 +43,7 @@ from simgen.store.structure import (
     recorded_structure,
     structure_damage,
 )
+from simgen.store.worker import ecg_leads, subject_ecg
 
 __all__ = ["U_RANGE", "ChunkRef", "VerifyReport", "chunk_problems", "verify_store"]
 
@@ -142,6 +143,10 @@ def chunk_problems(g: zarr.Group, ref: ChunkRef, version: int) -> list[str]:
     if err_u or err_a:
         return [e for e in (err_u, err_a) if e]
     problems = _value_problems(ref, u, activation)
+    if "ecg" in g:
+        ecg, err = _read(g["ecg"], ref, "ecg")
+        if err or not np.all(np.isfinite(ecg)):
+            problems.append(err or f"{ref}: ecg not written (NaN) or not finite")
     if problems or version < METADATA_VERSION:
         return problems
     for name in ("moments", "fingerprint")[: 1 + (version >= SCHEMA_VERSION)]:
@@ -183,6 +188,12 @@ def _check_chunks(root: zarr.Group, subject_id: str, report: VerifyReport, versi
     return good
 
 
+#: How far a stored ECG may be from the recomputed simulations' (relative to its largest lead value): the
+#: rounding of the dense product on another machine, or (``False``: a store not built with numba) the
+#: backends' differences in ``u``.
+ECG_RTOL = {True: 1e-5, False: 1e-2}
+
+
 def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: SolverConfig, report: VerifyReport) -> None:
     """Simulate ``refs`` again with the numba backend and compare with the stored chunks.
 
@@ -203,7 +214,13 @@ def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: Solve
         g = root[subject_path(ref.subject_id)]
         u, activation = g["u"][ref.start : ref.stop], g["activation"][ref.start : ref.stop]
         exact = solver.backend in (None, "numba")
-        report.chunk_problems(ref, _recomputed_differences(ref, u, activation, result, exact))
+        problems = _recomputed_differences(ref, u, activation, result, exact)
+        if "ecg" in g:
+            expected = ecg_leads(subject_ecg(store, mesh_id, sim), result.u)
+            stored, rtol = g["ecg"][ref.start : ref.stop], ECG_RTOL[exact]
+            if not np.allclose(stored, expected, rtol=rtol, atol=rtol * np.abs(expected).max()):
+                problems.append(f"{ref}: stored ecg differs from the recomputed simulations' pseudo-ECG")
+        report.chunk_problems(ref, problems)
         report.chunks_recomputed += 1
 
 

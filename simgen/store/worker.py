@@ -20,7 +20,9 @@ from typing import NamedTuple
 import numpy as np
 import zarr
 
-from shared.schema import subject_path
+from shared.integrity import read_checked
+from shared.schema import mesh_path, subject_path
+from simgen.observe.ecg import ELECTRODES, Electrodes, PseudoECG, leads
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.store.layout import ResultArrays, read_mesh, read_sites, read_tissue, result_arrays, write_chunk
 from simgen.store.metadata import recorded_solver
@@ -33,11 +35,13 @@ SUBJECTS_KEPT = 4
 
 
 class Prepared(NamedTuple):
-    """What a worker keeps per subject: the assembled simulator, the site list, the result arrays."""
+    """What a worker keeps per subject: the assembled simulator, the site list, the result arrays and, in a
+    store that keeps ECGs, the subject's pseudo-ECG operator."""
 
     sim: Simulator
     sites: np.ndarray
     arrays: ResultArrays
+    ecg: PseudoECG | None = None
 
 
 def prepare(store: str, subject_id: str, solver: SolverConfig) -> Prepared:
@@ -48,7 +52,9 @@ def prepare(store: str, subject_id: str, solver: SolverConfig) -> Prepared:
         mesh_id = zarr.open_group(store, path=subject_path(subject_id), mode="r").attrs["mesh_id"]
         mesh = read_mesh(store, mesh_id)
         sim = Simulator(mesh, read_tissue(store, subject_id), recorded_solver(store, subject_id, solver, mesh))
-        _CACHE[key] = Prepared(sim, read_sites(store, mesh_id), result_arrays(store, subject_id))
+        arrays = result_arrays(store, subject_id)
+        ecg = None if arrays.ecg is None else subject_ecg(store, mesh_id, sim)
+        _CACHE[key] = Prepared(sim, read_sites(store, mesh_id), arrays, ecg)
         while len(_CACHE) > SUBJECTS_KEPT:
             _CACHE.popitem(last=False)
     _CACHE.move_to_end(key)
@@ -104,8 +110,23 @@ def run_task(store: str | Path, subject_id: str, chunk: int, start: int, stop: i
     The chunk is written by this process's :class:`BackgroundWriter`: the
     caller must :func:`flush_writes` before relying on it.
     """
-    sim, sites, arrays = prepare(str(store), subject_id, solver)
+    sim, sites, arrays, operator = prepare(str(store), subject_id, solver)
     result = sim.run(sites[start:stop], threads=1)
+    ecg = None if operator is None else ecg_leads(operator, result.u)
     key = f"{subject_id}/{chunk}"
-    _WRITER.submit(key, write_chunk, store, subject_id, chunk, start, stop, result.u, result.activation, arrays)
+    args = (store, subject_id, chunk, start, stop, result.u, result.activation, arrays, ecg)
+    _WRITER.submit(key, write_chunk, *args)
     return key
+
+
+def subject_ecg(store: str, mesh_id: str, sim: Simulator) -> PseudoECG:
+    """The pseudo-ECG operator of a subject of a store that keeps ECGs: the mesh's stored electrodes, the
+    subject's tissue and anisotropy."""
+    group = zarr.open_group(store, path=mesh_path(mesh_id), mode="r")
+    positions = read_checked(group, "ecg_electrodes", store, f"mesh {mesh_id}")
+    return PseudoECG.assemble(sim.mesh, Electrodes(ELECTRODES, positions), sim.tissue.D, sim.config.anisotropy)
+
+
+def ecg_leads(operator: PseudoECG, u: np.ndarray) -> np.ndarray:
+    """The stored ``ecg`` of simulations ``u``: their 12 leads (S, 12, T) in mV, float32."""
+    return leads(operator.potentials(u), operator.electrodes).astype(np.float32)
