@@ -12,8 +12,8 @@ nodes on the line between two facet labels have both of).
 
 Run::
 
-    .venv/bin/python bench/labels.py                      # about 2 min on a 2-core VM
-    .venv/bin/python bench/labels.py --nodes 1000 --meshes ldrb-patient-lv
+    .venv/bin/python -m bench.labels --out report/bench   # about 2 min on a 2-core VM
+    .venv/bin/python -m bench.labels --nodes 1000 --meshes ldrb-patient-lv
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import argparse
 import dataclasses
 import gzip
 import shutil
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -31,16 +30,14 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: bench/labels.py
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from shared.mesh import Mesh  # noqa: E402
-from simgen.meshes.catalog import get_mesh  # noqa: E402
-from simgen.meshes.io import load_mesh  # noqa: E402
-from simgen.meshes.labels import label_agreement  # noqa: E402
-from simgen.meshes.nodesets import detect_heart  # noqa: E402
-from simgen.meshes.resample import resample  # noqa: E402
-from simgen.meshes.shipped import unpacked  # noqa: E402
+from bench.common import add_out_argument, machine, write_out
+from shared.mesh import Mesh
+from simgen.meshes.catalog import get_mesh
+from simgen.meshes.io import load_mesh
+from simgen.meshes.labels import label_agreement
+from simgen.meshes.nodesets import detect_heart
+from simgen.meshes.resample import resample
+from simgen.meshes.shipped import unpacked
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "labelled"
 #: Surface ids of PyAnsys Heart's case-01 LV (its ``heart_model.partinfo.json``): epicardium, endocardium.
@@ -120,16 +117,19 @@ def table(found: list[tuple[str, int, str, float, float, float]], nodes: tuple[i
     return "\n".join(lines)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--nodes", default=",".join(map(str, NODES)), help="resampled node counts, comma-separated")
     parser.add_argument("--meshes", default=",".join(LABELLED), help=f"of {', '.join(LABELLED)}")
-    args = parser.parse_args()
+    add_out_argument(parser, "labels")
+    args = parser.parse_args(argv)
     nodes = tuple(int(n) for n in args.nodes.split(",") if n)
     found = rows(args.meshes.split(","), nodes)
-    print(table(found, nodes))
+    markdown = table(found, nodes)
+    print(markdown)
     worst = min(found, key=lambda row: row[3])
     print(f"\nlowest: {worst[3]:.1%} ({worst[2]} of {worst[0]} at {worst[1]:,} nodes)")
+    write_out(args.out, "labels", markdown, {"machine": machine(), "rows": [list(map(str, r)) for r in found]})
 
 
 if __name__ == "__main__":
