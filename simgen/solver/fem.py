@@ -109,28 +109,34 @@ def stiffness_matrix(
 def conductivity_tensors(mesh: Mesh, anisotropy: float, sheet_anisotropy: float = 1.0) -> NDArray[np.float64]:
     """(M, 3, 3) relative conductivity of each element: ``I / r + (1 - 1 / r)`` times the mean of its nodes'
     ``f f^T``, and with ``sheet_anisotropy`` ``q`` the sheets' term (module docstring)."""
-    if mesh.fibres is None:
-        raise MeshError(
-            f"mesh {mesh.name!r} has no fibres: anisotropic conduction (anisotropy = {anisotropy:g}) needs them: "
-            "a mesh file's point data 'fibre', or rule-based fibres (--fibres; simgen.meshes.fibres.ldrb_fibres)"
-        )
-    if not np.isfinite(anisotropy) or anisotropy < 1.0:
-        raise MeshError(f"anisotropy {anisotropy!r} must be a finite ratio D_l / D_t >= 1")
-    f = mesh.fibres[mesh.cells]  # (M, k, 3)
-    outer = np.einsum("mki,mkj->mij", f, f) / mesh.cells.shape[1]
+    outer = _mean_outer(mesh, "fibres", "anisotropic conduction", "anisotropy", anisotropy, "D_l / D_t")
     if sheet_anisotropy == 1.0:
         return np.eye(3) / anisotropy + (1.0 - 1.0 / anisotropy) * outer
-    if mesh.sheets is None:
-        raise MeshError(
-            f"mesh {mesh.name!r} has no sheets: orthotropic conduction (sheet_anisotropy = {sheet_anisotropy:g}) "
-            "needs them: a mesh file's point data 'sheet', or rule-based ones (simgen.meshes.fibres.ldrb_frames)"
-        )
-    if not np.isfinite(sheet_anisotropy) or sheet_anisotropy < 1.0:
-        raise MeshError(f"sheet_anisotropy {sheet_anisotropy!r} must be a finite ratio D_s / D_n >= 1")
-    s = mesh.sheets[mesh.cells]
-    sheet_outer = np.einsum("mki,mkj->mij", s, s) / mesh.cells.shape[1]
+    sheets = _mean_outer(mesh, "sheets", "orthotropic conduction", "sheet_anisotropy", sheet_anisotropy, "D_s / D_n")
     normal = 1.0 / (anisotropy * sheet_anisotropy)
-    return np.eye(3) * normal + (1.0 - normal) * outer + (1.0 / anisotropy - normal) * sheet_outer
+    return np.eye(3) * normal + (1.0 - normal) * outer + (1.0 / anisotropy - normal) * sheets
+
+
+#: Where a mesh gets the directions each conduction setting needs.
+_DIRECTION_SOURCES = {
+    "fibres": "a mesh file's point data 'fibre', or rule-based fibres (--fibres; simgen.meshes.fibres.ldrb_fibres)",
+    "sheets": "a mesh file's point data 'sheet', or rule-based ones (simgen.meshes.fibres.ldrb_frames)",
+}
+
+
+def _mean_outer(mesh: Mesh, kind: str, conduction: str, setting: str, ratio: float, meaning: str) -> NDArray:
+    """(M, 3, 3) mean over each element's nodes of the outer products of the mesh's ``kind`` (``fibres`` or
+    ``sheets``); :class:`MeshError` when the mesh has none or ``ratio`` (the ``setting``) is no ratio >= 1."""
+    vectors = getattr(mesh, kind)
+    if vectors is None:
+        raise MeshError(
+            f"mesh {mesh.name!r} has no {kind}: {conduction} ({setting} = {ratio:g}) needs them: "
+            + _DIRECTION_SOURCES[kind]
+        )
+    if not np.isfinite(ratio) or ratio < 1.0:
+        raise MeshError(f"{setting} {ratio!r} must be a finite ratio {meaning} >= 1")
+    v = vectors[mesh.cells]  # (M, k, 3)
+    return np.einsum("mki,mkj->mij", v, v) / mesh.cells.shape[1]
 
 
 def lumped_mass(mesh: Mesh, geometry: Geometry | None = None) -> NDArray[np.float64]:
