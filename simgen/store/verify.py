@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from shared.integrity import read_failure
 from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
 from shared.units import U_RANGE
+from simgen.observe.ecg import PseudoECG
 from simgen.solver.backends import BACKEND_TOLERANCE
 from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig
 from simgen.store.fingerprint import chunk_fingerprint
@@ -201,22 +202,23 @@ def _recompute(store: str, root: zarr.Group, refs: list[ChunkRef], solver: Solve
     :data:`~simgen.solver.backends.BACKEND_TOLERANCE` for one built with torch
     (or ``auto``, which may have used it), whose results are not numba's bit for bit.
     """
-    sims: dict[str, tuple[Simulator, NDArray]] = {}
+    sims: dict[str, tuple[Simulator, NDArray, PseudoECG | None]] = {}
     for ref in refs:
+        g = root[subject_path(ref.subject_id)]
         if ref.subject_id not in sims:
-            mesh_id = root[subject_path(ref.subject_id)].attrs["mesh_id"]
+            mesh_id = g.attrs["mesh_id"]
             mesh = read_mesh(store, mesh_id)
             recorded = recorded_solver(store, ref.subject_id, solver, mesh)
             sim = Simulator(mesh, read_tissue(store, ref.subject_id), recorded, backend="numba")
-            sims = {ref.subject_id: (sim, read_sites(store, mesh_id))}  # keep one subject's operator
-        sim, sites = sims[ref.subject_id]
+            ecg = subject_ecg(store, mesh_id, sim) if "ecg" in g else None
+            sims = {ref.subject_id: (sim, read_sites(store, mesh_id), ecg)}  # keep one subject's operators
+        sim, sites, ecg = sims[ref.subject_id]
         result = sim.run(sites[ref.start : ref.stop], threads=1)
-        g = root[subject_path(ref.subject_id)]
         u, activation = g["u"][ref.start : ref.stop], g["activation"][ref.start : ref.stop]
         exact = solver.backend in (None, "numba")
         problems = _recomputed_differences(ref, u, activation, result, exact)
-        if "ecg" in g:
-            expected = ecg_leads(subject_ecg(store, mesh_id, sim), result.u)
+        if ecg is not None:
+            expected = ecg_leads(ecg, result.u)
             stored, rtol = g["ecg"][ref.start : ref.stop], ECG_RTOL[exact]
             if not np.allclose(stored, expected, rtol=rtol, atol=rtol * np.abs(expected).max()):
                 problems.append(f"{ref}: stored ecg differs from the recomputed simulations' pseudo-ECG")
