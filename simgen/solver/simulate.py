@@ -86,8 +86,12 @@ MAX_STEPS = 1_000_000
 class SolverConfig:
     """Solver and output settings.
 
+    ``model`` is the cell model (:mod:`simgen.solver.cells`: Aliev-Panfilov,
+    the default, or Mitchell-Schaeffer); its rates run in every integrator and
+    backend, its ``max_rate`` and ``dt_accuracy`` set their steps.
+
     Defaults are scaled for the default ~2,000-node LV (mean edge ~5.4 mm):
-    ``diffusivity = 100 mm^2`` per time unit gives a planar front speed of
+    ``diffusivity = 100 mm^2`` per time unit gives an Aliev-Panfilov front speed of
     ``sqrt(2 k D)(1/2 - a) = 14 mm`` per time unit (1.09 m/s) spanning ~20 mm
     (about four edges). The stimulus holds ``u = 1`` on a patch around the
     site for ``stimulus_duration`` time units (12.9 ms): the tissue within
