@@ -124,8 +124,9 @@ class Mesh:
             if self.fibres is None:
                 raise MeshError(f"mesh {self.name!r}: sheets need fibres (each sheet lies across its fibre)")
             sheets = np.asarray(self.sheets, dtype=np.float64)
-            if sheets.shape == (len(pts), 3):  # the part orthogonal to the fibre
-                sheets = sheets - np.einsum("nd,nd->n", sheets, self.fibres)[:, None] * self.fibres
+            if sheets.shape == (len(pts), 3):  # the part orthogonal to the fibre, where float32 does not give it
+                along = np.einsum("nd,nd->n", sheets, self.fibres)
+                sheets = np.where(np.abs(along)[:, None] <= 1e-6, sheets, sheets - along[:, None] * self.fibres)
             object.__setattr__(self, "sheets", _unit_fibres(sheets, len(pts), self.name))
 
     @property

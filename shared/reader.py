@@ -169,7 +169,9 @@ def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
         for name in MESH_INDEX_SETS
         if name != "electrodes" and g[name].shape[0]
     }
-    fibres = read_checked(g, "fibre", str(path), where).astype(np.float64) if "fibre" in g else None
+    fibres, sheets = (
+        read_checked(g, name, str(path), where).astype(np.float64) if name in g else None for name in ("fibre", "sheet")
+    )
     return Mesh(
         points=read_checked(g, "points", str(path), where),
         cells=read_checked(g, "cells", str(path), where),
@@ -177,6 +179,7 @@ def read_mesh(path: str | Path, mesh_id: str) -> Mesh:
         name=g.attrs["name"],
         axis=LongAxis(**{k: np.asarray(v) for k, v in axis.items()}) if axis else None,
         fibres=fibres,
+        sheets=sheets,
     )
 
 

@@ -119,6 +119,7 @@ MESH_ARRAYS: dict[str, ArraySpec] = {
 #: the mesh conducts isotropically.
 FIBRE_ARRAYS: dict[str, ArraySpec] = {
     "fibre": ArraySpec("float32", ("node", "xyz"), "1", "unit fibre direction at each node"),
+    "sheet": ArraySpec("float32", ("node", "xyz"), "1", "unit sheet direction at each node (orthogonal to its fibre)"),
 }
 
 #: What a build with ``[output] ecg = true`` adds: per mesh the electrode positions (names in its ``ecg``

@@ -424,6 +424,8 @@ def mesh_values(mesh: Mesh, sites: NDArray, electrodes: NDArray, ecg: bool | Non
     values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
     if mesh.fibres is not None:
         values["fibre"] = mesh.fibres
+    if mesh.sheets is not None:
+        values["sheet"] = mesh.sheets
     if ecg:
         values["ecg_electrodes"] = standard_electrodes(mesh).positions
     specs = {**MESH_ARRAYS, **FIBRE_ARRAYS, **ECG_MESH_ARRAYS}

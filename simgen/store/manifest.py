@@ -30,7 +30,7 @@ from shared.errors import InputError, MeshError, StimulusError
 from shared.mesh import Mesh
 from shared.tissue import TissueFields, TissueSpec
 from simgen.meshes.catalog import get_mesh
-from simgen.meshes.fibres import ldrb_fibres
+from simgen.meshes.fibres import ldrb_frames
 from simgen.meshes.topology import edge_graph
 from simgen.observe.sock import Sock, farthest_point_sampling
 from simgen.solver.fem import element_gradients
@@ -167,8 +167,8 @@ def subject_solver(solver: SolverConfig, tissue: TissueSpec) -> SolverConfig:
 
 
 def entry_mesh(entry: MeshEntry) -> Mesh:
-    """The mesh of a ``[[meshes]]`` entry, named by its id, with the fibres its ``fibres`` rule gives (in
-    float32, as the store keeps them) and none without one (a file's own are then left out)."""
+    """The mesh of a ``[[meshes]]`` entry, named by its id, with the fibres and sheets its ``fibres`` rule gives
+    (in float32, as the store keeps them) and none without one (a file's own are then left out)."""
     mesh = get_mesh(
         entry.source,
         entry.nodes,
@@ -183,14 +183,19 @@ def entry_mesh(entry: MeshEntry) -> Mesh:
     )
     rule = entry.fibres
     if rule is None:
-        fibres = None
-    elif rule.rule == "file":
+        return replace(mesh, fibres=None, sheets=None)
+    if rule.rule == "file":
         if mesh.fibres is None:
             raise MeshError(f"mesh {entry.id!r}: fibre rule 'file', but {entry.source} has no point data 'fibre'")
-        fibres = mesh.fibres
+        fibres, sheets = mesh.fibres, mesh.sheets
     else:
-        fibres = ldrb_fibres(mesh, rule.helix_endo, rule.helix_epi)[0]
-    return replace(mesh, fibres=None if fibres is None else np.asarray(fibres, np.float32).astype(np.float64))
+        fibres, sheets, _ = ldrb_frames(mesh, rule.helix_endo, rule.helix_epi, rule.sheet_endo, rule.sheet_epi)
+    return replace(mesh, fibres=_float32(fibres), sheets=None if sheets is None else _float32(sheets))
+
+
+def _float32(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Unit vectors as the store keeps them (float32), so that a mesh read back conducts the same."""
+    return np.asarray(vectors, np.float32).astype(np.float64)
 
 
 def make_plan(spec: BuildSpec) -> Plan:

@@ -57,7 +57,7 @@ from shared.mesh import NODE_SETS, OPTIONAL_NODE_SETS
 from shared.tissue import TissueSpec
 from simgen.meshes.anatomy import sample_shapes
 from simgen.meshes.catalog import GENERATORS
-from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI
+from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI, SHEET_ENDO, SHEET_EPI
 from simgen.meshes.fillers import FILLERS
 from simgen.meshes.heart import LANDMARKS
 from simgen.meshes.shapes import shape_from_params
@@ -105,19 +105,22 @@ def _check_int(value: Any, lo: int, what: str) -> None:
 
 @dataclass(frozen=True)
 class FibreRule:
-    """The fibres of a mesh (``[meshes.fibres]``): ``rule = "ldrb"``, the rule of Bayer et al. 2012 on a
-    ventricular volume (:func:`simgen.meshes.fibres.ldrb_fibres`) with helix angles ``helix_endo`` and
-    ``helix_epi`` (degrees, at the endocardium and the epicardium), or ``"file"``, the mesh file's own point
-    data ``fibre`` (a resampled file's: each node takes its nearest file node's)."""
+    """The fibres and sheets of a mesh (``[meshes.fibres]``): ``rule = "ldrb"``, the rule of Bayer et al. 2012
+    on a ventricular volume (:func:`simgen.meshes.fibres.ldrb_frames`) with helix angles ``helix_endo`` and
+    ``helix_epi`` and sheet angles ``sheet_endo`` and ``sheet_epi`` (degrees, at the endocardium and the
+    epicardium), or ``"file"``, the mesh file's own point data ``fibre`` (and ``sheet`` where it has it; a
+    resampled file's: each node takes its nearest file node's)."""
 
     rule: Literal["ldrb", "file"] = "ldrb"
     helix_endo: float = HELIX_ENDO
     helix_epi: float = HELIX_EPI
+    sheet_endo: float = SHEET_ENDO
+    sheet_epi: float = SHEET_EPI
 
     def __post_init__(self) -> None:
         if self.rule not in ("ldrb", "file"):
             raise ConfigError(f"fibres: rule {self.rule!r} is not one of ['ldrb', 'file']")
-        for name in ("helix_endo", "helix_epi"):
+        for name in ("helix_endo", "helix_epi", "sheet_endo", "sheet_epi"):
             value = getattr(self, name)
             if not (math.isfinite(value) and -90.0 <= value <= 90.0):
                 raise ConfigError(f"fibres: {name} = {value!r} must be an angle in [-90, 90] degrees")
@@ -315,18 +318,14 @@ class BuildSpec:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ConfigError(f"duplicate tissue setting names {dup}: each setting may appear once")
-        if self.solver.sheet_anisotropy is not None:
-            raise ConfigError(
-                "[solver] sheet_anisotropy: a store keeps fibres but no sheets yet, so builds are transversely "
-                "isotropic; orthotropic simulations run with `simgen simulate --fibres --sheet-anisotropy Q`"
-            )
         surfaces = [m.id for m in self.meshes if m.kind != "tetra"]
         if self.output.ecg and surfaces:
             raise ConfigError(
                 f"[output] ecg: the pseudo-ECG integrates over the heart's volume, and meshes {surfaces} are "
                 "surfaces: use kind = 'tetra'"
             )
-        anisotropic = self.solver.anisotropy is not None or any(s.anisotropy for s in self.settings())
+        anisotropic = self.solver.anisotropy is not None or self.solver.sheet_anisotropy is not None
+        anisotropic = anisotropic or any(s.anisotropy for s in self.settings())
         plain = [m.id for m in self.meshes if m.fibres is None]
         if anisotropic and plain:
             raise ConfigError(

@@ -150,7 +150,7 @@ class Recorded:
 
     ``sites``: number of sites by mesh id; ``subjects``: mesh id by subject id;
     ``tissue``: the tissue table by subject id; ``added``: the mesh ids added by
-    ``add-subject`` (the others are the spec's); ``fibres``: whether each mesh has fibres.
+    ``add-subject`` (the others are the spec's); ``fibres``: each mesh's fibre rule (``None``: no fibres).
     """
 
     spec: BuildSpec
@@ -158,7 +158,7 @@ class Recorded:
     subjects: dict[str, str]
     tissue: dict[str, dict]
     added: frozenset[str] = field(default_factory=frozenset)
-    fibres: dict[str, bool] = field(default_factory=dict)
+    fibres: dict[str, str | None] = field(default_factory=dict)
 
 
 def _n_sites(selection: SiteSelection) -> int:
@@ -178,8 +178,10 @@ def recorded_structure(attrs: dict) -> Recorded:
         subjects.update(dict.fromkeys(entry["subjects"], mesh_id))
         tissue.update(zip(entry["subjects"], entry["tissue"]))
     added = frozenset(entry["mesh"]["id"] for entry in attrs.get("added", []))
-    fibres = {m.id: m.fibres is not None for m in spec.meshes}
-    fibres.update({entry["mesh"]["id"]: entry["mesh"].get("fibres") is not None for entry in attrs.get("added", [])})
+    fibres = {m.id: m.fibres and m.fibres.rule for m in spec.meshes}
+    fibres.update(
+        {entry["mesh"]["id"]: (entry["mesh"].get("fibres") or {}).get("rule") for entry in attrs.get("added", [])}
+    )
     return Recorded(spec, sites, subjects, tissue, added, fibres)
 
 
@@ -344,9 +346,11 @@ class _Checker:
             self.digests[path] = DIGESTS in attrs
         shape_params = self.version >= METADATA_VERSION and mesh_id not in self.recorded.added
         self.attributes(path, attrs, _required(_MESH_ATTRS, self.version) + ["shape_params"] * shape_params)
-        names = (*_MESH_NAMES, *FIBRE_ARRAYS) if self.recorded.fibres.get(mesh_id) else _MESH_NAMES
+        rule = self.recorded.fibres.get(mesh_id)
+        names = {None: _MESH_NAMES, "file": (*_MESH_NAMES, "fibre"), "ldrb": (*_MESH_NAMES, *FIBRE_ARRAYS)}[rule]
         names = (*names, *ECG_MESH_ARRAYS) if self.recorded.spec.output.ecg else names
-        self.extras(path, members, set(names))
+        self.extras(path, members, {*names, *(("sheet",) if rule == "file" else ())})  # a file's sheets: optional
+        names = (*names, "sheet") if rule == "file" and "sheet" in members else names
         before = len(self.damage)
         values, sizes = {}, {}
         cell_type = (attrs or {}).get("cell_type")
@@ -357,6 +361,7 @@ class _Checker:
                 "ecg_electrodes": (len(ECG_ATTRS["electrodes"]), 3),
                 "points": (stored[0], 3),
                 "fibre": (sizes.get("points", stored[0]), 3),
+                "sheet": (sizes.get("points", stored[0]), 3),
                 "cells": (stored[0], _VERTICES.get(cell_type, 4)),
                 "stim_nodes": (self.recorded.sites[mesh_id],),
             }.get(name, stored[:1])

@@ -4,6 +4,7 @@ the fibres kept in the store, verified, repaired; isotropic specs keep their mea
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import zarr
 from shared.errors import ConfigError, TissueError
 from shared.reader import read_activation, read_mesh, subject_attrs
 from shared.tissue import TissueSpec
-from simgen.meshes.fibres import ldrb_fibres
+from simgen.meshes.fibres import ldrb_fibres, ldrb_frames
 from simgen.store.manifest import entry_mesh
 from simgen.store.repair import repair_store
 from simgen.store.runner import build
@@ -75,3 +76,21 @@ def test_fibre_and_anisotropy_settings_are_checked(tiny_spec, reference_store):
     plain = tiny_spec()
     assert spec_hash(plain) == spec_hash(tiny_spec(meshes=[{"id": "lv", "source": "lv", "nodes": 500}]))
     assert "fibre" not in zarr.open_group(str(reference_store), path="meshes/lv").array_keys()
+
+
+def test_sheets_are_stored_with_ldrb_fibres_and_builds_conduct_along_them(tiny_spec, tmp_path):
+    """With [solver] sheet_anisotropy the store keeps the rule's sheets beside its fibres, and verify
+    recomputes the orthotropic simulations bit for bit."""
+    spec = tiny_spec(
+        meshes=[{"id": "lv", "source": "lv", "nodes": 400, "fibres": {"sheet_endo": -60, "sheet_epi": 30}}],
+        tissue=["healthy"],
+        solver={"frames": 8, "anisotropy": 4.0, "sheet_anisotropy": 2.0},
+    )
+    store = tmp_path / "sheets.zarr"
+    build(spec, store, workers=1)
+    stored = read_mesh(store, "lv")
+    frames = ldrb_frames(entry_mesh(replace(spec.meshes[0], fibres=None)), 60.0, -60.0, -60.0, 30.0)
+    assert np.array_equal(stored.sheets, frames.sheets.astype(np.float32).astype(np.float64))
+    assert verify_store(store, sample=2).ok
+    with pytest.raises(ConfigError, match=r"meshes \['lv'\] have none"):
+        tiny_spec(solver={"sheet_anisotropy": 2.0})
