@@ -18,20 +18,24 @@ from simgen.store.spec import MeshEntry
 needs_tetgen = pytest.mark.skipif(not tetgen_available(), reason="TetGen (the tetra extra) is not installed")
 
 
+#: Nodes of each LV of the merged surface (bench/fill.py measures 3,000-node parts at 1k, 2k and 5k nodes).
+PARTS = 1500
+
+
 @pytest.fixture(scope="module")
 def merged():
-    return merged_surface()
+    return merged_surface(PARTS)
 
 
 def test_a_surface_merged_from_crossing_parts_fills_with_ftetwild(merged):
-    """1,000 nodes within 15% (measured +4.9%), a valid mesh of positive tetrahedra, the volume of the union of
-    the parts (not of either, not their sum) within 5%, quality reported."""
+    """700 nodes within 15% (measured +4.0%), a valid mesh of positive tetrahedra, the volume of the union of
+    the parts (not of either, not their sum) within 5% (measured 0.981), quality reported."""
     assert len(crossing_triangles(merged.points, merged.cells)) > 100
-    mesh = validate_mesh(resample(merged, 1000, "tetra"))
-    assert abs(mesh.n_nodes / 1000 - 1) <= 0.15
+    mesh = validate_mesh(resample(merged, 700, "tetra"))
+    assert abs(mesh.n_nodes / 700 - 1) <= 0.15
     volumes = signed_volumes(mesh.points, mesh.cells)
     assert (volumes > 0).all()
-    assert volumes.sum() == pytest.approx(union_volume(), rel=0.05)
+    assert volumes.sum() == pytest.approx(union_volume(PARTS), rel=0.05)
     assert mesh_quality(mesh).min_angle > 5.0
 
 
