@@ -349,7 +349,7 @@ def _ecg(m: Mesh, fields, config: SolverConfig, result, seconds: float, file: Pa
 
     started = time.perf_counter()
     electrodes = standard_electrodes(m) if file is None else read_electrodes(file)
-    operator = PseudoECG.assemble(m, electrodes, fields.D, config.anisotropy)
+    operator = PseudoECG.assemble(m, electrodes, fields.D, config.anisotropy, config.sheet_anisotropy)
     assembled = time.perf_counter()
     potentials = operator.potentials(result.u)
     twelve = set(ELECTRODES) <= set(electrodes.names)

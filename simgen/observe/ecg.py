@@ -191,19 +191,22 @@ class PseudoECG:
         electrodes: Electrodes,
         scale: NDArray[np.float64] | None = None,
         anisotropy: float | None = None,
+        sheet_anisotropy: float | None = None,
         sigma_i: float = SIGMA_I,
         sigma_b: float = SIGMA_B,
     ) -> PseudoECG:
-        """The operator of ``mesh`` (tetrahedra) with the tissue's diffusivity ``scale`` per node (``None``: 1)
-        and the fibres' ``anisotropy`` (``None``: isotropic); see the module docstring."""
+        """The operator of ``mesh`` (tetrahedra) with the tissue's diffusivity ``scale`` per node (``None``: 1),
+        the fibres' ``anisotropy`` and the sheets' ``sheet_anisotropy`` (``None``: isotropic), the tensor the
+        simulation conducts with (:func:`~simgen.solver.fem.conductivity_tensors`); see the module docstring."""
         if mesh.cell_type != "tetra":
             raise MeshError(f"mesh {mesh.name!r}: the pseudo-ECG integrates over a volume (tetrahedral) mesh")
         grads, volume = element_gradients(mesh.points, mesh.cells)  # (M, 4, 3), (M,)
         centroids = mesh.points[mesh.cells].mean(axis=1)
         d = np.ones(mesh.n_nodes) if scale is None else np.asarray(scale, float)
         weight = sigma_i / (4.0 * np.pi * sigma_b) * volume * d[mesh.cells].mean(axis=1)
-        if anisotropy is not None and anisotropy != 1.0:
-            grads = np.einsum("mde,mke->mkd", conductivity_tensors(mesh, anisotropy), grads)
+        if (anisotropy or 1.0) != 1.0 or (sheet_anisotropy or 1.0) != 1.0:
+            tensors = conductivity_tensors(mesh, anisotropy or 1.0, sheet_anisotropy or 1.0)
+            grads = np.einsum("mde,mke->mkd", tensors, grads)
         matrix = np.zeros((len(electrodes.names), mesh.n_nodes))
         for e, x_e in enumerate(electrodes.positions):
             offset = centroids - x_e

@@ -124,7 +124,9 @@ def subject_ecg(store: str, mesh_id: str, sim: Simulator) -> PseudoECG:
     subject's tissue and anisotropy."""
     group = zarr.open_group(store, path=mesh_path(mesh_id), mode="r")
     positions = read_checked(group, "ecg_electrodes", store, f"mesh {mesh_id}")
-    return PseudoECG.assemble(sim.mesh, Electrodes(ELECTRODES, positions), sim.tissue.D, sim.config.anisotropy)
+    config = sim.config
+    electrodes = Electrodes(ELECTRODES, positions)
+    return PseudoECG.assemble(sim.mesh, electrodes, sim.tissue.D, config.anisotropy, config.sheet_anisotropy)
 
 
 def ecg_leads(operator: PseudoECG, u: np.ndarray) -> np.ndarray:

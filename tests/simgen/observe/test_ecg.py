@@ -115,3 +115,20 @@ def test_an_electrode_file_gives_potentials_and_bad_lines_are_named(tmp_path):
     )
     failed = CliRunner().invoke(app, [*args, str(bad)])
     assert failed.exit_code == 2 and "bad.csv:1: expected 'name, x, y, z'" in failed.output
+
+
+def test_the_ecg_conducts_with_the_simulations_tensor_sheets_included():
+    """Fibres along x, sheets along y, r = q = 4: a potential varying along z alone (across the sheets) sees
+    the sheet normal's conductivity, 1 / (r q) = 1/16 of the isotropic one; along y, 1/r."""
+    import dataclasses
+
+    mesh = slab(10.0, 10.0, 10.0, 1.0)
+    n = mesh.n_nodes
+    mesh = dataclasses.replace(mesh, fibres=np.tile([1.0, 0, 0], (n, 1)), sheets=np.tile([0, 1.0, 0], (n, 1)))
+    electrodes = Electrodes(("a",), np.array([[5.0, 30.0, 40.0]]))
+    plain = PseudoECG.assemble(mesh, electrodes)
+    tensor = PseudoECG.assemble(mesh, electrodes, anisotropy=4.0, sheet_anisotropy=4.0)
+    for axis, share in ((2, 1 / 16), (1, 1 / 4)):
+        u = mesh.points[:, axis][None, :] / 10.0
+        expected = share * (plain.potentials(u) - plain.potentials(0 * u))
+        np.testing.assert_allclose(tensor.potentials(u) - tensor.potentials(0 * u), expected, rtol=1e-9)
