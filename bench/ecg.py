@@ -1,7 +1,7 @@
 """Benchmark: the pseudo-ECG's convergence with the mesh and its cost against the simulation.
 
 The procedural LV at about ``--nodes`` nodes each (default 1,000, 2,000, 5,000, 10,000), three pacing
-sites at the nodes nearest the same points, the standard electrodes (:mod:`simgen.observe.ecg`). Per mesh:
+sites at the nodes nearest the same points, the standard electrodes (:mod:`shared.ecg`). Per mesh:
 the correlation of each lead of each site with the finest mesh's (minimum and mean over the 36; a lead
 that stays near zero correlates poorly whatever its size), the RMS of the difference from the finest over
 the finest's RMS, the
@@ -24,9 +24,9 @@ import time
 import numpy as np
 
 from bench.common import add_out_argument, add_publish_argument, check_publish, machine, publish_out, write_out
+from shared.ecg import PseudoECG, leads, standard_electrodes
 from shared.units import MS_PER_TIME_UNIT
 from simgen.meshes.catalog import get_mesh
-from simgen.observe.ecg import PseudoECG, leads, standard_electrodes
 from simgen.solver.simulate import Simulator
 
 

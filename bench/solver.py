@@ -57,10 +57,10 @@ from bench.common import (
     publish_out,
     write_out,
 )
+from shared.fem import diffusion_operator
 from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.heart import load_heart
-from simgen.solver.fem import diffusion_operator
 from simgen.solver.integrators import INTEGRATORS
 from simgen.solver.simulate import BLOCK_SIZE, SimulationResult, Simulator, SolverConfig
 from simgen.solver.stimulus import patch_mask

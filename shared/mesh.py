@@ -81,7 +81,7 @@ class Mesh:
     fibres : optional (N, 3) unit fibre direction at each node (axial: ``f``
         and ``-f`` are one direction), tangent to a triangle surface; the
         conduction is faster along them when the solver's ``anisotropy`` is
-        set (:func:`simgen.solver.fem.stiffness_matrix`).
+        set (:func:`shared.fem.stiffness_matrix`).
     sheets : optional (N, 3) unit sheet direction at each node, orthogonal to
         its fibre (needs ``fibres``; made orthogonal to them where it is not
         quite); conduction along the sheets, between the fibres' and the sheet

@@ -16,6 +16,7 @@ from rich.table import Table
 
 from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, parse_ids, print_markdown
 from shared.config import load_toml
+from shared.ecg import LEADS
 from shared.errors import InputError
 from shared.observation import node_mask
 from shared.observation import observe as observe_field
@@ -25,7 +26,6 @@ from simgen.meshes.catalog import get_mesh
 from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI
 from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
-from simgen.observe.ecg import LEADS
 from simgen.solver.cells import CELL_MODELS, APParams, cell_model
 from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
 from simgen.solver.integrators import AUTO, integrator_help
@@ -345,7 +345,7 @@ def simulate(
 def _ecg(m: Mesh, fields, config: SolverConfig, result, seconds: float, file: Path | None) -> dict[str, np.ndarray]:
     """The arrays of ``ecg.npz`` (docs/formats.md): the electrodes' potentials and, where they make them, the
     12 leads of every site's simulation, in mV against ms; prints the ECG's cost against the simulation's."""
-    from simgen.observe.ecg import ELECTRODES, PseudoECG, leads, read_electrodes, standard_electrodes
+    from shared.ecg import ELECTRODES, PseudoECG, leads, read_electrodes, standard_electrodes
 
     started = time.perf_counter()
     electrodes = standard_electrodes(m) if file is None else read_electrodes(file)

@@ -36,8 +36,8 @@ from numpy.typing import NDArray
 from scipy.sparse.linalg import spsolve
 
 from shared.errors import MeshError
+from shared.fem import element_gradients, stiffness_matrix
 from shared.mesh import Mesh
-from simgen.solver.fem import element_gradients, stiffness_matrix
 
 __all__ = [
     "HELIX_ENDO",

@@ -26,12 +26,12 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from shared.capture import activated_fraction, started_wave
 from shared.errors import ConfigError, InputError, TimeStepError, TissueError
+from shared.fem import Geometry, element_gradients, lumped_mass, operator_from, stiffness_matrix
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.topology import edge_graph
 from simgen.solver.backends import check_backend, resolve_backend
 from simgen.solver.cells import APParams, CellModel
-from simgen.solver.fem import Geometry, element_gradients, lumped_mass, operator_from, stiffness_matrix
 from simgen.solver.imex_cg import MAX_ITERATIONS, implicit_matrices, run_imex_cg
 from simgen.solver.imex_kernel import Factor, factorise, run_imex
 from simgen.solver.integrators import AUTO, check_integrator, choose_step
@@ -128,7 +128,7 @@ class SolverConfig:
 
     ``anisotropy``: the ratio ``D_l / D_t`` of conduction along and across the
     mesh's fibres (:attr:`shared.mesh.Mesh.fibres`; ``diffusivity`` is the
-    along-fibre value, :mod:`simgen.solver.fem`), a front about
+    along-fibre value, :mod:`shared.fem`), a front about
     ``sqrt(anisotropy)`` times faster along them; ``None`` (or 1): isotropic,
     and out of a spec's hash. Every integrator and backend takes it, through
     the assembled operator. ``sheet_anisotropy``: the ratio ``D_s / D_n`` of
@@ -259,7 +259,7 @@ def assemble(
 ) -> Assembly:
     """What checking a subject needs before anything is simulated (a :class:`Simulator` does more).
 
-    ``geometry``: :func:`~simgen.solver.fem.element_gradients` of the mesh, when
+    ``geometry``: :func:`~shared.fem.element_gradients` of the mesh, when
     the caller assembles many tissues on one mesh. ``imex_solve``: ``"factor"``
     or ``"cg"`` for IMEX's implicit solves (``None``: the cheaper on this
     mesh, :data:`IMEX_SOLVES`). Raises

@@ -32,6 +32,7 @@ from zarr.storage import MemoryStore
 from shared.capture import activated_fraction
 from shared.cli import PATH_ERRNOS
 from shared.config import to_mapping
+from shared.ecg import ECG_ATTRS, LEADS, standard_electrodes
 from shared.errors import InputError
 from shared.integrity import DIGESTS, array_digest
 from shared.mesh import Mesh
@@ -54,7 +55,6 @@ from shared.schema import (
 )
 from shared.split import canonical_part, split_rule
 from shared.units import MS_PER_TIME_UNIT
-from simgen.observe.ecg import ECG_ATTRS, LEADS, standard_electrodes
 from simgen.solver.simulate import SolverConfig
 from simgen.store import location
 from simgen.store.chunk_files import writable_store, write_rows
@@ -419,7 +419,7 @@ def spec_dict_of(obj: Any) -> Any:
 
 def mesh_values(mesh: Mesh, sites: NDArray, electrodes: NDArray, ecg: bool | None = None) -> dict[str, NDArray]:
     """The arrays of a mesh group, in the stored dtypes (``fibre`` where the mesh has fibres, ``ecg_electrodes``
-    with ``ecg``: :func:`~simgen.observe.ecg.standard_electrodes`)."""
+    with ``ecg``: :func:`~shared.ecg.standard_electrodes`)."""
     sets = {name: mesh.node_sets.get(name, np.zeros(0, np.int32)) for name in MESH_INDEX_SETS}
     values = {"points": mesh.points, "cells": mesh.cells, "stim_nodes": sites, **sets, "electrodes": electrodes}
     if mesh.fibres is not None:

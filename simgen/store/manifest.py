@@ -27,13 +27,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import InputError, MeshError, StimulusError
+from shared.fem import element_gradients
 from shared.mesh import Mesh
 from shared.tissue import TissueFields, TissueSpec
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.fibres import ldrb_frames
 from simgen.meshes.topology import edge_graph
 from simgen.observe.sock import Sock, farthest_point_sampling
-from simgen.solver.fem import element_gradients
 from simgen.solver.simulate import SolverConfig, assemble
 from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection
 from simgen.tissue.fields import SCAR_BORDERS, tissue_fields

@@ -254,7 +254,7 @@ class OutputSpec:
     against ~35 ms through blosc-lz4, which stores ``u`` in ~0.71 of the bytes
     (bench/build.py). ``sock_electrodes = 0`` stores no sock electrodes.
     ``ecg = true`` stores each simulation's 12-lead pseudo-ECG (subject array
-    ``ecg``, the electrodes in the mesh group; :mod:`simgen.observe.ecg`);
+    ``ecg``, the electrodes in the mesh group; :mod:`shared.ecg`);
     unset (or false): none, and out of the spec's hash.
     """
 

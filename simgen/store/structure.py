@@ -39,6 +39,7 @@ from zarr.errors import ZarrUserWarning
 from zarr.storage._common import make_store_path
 
 from shared.config import from_mapping
+from shared.ecg import ECG_ATTRS
 from shared.errors import InputError
 from shared.integrity import DIGESTS, array_problem, read_failure
 from shared.schema import (
@@ -54,7 +55,6 @@ from shared.schema import (
 )
 from shared.split import canonical_part
 from shared.units import MS_PER_TIME_UNIT
-from simgen.observe.ecg import ECG_ATTRS
 from simgen.store.layout import mesh_array_metadata, spec_dict_of, subject_array_metadata, subject_shapes
 from simgen.store.lock import LOCK_NAME
 from simgen.store.spec import BuildSpec, SiteSelection, spec_from_mapping

@@ -24,10 +24,10 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
+from shared.ecg import PseudoECG
 from shared.integrity import read_failure
 from shared.schema import METADATA_VERSION, SCHEMA_VERSION, mesh_path, subject_path
 from shared.units import U_RANGE
-from simgen.observe.ecg import PseudoECG
 from simgen.solver.backends import BACKEND_TOLERANCE
 from simgen.solver.simulate import SimulationResult, Simulator, SolverConfig
 from simgen.store.fingerprint import chunk_fingerprint

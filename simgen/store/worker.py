@@ -20,9 +20,9 @@ from typing import NamedTuple
 import numpy as np
 import zarr
 
+from shared.ecg import ELECTRODES, Electrodes, PseudoECG, leads
 from shared.integrity import read_checked
 from shared.schema import mesh_path, subject_path
-from simgen.observe.ecg import ELECTRODES, Electrodes, PseudoECG, leads
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.store.layout import ResultArrays, read_mesh, read_sites, read_tissue, result_arrays, write_chunk
 from simgen.store.metadata import recorded_solver

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from shared.ecg import LEADS, SIGMA_B, SIGMA_I, Electrodes, PseudoECG, leads, standard_electrodes
 from shared.errors import InputError, MeshError
 from shared.units import MS_PER_TIME_UNIT
 from simgen.cli import app
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.slab import slab
-from simgen.observe.ecg import LEADS, SIGMA_B, SIGMA_I, Electrodes, PseudoECG, leads, standard_electrodes
 from simgen.solver.simulate import Simulator
 
 

@@ -11,10 +11,10 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 from scipy.linalg import eigh
 
+from shared.fem import diffusion_operator, element_gradients, lumped_mass
 from shared.mesh import Mesh
 from simgen.meshes.slab import strip
 from simgen.solver.cells.aliev_panfilov import APParams
-from simgen.solver.fem import diffusion_operator, element_gradients, lumped_mass
 
 
 class SmoothProblem(NamedTuple):

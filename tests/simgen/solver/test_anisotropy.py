@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from shared.errors import InputError, MeshError
+from shared.fem import stiffness_matrix
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.slab import slab, strip
 from simgen.solver.cells.aliev_panfilov import front_speed
-from simgen.solver.fem import stiffness_matrix
 from simgen.solver.simulate import Simulator, SolverConfig
 from simgen.solver.verification import measured_front_speed, planar_run
 

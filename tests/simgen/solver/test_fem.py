@@ -7,10 +7,10 @@ import pytest
 import scipy.sparse as sp
 
 from shared.errors import MeshError
+from shared.fem import diffusion_operator, lumped_mass, stiffness_matrix
 from shared.mesh import Mesh
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.slab import slab, strip
-from simgen.solver.fem import diffusion_operator, lumped_mass, stiffness_matrix
 from simgen.solver.timestep import largest_eigenvalue
 
 

@@ -11,13 +11,13 @@ import pytest
 import scipy.sparse as sp
 
 from shared.errors import ConfigError, TimeStepError
+from shared.fem import element_gradients, lumped_mass, stiffness_matrix
 from shared.mesh import Mesh
 from shared.tissue import TissueFields
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.slab import slab, strip
 from simgen.solver.backends import BACKEND_TOLERANCE
 from simgen.solver.cells.aliev_panfilov import APParams
-from simgen.solver.fem import element_gradients, lumped_mass, stiffness_matrix
 from simgen.solver.imex_cg import TOL, implicit_matrices, run_imex_cg
 from simgen.solver.imex_kernel import factorise, run_imex
 from simgen.solver.simd import LANES

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from shared.errors import InputError, StimulusError, TimeStepError, TissueError
+from shared.fem import diffusion_operator
 from shared.tissue import ScarSpec, TissueFields, TissueSpec
 from simgen.meshes.biventricular import biv_ellipsoid
 from simgen.meshes.ellipsoid import lv_ellipsoid
 from simgen.meshes.slab import strip
 from simgen.solver.cells.aliev_panfilov import APParams, reaction
-from simgen.solver.fem import diffusion_operator
 from simgen.solver.simd import LANES
 from simgen.solver.simulate import Simulator, SolverConfig, healthy_fields, simulate
 from simgen.solver.stimulus import patch_mask

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import zarr
 
+from shared.ecg import ECG_ATTRS, ELECTRODES, LEADS, Electrodes, PseudoECG, leads
 from shared.errors import ConfigError
-from simgen.observe.ecg import ECG_ATTRS, ELECTRODES, LEADS, Electrodes, PseudoECG, leads
 from simgen.store.repair import repair_store
 from simgen.store.runner import build
 from simgen.store.spec import spec_hash

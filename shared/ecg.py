@@ -7,7 +7,7 @@ For an electrode at :math:`x_e` (Gima and Rudy 2002; as openCARP's phie recovery
     \phi_e(t) = -\frac{1}{4 \pi \sigma_b} \int_H \sigma_i \nabla V_m \cdot \nabla \frac{1}{|x - x_e|} \, dV,
 
 with ``V_m = 100 u - 80`` mV, ``sigma_i`` the intracellular conductivity tensor (the solver's relative tensor
-of each element, :func:`simgen.solver.fem.conductivity_tensors`, times the tissue's ``D`` scale, times
+of each element, :func:`shared.fem.conductivity_tensors`, times the tissue's ``D`` scale, times
 :data:`SIGMA_I`) and ``sigma_b`` the body's (:data:`SIGMA_B`). On P1 elements ``grad V_m`` is constant per
 element and ``grad(1/r)`` is taken at its centroid, so the whole operator is one dense (electrodes, nodes)
 matrix (:class:`PseudoECG`), assembled once per mesh and electrode set: a simulation's ECG is one product
@@ -32,9 +32,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import InputError, MeshError
+from shared.fem import conductivity_tensors, element_gradients
 from shared.mesh import Mesh
 from shared.units import to_millivolts
-from simgen.solver.fem import conductivity_tensors, element_gradients
 
 __all__ = [
     "LEADS",
@@ -197,7 +197,7 @@ class PseudoECG:
     ) -> PseudoECG:
         """The operator of ``mesh`` (tetrahedra) with the tissue's diffusivity ``scale`` per node (``None``: 1),
         the fibres' ``anisotropy`` and the sheets' ``sheet_anisotropy`` (``None``: isotropic), the tensor the
-        simulation conducts with (:func:`~simgen.solver.fem.conductivity_tensors`); see the module docstring."""
+        simulation conducts with (:func:`~shared.fem.conductivity_tensors`); see the module docstring."""
         if mesh.cell_type != "tetra":
             raise MeshError(f"mesh {mesh.name!r}: the pseudo-ECG integrates over a volume (tetrahedral) mesh")
         grads, volume = element_gradients(mesh.points, mesh.cells)  # (M, 4, 3), (M,)
