@@ -67,6 +67,7 @@ class ModelConfig:
     capture_gate: bool = False  # metaPNS: c at the site decides whether a wave starts (PNS.generate)
     capture_evidence: bool = False  # the gate also reads the context's peak at the site (SiteEvidence)
     working_nodes: int | None = None  # a finer mesh is seen as this many clusters (learner.graph.working); None: as is
+    ecg_encoder: bool = False  # metaPNS: a second context encoder that reads 12-lead ECGs (learner.models.ecg_encoder)
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
@@ -84,6 +85,8 @@ class ModelConfig:
                 f"model.working_nodes must be at least twice model.coarsest ({2 * self.coarsest}), "
                 f"got {self.working_nodes}"
             )
+        if self.ecg_encoder and self.kind != "metapns":
+            raise ConfigError("model.ecg_encoder is a context encoder: set model.kind = 'metapns'")
         if self.capture_evidence and not self.capture_gate:
             raise ConfigError("model.capture_evidence is an input of the capture gate: set model.capture_gate too")
 
@@ -111,6 +114,8 @@ class TrainConfig:
     max_minutes: float = 0.0  # wall-time budget: no epoch starts that would end past it (0 = no limit)
     validate_every: int = 5  # epochs between validation passes (best checkpoint kept)
     init: str = ""  # warm start: a checkpoint or a shipped model's name; its matching parameters start this run
+    reconstruction: bool = True  # False: fit the KL terms alone, without running the generator (an encoder's stage)
+    trainable: tuple[str, ...] = ()  # the model's parts (top-level modules) trained; the rest frozen (empty: all)
     device: str = "auto"  # auto (CUDA where available), cpu, cuda or cuda:N
     precision: str = "fp32"  # fp32, or autocast to bf16 / fp16 (docs/training.md measures bf16)
 
@@ -123,6 +128,10 @@ class TrainConfig:
             raise ConfigError(f"train.gate_loss must be >= 0, got {self.gate_loss}")
         if self.cc_loss < 0:
             raise ConfigError(f"train.cc_loss must be >= 0, got {self.cc_loss}")
+        if self.trainable and not self.init:
+            raise ConfigError("train.trainable freezes the rest of the model: give the trained model as train.init")
+        if not self.reconstruction and (self.gate_loss or self.cc_loss):
+            raise ConfigError("train.gate_loss and train.cc_loss need the generator's output: set train.reconstruction")
         check_device(self.device, "train.device")
         if self.precision not in PRECISIONS:
             raise ConfigError(f"train.precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
@@ -142,6 +151,8 @@ class LearnerConfig:
             raise ConfigError(
                 "data.episodes.targets must be >= 1: training fits the model to each episode's targets, got 0"
             )
+        if self.data.episodes.ecg > 0 and not self.model.ecg_encoder:
+            raise ConfigError("data.episodes.ecg records context sets as ECGs: set model.ecg_encoder = true")
         if self.train.gate_loss > 0 and not (self.model.kind == "metapns" and self.model.capture_gate):
             raise ConfigError(
                 "train.gate_loss fits the capture gate: set model.kind = 'metapns' and model.capture_gate"

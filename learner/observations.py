@@ -22,7 +22,9 @@ import numpy as np
 
 from learner.activation_maps import ApTemplate
 from learner.data.episodes import load_episode
+from learner.ecg import resample_ecg
 from learner.store_view import StoreView
+from shared.ecg import LEADS, Electrodes
 from shared.errors import InputError, StimulusError
 from shared.mesh import Mesh
 from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes
@@ -52,7 +54,10 @@ class Observations:
     dimensionless ``u`` at frame ``times`` (model time units), or activation
     times ``activation`` (K, N) in model time units (``+inf``: mapped, never
     activated), which :meth:`at_frames` renders as potentials
-    (:mod:`learner.activation_maps`). ``labels``: the mesh's region labels
+    (:mod:`learner.activation_maps`), or 12-lead ECGs ``ecg`` (K, 12, T) in mV
+    at ``times``, leads in the order of :data:`shared.ecg.LEADS`, recorded
+    through ``electrodes`` (None: the standard placement by the heart's axes);
+    ``observed`` then marks no node. ``labels``: the mesh's region labels
     where known (sites by region).
     """
 
@@ -64,24 +69,32 @@ class Observations:
     subject: str = ""
     labels: SiteLabels | None = None
     activation: np.ndarray | None = None  # (K, N) model time units, +inf never activated; instead of obs
+    ecg: np.ndarray | None = None  # (K, 12, T) mV at times; instead of obs
+    electrodes: Electrodes | None = None  # where the ECG was recorded (None: the standard placement)
 
     def __post_init__(self) -> None:
-        if (self.obs is None) == (self.activation is None):
-            raise InputError("give the recordings as potentials (obs) or as activation times, not both or neither")
+        given = [name for name in ("obs", "activation", "ecg") if getattr(self, name) is not None]
+        if len(given) != 1:
+            raise InputError(
+                "give the recordings as potentials (obs), activation times or ECGs, one of them: got "
+                + (", ".join(given) or "none")
+            )
         k, n = len(self.sites), len(self.mesh.points)
-        recorded = self.obs if self.obs is not None else self.activation
+        recorded = getattr(self, given[0])
         if len(recorded) < 1 or k < 1:
             raise InputError("context size must be >= 1: give at least one observed simulation")
-        frames = (len(self.times),) if self.obs is not None else ()
-        if recorded.shape != (k, *frames, n) or self.observed.shape != (n,):
+        shape = {"obs": (k, len(self.times), n), "activation": (k, n), "ecg": (k, len(LEADS), len(self.times))}
+        if recorded.shape != shape[given[0]] or self.observed.shape != (n,):
             raise InputError(
-                f"observations do not fit together: {'obs' if self.obs is not None else 'activation'} "
-                f"{recorded.shape}, observed {self.observed.shape}, sites {k}, times {len(self.times)}, "
-                f"mesh nodes {n}"
+                f"observations do not fit together: {given[0]} {recorded.shape}, observed {self.observed.shape}, "
+                f"sites {k}, times {len(self.times)}, mesh nodes {n}"
             )
-        if not self.observed.any():
+        if self.ecg is None and not self.observed.any():
             raise InputError("no observed node: observed is false everywhere, so no sequence is observed anywhere")
-        if self.obs is not None:
+        if self.ecg is not None:
+            if not np.isfinite(self.ecg).all():
+                raise InputError("the ECGs contain NaN or inf")
+        elif self.obs is not None:
             self._check_potentials()
             self.obs = np.where(self.observed, self.obs, 0.0).astype(np.float32)  # unobserved: NaN or anything
         elif np.isnan(self.activation[:, self.observed]).any() or (self.activation[:, self.observed] < 0).any():
@@ -115,6 +128,9 @@ class Observations:
         (:func:`resample_frames`).
         """
         times = np.asarray(times, np.float64)
+        if self.ecg is not None:
+            ecg = resample_ecg(self.ecg, self.times * MS_PER_TIME_UNIT, times * MS_PER_TIME_UNIT)
+            return replace(self, ecg=ecg, times=times)
         if self.activation is not None:
             obs = template().render(self.activation, times)
         elif len(self.times) == len(times) and np.allclose(self.times, times, rtol=1e-3, atol=1e-6):
@@ -194,16 +210,22 @@ OBSERVATION_ARRAYS = {
     "observed": (1, "biu"),  # (N,) 0/1
     "times_ms": (1, "fiu"),  # (T,) ms, or
     "times": (1, "fiu"),  # (T,) model time units
+    "ecg_mv": (3, "fiu"),  # (K, 12, T) 12-lead ECGs in mV, or the same as
+    "ecg": (3, "fiu"),
+    "leads": (1, "U"),  # (12,) the ECG's lead names
+    "ecg_times_ms": (1, "fiu"),  # (T,) ms
+    "electrodes": (1, "U"),  # (E,) electrode names
+    "electrode_xyz_mm": (2, "fiu"),  # (E, 3) electrode positions in mm
 }
 #: Recordings in mV whose lowest value is above this never come near rest (-80 mV): ``u`` given as ``obs_mv``.
 REST_ABOVE_MV = -50.0
 #: Groups of arrays of which a file gives exactly one (``sites`` and ``site_xyz`` may both be given if they agree).
 ONE_OF = {
     "sites": ("sites", "site_xyz"),
-    "recordings": ("obs_mv", "obs", "activation_ms"),
+    "recordings": ("obs_mv", "obs", "activation_ms", "ecg_mv", "ecg"),
     "frame times": ("times_ms", "times"),
 }
-_KINDS = {"f": "float", "i": "integer", "u": "integer", "b": "bool"}
+_KINDS = {"f": "float", "i": "integer", "u": "integer", "b": "bool", "U": "string"}
 _UNREADABLE = (ValueError, EOFError, zipfile.BadZipFile, zlib.error)  # what np.load raises for bad bytes
 
 
@@ -249,7 +271,9 @@ def _check_present(path: Path, a: dict[str, np.ndarray], mesh_given: bool) -> No
         if len(given) > 1 and group != "sites":
             raise InputError(f"{path}: give one of {' and '.join(given)} ({group}), not both")
     needed = ["sites", "recordings"]
-    if "activation_ms" not in a:
+    if "ecg_mv" in a or "ecg" in a:
+        needed += ["ecg_times_ms"]
+    elif "activation_ms" not in a:
         needed += ["frame times", "observed"]
     if not mesh_given:
         needed += ["points", "cells"]
@@ -260,7 +284,10 @@ def _check_present(path: Path, a: dict[str, np.ndarray], mesh_given: bool) -> No
 
 def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The recordings of a checked file as :class:`Observations` fields: ``obs`` (u) and ``times`` (model time
-    units), or ``activation`` (model time units) with the nodes every recording maps as ``observed``."""
+    units), or ``activation`` (model time units) with the nodes every recording maps as ``observed``, or ``ecg``
+    (mV, leads in :data:`~shared.ecg.LEADS` order) with its ``times`` and ``electrodes``."""
+    if "ecg_mv" in a or "ecg" in a:
+        return _ecg_recordings(path, a)
     if "activation_ms" in a:
         act = a["activation_ms"].astype(np.float64)
         if (act < 0).any():
@@ -297,6 +324,29 @@ def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
             "mV (rest -80, peak about 20), or u as obs"
         )
     return {"obs": from_millivolts(a["obs_mv"]).astype(np.float32), "observed": observed, "times": times}
+
+
+def _ecg_recordings(path: Path, a: dict[str, np.ndarray]) -> dict:
+    """The ECG fields of :class:`Observations` from a checked file (:func:`_recordings`)."""
+    name = "ecg_mv" if "ecg_mv" in a else "ecg"
+    times_ms = a["ecg_times_ms"].astype(np.float64)
+    try:
+        ecg = resample_ecg(a[name], times_ms, times_ms, a["leads"].tolist() if "leads" in a else None)
+        electrodes = None
+        if "electrodes" in a or "electrode_xyz_mm" in a:
+            if not {"electrodes", "electrode_xyz_mm"} <= set(a):
+                raise InputError("give the electrodes' names (electrodes) with their positions (electrode_xyz_mm)")
+            electrodes = Electrodes(tuple(a["electrodes"].tolist()), a["electrode_xyz_mm"])
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    n = len(a["points"]) if "points" in a else None
+    return {
+        "obs": None,
+        "ecg": ecg,
+        "times": times_ms / MS_PER_TIME_UNIT,
+        "electrodes": electrodes,
+        "observed": None if n is None else np.zeros(n, bool),
+    }
 
 
 def read_mesh_file(path: str | Path) -> tuple[Mesh, SiteLabels | None]:
@@ -362,4 +412,7 @@ def observations_from_file(
         raise InputError(f"{path}: {exc}") from None
     if "sites" in a and "site_xyz" in a and not np.array_equal(sites, nearest_nodes(mesh.points, a["site_xyz"], 1e9)):
         raise InputError(f"{path}: sites and site_xyz name different nodes; give one of them")
-    return Observations(mesh, sites, subject=path.stem, labels=labels, **_recordings(path, a))
+    recordings = _recordings(path, a)
+    if recordings["observed"] is None:  # an ECG marks no node
+        recordings["observed"] = np.zeros(mesh.n_nodes, bool)
+    return Observations(mesh, sites, subject=path.stem, labels=labels, **recordings)

@@ -27,7 +27,8 @@ import numpy as np
 import torch
 
 from learner.activation_maps import ApTemplate, template_from_store
-from learner.config import config_from_mapping
+from learner.config import LearnerConfig, config_from_mapping
+from learner.ecg import LeadField
 from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
 from learner.metrics import activation_times
 from learner.models.site_evidence import SiteEvidence
@@ -39,6 +40,7 @@ from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
 from shared.capture import recorded_fraction, started_wave
+from shared.ecg import LEADS
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes, region_nodes
@@ -68,6 +70,7 @@ class Prediction:
     seconds: float = 0.0
     activated: np.ndarray = field(default_factory=lambda: np.zeros(0))
     activation_spread: np.ndarray | None = None  # (S, N) std of the activation time over samples (time units)
+    ecg: np.ndarray | None = None  # (S, 12, T) mV: the predictions' 12-lead ECGs, for a heart personalised from ECGs
 
     @property
     def started_wave(self) -> np.ndarray:
@@ -92,6 +95,8 @@ class Prediction:
             "points": self.mesh.points,
             "cells": self.mesh.cells,
         }
+        if self.ecg is not None:
+            arrays |= {"ecg_mv": self.ecg, "leads": np.array(LEADS), "ecg_times_ms": arrays["times_ms"]}
         if self.spread is not None:
             arrays["spread_mv"] = (100.0 * self.spread).astype(np.float32)
             arrays["activation_spread_ms"] = (self.activation_spread * MS_PER_TIME_UNIT).astype(np.float32)
@@ -183,9 +188,12 @@ class PersonalizedHeart:
                 draws = torch.stack(draws).cpu().numpy()
                 spread = draws.std(axis=0)
                 act_spread = _activation_spread(draws, self.times)
+        ecg = None
+        if "lead_matrix" in self._payload:
+            ecg = LeadField(self._payload["lead_matrix"], torch.zeros(0)).ecg(u.cpu()).numpy()
         u = u.cpu().numpy()
         activated = (u.max(axis=1) >= 0.5).mean(axis=1)
-        return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated, act_spread)
+        return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated, act_spread, ecg)
 
     def save(self, path: str | Path) -> Path:
         """Write the heart to ``path`` (a personalised surrogate file that :meth:`load` reads)."""
@@ -283,6 +291,8 @@ def personalize(
     if not isinstance(model, MetaPNS):
         raise InputError(f"{checkpoint} is a PNS model: it has no context embedding to personalise")
     observations = observations.at_frames(_model_times(ckpt, config, observations), lambda: _template(ckpt, config))
+    if observations.ecg is not None:
+        return _personalize_from_ecg(model, ckpt, config, observations, out, placed, refine)
     if observations.obs.shape[1] != model.frames:
         raise InputError(f"observations have {observations.obs.shape[1]} frames, the model expects {model.frames}")
     activated = recorded_fraction(observations.obs, observations.observed)
@@ -337,6 +347,49 @@ def personalize(
         payload,
         observations.labels,
         evidence.to(placed),
+    )
+    if out is not None:
+        heart.save(out)
+    return heart
+
+
+def _personalize_from_ecg(
+    model: MetaPNS,
+    ckpt: dict,
+    config: LearnerConfig,
+    observations: Observations,
+    out: str | Path | None,
+    placed: torch.device,
+    refine: Refinement,
+) -> PersonalizedHeart:
+    """:func:`personalize` from 12-lead ECGs: the model's ECG encoder embeds them; the heart keeps the mesh's
+    lead field, so its predictions come with their ECGs. No recording is left out (an ECG does not show
+    whether a wave started) and nothing is refined."""
+    if model.ecg_encoder is None:
+        raise InputError(
+            "this model reads no ECGs (it was trained without model.ecg_encoder); the shipped model `anatomies` does"
+        )
+    if refine.steps:
+        raise InputError("--refine-steps refines c on potentials; a personalisation from ECGs has none to refine on")
+    if observations.ecg.shape[2] != model.frames:
+        raise InputError(f"the ECGs have {observations.ecg.shape[2]} frames, the model expects {model.frames}")
+    hier = _hierarchy(observations.mesh, config.model).to(placed)
+    lead_field = LeadField.of_mesh(observations.mesh, observations.electrodes).to(placed)
+    sites = torch.as_tensor(np.asarray(observations.sites, np.int64))
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        post = model.embed_ecg(torch.as_tensor(observations.ecg, device=placed), lead_field, sites.to(placed), hier)
+    payload = {
+        "config": ckpt["config"],
+        "subject": observations.subject,
+        "context_sites": sites,
+        "recorded": "ecg",
+        "lead_matrix": lead_field.matrix.cpu(),
+        "dropped": [],
+        "embed_seconds": time.perf_counter() - t0,
+    }
+    heart = PersonalizedHeart(
+        model, post, hier, observations.mesh, np.asarray(observations.times), payload, observations.labels
     )
     if out is not None:
         heart.save(out)

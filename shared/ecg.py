@@ -223,6 +223,14 @@ class PseudoECG:
         vm = to_millivolts(np.asarray(u, np.float64))
         return np.swapaxes(vm @ self.matrix.T, -1, -2)
 
+    def lead_matrix(self) -> NDArray[np.float64]:
+        """(12, N): the 12 leads (mV) of a potential field ``u`` (N,) are ``lead_matrix() @ u``.
+
+        Linear in ``u`` itself: each row of :attr:`matrix` sums to zero (the P1 gradients of an element sum to
+        zero), so the resting offset of ``V_m = 100 u - 80`` drops out of every electrode's potential.
+        """
+        return (to_millivolts(1.0) - to_millivolts(0.0)) * leads(self.matrix[None], self.electrodes)[0]
+
 
 def leads(potentials: NDArray[np.float64], electrodes: Electrodes) -> NDArray[np.float64]:
     """The 12 leads of :data:`LEADS` (..., 12, T) from electrode potentials (..., E, T) holding

@@ -234,7 +234,8 @@ def simulate(
         typer.Option(
             help="Also write observations.npz, the recordings `learner personalize --observations` reads: u on this "
             "node set (surface, epicardium, endocardium, electrodes: the 247-electrode sock, or all); or 'ecg': "
-            "ecg.npz and ecg.png, the 12-lead pseudo-ECG of each site (mV against ms)."
+            "ecg.npz and ecg.png, the 12-lead pseudo-ECG of each site (mV against ms), and observations.npz with "
+            "the ECGs as recordings."
         ),
     ] = None,
     electrodes: Annotated[
@@ -256,7 +257,7 @@ def simulate(
         typer.Option(
             min=0,
             callback=finite,
-            help="Gaussian noise std added to the recordings: mV (potential) or ms (activation).",
+            help="Gaussian noise std added to the recordings: mV (potential, ECG) or ms (activation).",
         ),
     ] = 0.0,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the observation noise.")] = 0,
@@ -311,20 +312,15 @@ def simulate(
             m, act_ms, [f"{spec.name} site {s}" for s in file_sites], out / "activation.png", stim_nodes=site_ids
         )
         if observed is not None:
-            rng = np.random.default_rng(seed)
-            labels = _labels(m).arrays() if heart else {}
-            np.savez_compressed(
-                out / "observations.npz",
-                points=m.points,
-                cells=m.cells,
-                sites=result.sites,
-                site_xyz=centres,
-                observed=observed,
-                **_recording(result, observed, record, noise, rng),
-                **labels,
-            )
+            recording = _recording(result, observed, record, noise, np.random.default_rng(seed))
+            _write_observations(out, m, result.sites, centres, heart, observed=observed, **recording)
         if ecg is not None:
             np.savez_compressed(out / "ecg.npz", sites=file_sites, **ecg)
+            if "ecg_mv" in ecg:
+                recorded = ecg["ecg_mv"] + np.random.default_rng(seed).normal(0.0, noise, ecg["ecg_mv"].shape)
+                keep = ("leads", "ecg_times_ms", "electrodes", "electrode_xyz_mm")
+                recording = {"ecg_mv": recorded.astype(np.float32), **{name: ecg[name] for name in keep}}
+                _write_observations(out, m, result.sites, centres, heart, **recording)
             if "ecg_mv" in ecg:
                 title = f"{m.name}: pseudo-ECG, site {file_sites[0]}"
                 plot_ecg(times_ms, ecg["ecg_mv"][0], LEADS, out / "ecg.png", title)
@@ -400,6 +396,17 @@ def _recording(result, observed: np.ndarray, record: str, noise: float, rng: np.
         return {"obs_mv": mv.astype(np.float32), "times_ms": result.times * MS_PER_TIME_UNIT}
     mapped = mapped_activation(result.activation * MS_PER_TIME_UNIT, result.u.max(axis=1), noise, rng)
     return {"activation_ms": np.where(observed, mapped, np.nan).astype(np.float32)}
+
+
+def _write_observations(
+    out: Path, m: Mesh, sites: np.ndarray, centres: np.ndarray, heart: bool, **recording: np.ndarray
+) -> None:
+    """``observations.npz`` (docs/formats.md): the mesh, the sites, its region labels (of a heart) and the
+    recording arrays."""
+    labels = _labels(m).arrays() if heart else {}
+    np.savez_compressed(
+        out / "observations.npz", points=m.points, cells=m.cells, sites=sites, site_xyz=centres, **recording, **labels
+    )
 
 
 def _report_no_wave(sites: np.ndarray, fraction: np.ndarray) -> None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from torch.utils.data import IterableDataset, get_worker_info
 
 from learner.activation_maps import ApTemplate, template_from_store
+from learner.ecg import LeadField
 from learner.metrics import activation_times
 from shared.capture import mapped_activation
 from shared.errors import InputError, SchemaError
@@ -43,8 +45,10 @@ from shared.reader import (
     checked_subject_ids,
     done_flags,
     read_index_set,
+    read_mesh,
     read_sites,
     read_times,
+    read_tissue,
     subject_array,
     subject_attrs,
 )
@@ -83,6 +87,12 @@ class EpisodeSpec:
         ``activation_noise_ms``, rendered through the action-potential template.
     activation_noise_ms
         Standard deviation of the activation-time noise of those episodes, in ms.
+    ecg
+        Share of episodes whose context is recorded as 12-lead ECGs instead (:mod:`learner.ecg`): the
+        pseudo-ECG of each context simulation through the standard electrodes placed by the heart's axes,
+        the subject's tissue weighing its conductivity; drawn after ``activation_maps``, which it overrides.
+    ecg_noise
+        Standard deviation of the Gaussian noise added to those ECGs, as a share of the set's largest lead value.
     """
 
     context: tuple[int, int] = (1, 5)
@@ -92,6 +102,8 @@ class EpisodeSpec:
     chunks_per_episode: int = 0
     activation_maps: float = 0.0
     activation_noise_ms: float = 3.0
+    ecg: float = 0.0
+    ecg_noise: float = 0.02
 
     def __post_init__(self) -> None:
         context = self.context
@@ -121,6 +133,10 @@ class EpisodeSpec:
             raise InputError(f"activation_maps is a share of episodes in [0, 1], got {self.activation_maps!r}")
         if not (np.isfinite(self.activation_noise_ms) and self.activation_noise_ms >= 0):
             raise InputError(f"activation_noise_ms must be a finite number >= 0, got {self.activation_noise_ms!r}")
+        if not 0.0 <= self.ecg <= 1.0:
+            raise InputError(f"ecg is a share of episodes in [0, 1], got {self.ecg!r}")
+        if not (np.isfinite(self.ecg_noise) and 0 <= self.ecg_noise < 1):
+            raise InputError(f"ecg_noise is a share of the largest lead value in [0, 1), got {self.ecg_noise!r}")
 
     @property
     def observe_sets(self) -> tuple[str, ...]:
@@ -158,6 +174,11 @@ class Episode:
     times : FloatTensor (T,)
         Frame times in time units.
     context_rows, target_rows : LongTensor (K,), (M,)
+    context_ecg : FloatTensor (K, 12, T) or None
+        The context also recorded as 12-lead ECGs (mV): the model then reads these (``context_obs`` stays, for
+        the posterior of the training objective).
+    lead_matrix, lead_density : FloatTensor (12, N), (N, 12) or None
+        With ``context_ecg``: the mesh's healthy lead field (:class:`~learner.ecg.LeadField`).
     """
 
     subject_id: str
@@ -171,6 +192,14 @@ class Episode:
     times: torch.Tensor
     context_rows: torch.Tensor | None = None
     target_rows: torch.Tensor | None = None
+    context_ecg: torch.Tensor | None = None
+    lead_matrix: torch.Tensor | None = None
+    lead_density: torch.Tensor | None = None
+
+    @property
+    def lead_field(self) -> LeadField | None:
+        """The mesh's lead field, for an episode whose context is ECGs."""
+        return None if self.lead_matrix is None else LeadField(self.lead_matrix, self.lead_density)
 
     def to(self, device: torch.device | str, non_blocking: bool = False) -> Episode:
         """A copy with every tensor moved to ``device``."""
@@ -305,11 +334,21 @@ def _build_episode(
     noise_std: float,
     rng: np.random.Generator | None,
     as_map: tuple[ApTemplate, float] | None = None,
+    as_ecg: tuple[LeadField, LeadField, float] | None = None,
 ) -> Episode:
-    """An episode of the given rows; ``as_map`` = (template, noise in ms) records its context as activation maps."""
+    """An episode of the given rows; ``as_map`` = (template, noise in ms) records its context as activation maps,
+    ``as_ecg`` = (the subject's lead field, the mesh's healthy one, noise share) as 12-lead ECGs."""
     k = context_rows.size
     data = u.rows("u", np.concatenate([context_rows, target_rows]))  # checked: done, checksums, fingerprint, finite
     context_u, target_u = data[:k], data[k:]
+    ecg = {}
+    if as_ecg is not None:
+        truth, healthy, noise = as_ecg
+        ecg = {
+            "context_ecg": recorded_ecg(torch.from_numpy(context_u), truth, noise, rng),
+            "lead_matrix": healthy.matrix,
+            "lead_density": healthy.density,
+        }
     if as_map is None:
         obs = observe(context_u, observed, noise_std, rng)
     else:
@@ -326,7 +365,33 @@ def _build_episode(
         times=torch.from_numpy(np.asarray(times, dtype=np.float32)),
         context_rows=torch.from_numpy(context_rows),
         target_rows=torch.from_numpy(target_rows),
+        **ecg,
     )
+
+
+def recorded_ecg(u: torch.Tensor, lead_field: LeadField, noise: float, rng: np.random.Generator | None) -> torch.Tensor:
+    """The 12-lead ECGs (K, 12, T) of simulations ``u`` (K, T, N) with Gaussian noise of ``noise`` times the
+    set's largest lead value."""
+    ecg = lead_field.ecg(u.to(torch.float32))
+    if noise > 0:
+        if rng is None:
+            raise InputError("ECG noise needs a random generator (rng)")
+        scale = noise * float(ecg.abs().max())
+        ecg = ecg + torch.from_numpy(rng.normal(0.0, scale, size=tuple(ecg.shape)).astype(np.float32))
+    return ecg
+
+
+@cache
+def subject_lead_fields(store: str, subject_id: str, mesh_id: str) -> tuple[LeadField, LeadField]:
+    """A subject's lead field (its tissue weighing the conductivity: what its ECGs are) and its mesh's healthy
+    one (what a personalisation knows), through the standard electrodes of the stored mesh; cached per process."""
+    mesh = read_mesh(store, mesh_id)
+    return LeadField.of_mesh(mesh, scale=read_tissue(store, subject_id).D), _healthy_lead_field(store, mesh_id)
+
+
+@cache
+def _healthy_lead_field(store: str, mesh_id: str) -> LeadField:
+    return LeadField.of_mesh(read_mesh(store, mesh_id))
 
 
 def recorded_map(
@@ -347,6 +412,7 @@ def load_episode(
     observe: str = "surface",
     noise_std: float = 0.0,
     rng: np.random.Generator | None = None,
+    ecg_noise: float | None = None,
 ) -> Episode:
     """One episode with fixed sites (evaluation; the dataset draws its own).
 
@@ -364,6 +430,8 @@ def load_episode(
         Observation set (one of :data:`~shared.observation.OBSERVATION_SETS`).
     noise_std, rng
         Observation noise and its generator (required when ``noise_std > 0``).
+    ecg_noise
+        Record the context as 12-lead ECGs with this noise share instead (:func:`recorded_ecg`; None: don't).
 
     Raises
     ------
@@ -386,7 +454,8 @@ def load_episode(
     # Only the chunks actually read must be finished: evaluation may run on a partial store.
     _refuse_missing(meta, meta.chunks_of(np.concatenate([context_rows, target_rows])))
     u, times = SubjectReader(store, subject_id), read_times(store, subject_id)
-    return _build_episode(meta, u, times, context_rows, target_rows, meta.observed[0], noise_std, rng)
+    as_ecg = None if ecg_noise is None else (*subject_lead_fields(store, subject_id, meta.mesh_id), ecg_noise)
+    return _build_episode(meta, u, times, context_rows, target_rows, meta.observed[0], noise_std, rng, None, as_ecg)
 
 
 class EpisodeDataset(IterableDataset):
@@ -591,4 +660,10 @@ class EpisodeDataset(IterableDataset):
         as_map = None
         if spec.activation_maps and rng.random() < spec.activation_maps:  # drawn only then: other episodes unchanged
             as_map = (self.template, spec.activation_noise_ms)
-        return _build_episode(self._meta[i], u, times, context_rows, target_rows, observed, spec.noise_std, rng, as_map)
+        as_ecg = None
+        if spec.ecg and rng.random() < spec.ecg:
+            meta = self._meta[i]
+            as_ecg = (*subject_lead_fields(self.store, meta.subject_id, meta.mesh_id), spec.ecg_noise)
+        return _build_episode(
+            self._meta[i], u, times, context_rows, target_rows, observed, spec.noise_std, rng, as_map, as_ecg
+        )

@@ -23,9 +23,11 @@ import torch
 from torch import Tensor, nn
 
 from learner.config import ModelConfig
+from learner.ecg import LeadField
 from learner.graph.geodesic import geodesic_distances
 from learner.graph.hierarchy import MeshHierarchy
 from learner.models.context_encoder import ContextEncoder
+from learner.models.ecg_encoder import EcgEncoder
 from learner.models.graph_decoder import GraphDecoder
 from learner.models.graph_encoder import GraphEncoder
 from learner.models.site_evidence import EVIDENCE_FEATURES, SiteEvidence
@@ -206,10 +208,19 @@ class MetaPNS(PNS):
         self.context_encoder = ContextEncoder(
             frames, config.channels, config.hidden, config.latent, config.context_stride
         )
+        self.ecg_encoder = (
+            EcgEncoder(frames, config.channels, config.hidden, config.latent) if config.ecg_encoder else None
+        )
 
     def embed(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Posterior:
         """q(c | Y) from observed sequences ``obs`` (K, T, N) and the observation mask (N,)."""
         return Posterior(*self.context_encoder(obs, observed, hierarchy))
+
+    def embed_ecg(self, ecg: Tensor, lead_field: LeadField, sites: Tensor, hierarchy: MeshHierarchy) -> Posterior:
+        """q(c | ECGs) from the 12-lead ECGs ``ecg`` (K, 12, T) in mV of pacings at mesh nodes ``sites`` (K,)."""
+        if self.ecg_encoder is None:
+            raise ValueError("this model reads no ECGs: it was built without model.ecg_encoder")
+        return Posterior(*self.ecg_encoder(ecg, lead_field, sites, hierarchy))
 
     def embed_prior_and_posterior(
         self, context: Tensor, extra: Tensor, observed: Tensor, hierarchy: MeshHierarchy

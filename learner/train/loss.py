@@ -10,7 +10,9 @@ r"""The episode loss (docs/method.md, "Training objective") (negative ELBO of th
 where ``rec`` is the squared error summed over nodes and frames and averaged
 over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
 embedding of the context set and ``q(c | Y u X)`` that of context and targets
-(both by the same network). PNS has no ``c``: its loss is the reconstruction.
+(both by the same network). An episode whose context is recorded as ECGs
+(``Episode.context_ecg``) takes ``p(c | Y)`` from the ECG encoder instead.
+PNS has no ``c``: its loss is the reconstruction.
 
 With a capture gate and ``train.gate_loss`` ``w > 0`` the gate ``g`` of every
 context and target site is also fitted, by binary cross-entropy, to whether
@@ -107,6 +109,7 @@ def episode_loss(
     c_from: str = "posterior",
     gate_weight: float = 0.0,
     cc_weight: float = 0.0,
+    reconstruction: bool = True,
 ) -> LossTerms:
     """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
 
@@ -118,18 +121,28 @@ def episode_loss(
     drawn from: ``"posterior"`` q(c | Y u X), or ``"context"`` p(c | Y), the
     embedding a trained model is given at test time. ``gate_weight`` is the
     weight ``w`` of the capture gate's cross-entropy (a model without a gate
-    with ``w > 0`` is an error); ``cc_weight`` that of ``1 - CC``.
+    with ``w > 0`` is an error); ``cc_weight`` that of ``1 - CC``. Without
+    ``reconstruction`` the loss is the KL terms alone (the MSEs are reported as
+    0): an encoder trained beside a frozen model then learns to match its
+    posterior, at the cost of the encoders only.
     """
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
     zero = torch.zeros((), device=truth.device)
     c, evidence, kl_q, kl_p = None, None, zero, zero
     if model.conditioned:
-        evidence = SiteEvidence.of(episode)  # the context only: a target's own sequence would give its answer away
+        # the context only: a target's own sequence would give its answer away; an ECG shows no site's own values
+        evidence = SiteEvidence.of(episode) if episode.context_ecg is None else None
         extra = episode.target_u[:posterior_targets] * episode.observed.to(truth.dtype)
         prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
+        if episode.context_ecg is not None:  # p(c | Y) from the ECGs of the context; q(c | Y u X) as ever
+            prior = model.embed_ecg(episode.context_ecg, episode.lead_field, episode.context_sites, hierarchy)
         c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
+    if not reconstruction:  # the embedding terms alone: the generator is not run
+        per_value = 1.0 / (truth.shape[-1] * model.frames)
+        total = kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
+        return LossTerms(total, zero, zero, kl_q, kl_p, zero, zero)
     pred, logit = model.generate_with_gate(sites, hierarchy, c, frames, evidence)
     gate_bce = zero
     if gate_weight > 0:
@@ -162,11 +175,12 @@ class EpisodeObjective(nn.Module):
         c_from: str = "posterior",
         gate_weight: float = 0.0,
         cc_weight: float = 0.0,
+        reconstruction: bool = True,
     ) -> None:
         super().__init__()
         self.model, self.lambda1, self.lambda2 = model, lambda1, lambda2
         self.posterior_targets, self.c_from = posterior_targets, c_from
-        self.gate_weight, self.cc_weight = gate_weight, cc_weight
+        self.gate_weight, self.cc_weight, self.reconstruction = gate_weight, cc_weight, reconstruction
 
     def forward(
         self,
@@ -189,4 +203,5 @@ class EpisodeObjective(nn.Module):
             self.c_from,
             self.gate_weight,
             self.cc_weight,
+            self.reconstruction,
         )

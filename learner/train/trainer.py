@@ -67,6 +67,18 @@ class StepCost:
         return budget_s > 0 and elapsed_s + validation * validating + self.epoch_s + validation > budget_s
 
 
+def trainable_parameters(model: nn.Module, parts: tuple[str, ...]) -> list[nn.Parameter]:
+    """The parameters of ``model``'s top-level modules named in ``parts`` (all when empty); the rest are frozen."""
+    named = dict(model.named_children())
+    unknown = [p for p in parts if p not in named]
+    if unknown:
+        raise InputError(f"train.trainable names {unknown}, which the model lacks; its parts: {sorted(named)}")
+    if parts:
+        for name, param in model.named_parameters():
+            param.requires_grad_(name.split(".")[0] in parts)
+    return [p for p in model.parameters() if p.requires_grad]
+
+
 class TrainingDiverged(RuntimeError):
     """A non-finite loss or gradient; the last good checkpoint is kept."""
 
@@ -96,9 +108,16 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.model: PNS = build_model(config.model, self.view.frames).to(self.device)
         self.objective: nn.Module = EpisodeObjective(
-            self.model, cfg.lambda1, cfg.lambda2, cfg.posterior_targets or None, cfg.c_from, cfg.gate_loss, cfg.cc_loss
+            self.model,
+            cfg.lambda1,
+            cfg.lambda2,
+            cfg.posterior_targets or None,
+            cfg.c_from,
+            cfg.gate_loss,
+            cfg.cc_loss,
+            cfg.reconstruction,
         )
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
+        self.optimizer = torch.optim.Adam(trainable_parameters(self.model, cfg.trainable), lr=cfg.lr)
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, cfg.lr_halve_every, gamma=0.5)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=cfg.precision == "fp16")
         self.epoch, self.history, self.best, self.steps_taken = 0, [], math.inf, 0
@@ -297,8 +316,12 @@ class Trainer:
             ep = ds.episode(i).to(self.device)
             hier = self._hierarchy(ep.mesh_id)
             with autocast(self.device, self.config.train.precision):
-                c = self.model.embed(ep.context_obs, ep.observed, hier).mu if self.model.conditioned else None
-                pred = self.model.generate(ep.target_sites, hier, c, evidence=SiteEvidence.of(ep))
+                c, evidence = None, SiteEvidence.of(ep)
+                if ep.context_ecg is not None:
+                    c, evidence = self.model.embed_ecg(ep.context_ecg, ep.lead_field, ep.context_sites, hier).mu, None
+                elif self.model.conditioned:
+                    c = self.model.embed(ep.context_obs, ep.observed, hier).mu
+                pred = self.model.generate(ep.target_sites, hier, c, evidence=evidence)
             total, n = total + float(((pred.float() - ep.target_u) ** 2).mean()), n + 1
         total, n = self.world.all_sum([total, n], self.device)
         return total / max(n, 1)

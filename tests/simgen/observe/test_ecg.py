@@ -60,6 +60,16 @@ def test_the_leads_keep_einthoven_and_goldberger_identities(lv_ecgs):
     assert scale > 0.5  # mV: a QRS and a T wave, not noise
 
 
+def test_the_lead_matrix_gives_the_leads_of_a_potential_field():
+    """``lead_matrix() @ u`` is :func:`leads` of the electrodes' potentials of ``u`` (the resting offset drops out)."""
+    mesh = get_mesh("lv", 1000)
+    operator = PseudoECG.assemble(mesh, standard_electrodes(mesh))
+    u = np.random.default_rng(0).random((4, mesh.n_nodes))
+    expected = leads(operator.potentials(u), operator.electrodes)
+    found = operator.lead_matrix() @ u.T
+    np.testing.assert_allclose(found, expected, atol=1e-9 * np.abs(expected).max())
+
+
 def test_the_qrs_ends_when_the_last_node_activates(lv_ecgs):
     """The QRS (every lead within 5% of its peak after it) ends within 1.5 frames (11.6 ms) of the latest
     activation time: measured 0-8 ms."""
