@@ -41,6 +41,13 @@ demo: $(STAMP)
 		--observations report/demo/your-heart/maps/observations.npz --out report/demo/your-heart/maps.pt
 	$(BIN)/learner predict report/demo/your-heart/maps.pt --site-region aha-7,apex --out report/demo/your-heart/maps.npz
 	$(BIN)/learner compare report/demo/your-heart/maps.npz report/demo/your-heart/truth/simulation.npz
+	# the same heart from the 12-lead ECGs of the same pacings
+	$(BIN)/simgen simulate report/demo/your-heart/ecg --mesh report/demo/your-heart/heart.vtu \
+		--tissue scar-septal-basal --site-region aha-1,aha-6,aha-10,aha-16 --observe ecg --noise 0.02
+	$(BIN)/learner personalize anatomies --mesh report/demo/your-heart/heart.vtu \
+		--observations report/demo/your-heart/ecg/observations.npz --out report/demo/your-heart/ecg.pt
+	$(BIN)/learner predict report/demo/your-heart/ecg.pt --site-region aha-7,apex --out report/demo/your-heart/ecg.npz
+	$(BIN)/learner compare report/demo/your-heart/ecg.npz report/demo/your-heart/truth/simulation.npz
 
 test: $(STAMP)
 	$(BIN)/pytest -q

@@ -41,7 +41,7 @@ from learner.metrics import activation_error_ms, spatial_cc
 from learner.models.surrogate import Posterior
 from learner.observations import Observations
 from learner.personalized import NoWaveWarning, personalize
-from learner.refine import Refinement, fit_context
+from learner.refine import Refinement, fit_context, observed_nodes
 from learner.store_view import StoreView
 from shared.reader import read_activation
 
@@ -53,7 +53,15 @@ def fixed_steps(heart, obs: Observations, steps: int, refinement: Refinement) ->
     target = torch.as_tensor(obs.obs)[..., observed]
     mu, var = heart.posterior.mu, heart.posterior.logvar.exp()
     c, _, _ = fit_context(
-        heart.model, mu, var, (sites, target), heart.hierarchy, heart.evidence, observed, refinement, steps
+        heart.model,
+        mu,
+        var,
+        (sites, target),
+        heart.hierarchy,
+        heart.evidence,
+        observed_nodes(observed),
+        refinement,
+        steps,
     )
     heart.posterior = Posterior(c, heart.posterior.logvar)
 

@@ -283,7 +283,8 @@ def personalize(
         typer.Option(
             help=".npz (instead of --store): obs (K, T, N) float u = (V + 80) / 100, V in mV; sites (K,) int node ids "
             "or site_xyz (K, 3) mm; observed (N,) bool; times (T,) float in time units of 12.9 ms (the shipped "
-            "model: T = 55, 0.6, 1.2, ..., 33.0); the mesh's points (N, 3) float mm and cells (M, 4|3) int "
+            "model: T = 55, 0.6, 1.2, ..., 33.0); the mesh's points (N, 3) float mm and cells (M, 4|3) int; or "
+            "activation_ms (K, N), or ecg_mv (K, 12, T) 12-lead ECGs with ecg_times_ms "
             "(docs/formats.md, examples/observations.npz)."
         ),
     ] = None,

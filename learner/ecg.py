@@ -62,7 +62,8 @@ def normalised_ecg(ecg: Tensor) -> Tensor:
 def resample_ecg(ecg: NDArray, times_ms: NDArray, model_times_ms: NDArray, leads: list[str] | None = None) -> NDArray:
     """ECGs (K, 12, T) at ``times_ms`` linearly resampled to ``model_times_ms``, leads reordered to
     :data:`~shared.ecg.LEADS` from their names ``leads`` (None: already in that order); frames before the first
-    sample hold its value (the resting baseline). Refuses what cannot be read, naming the problem."""
+    sample hold its value (the resting baseline), and so do those at most one recording interval after the last.
+    Refuses what cannot be read, naming the problem."""
     ecg, times_ms = np.asarray(ecg, np.float64), np.asarray(times_ms, np.float64).reshape(-1)
     if ecg.ndim != 3 or ecg.shape[1] != len(LEADS) or ecg.shape[2] != len(times_ms):
         raise InputError(
@@ -79,8 +80,8 @@ def resample_ecg(ecg: NDArray, times_ms: NDArray, model_times_ms: NDArray, leads
         raise InputError("ecg contains NaN or inf")
     if len(times_ms) < 2 or np.any(np.diff(times_ms) <= 0):
         raise InputError("ecg_times_ms must hold at least 2 increasing times (ms)")
-    end = float(np.max(model_times_ms))
-    if times_ms[-1] < end - 1e-6:
+    end, step = float(np.max(model_times_ms)), float(np.max(np.diff(times_ms)))
+    if times_ms[-1] < end - step:
         raise InputError(
             f"the ECG ends at {times_ms[-1]:.1f} ms; the model needs it up to {end:.1f} ms after the stimulus "
             f"(frames at {model_times_ms[0]:.1f}, {model_times_ms[1]:.1f}, ... {end:.1f} ms)"

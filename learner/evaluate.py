@@ -29,7 +29,7 @@ from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS
-from learner.refine import Refinement, refine_context
+from learner.refine import Refinement, observed_nodes, refine_context
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
@@ -196,8 +196,8 @@ class NeuralMethod(Method):
             self._c, _, _ = refine_context(
                 self.model,
                 posterior,
-                ep.context_obs,
-                ep.observed,
+                ep.context_obs[..., ep.observed.bool()],
+                observed_nodes(ep.observed),
                 ep.context_sites,
                 self._hier,
                 self._evidence,

@@ -34,7 +34,7 @@ from learner.metrics import activation_times
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior, build_model
 from learner.observations import Observations
-from learner.refine import Refinement, refine_context
+from learner.refine import Refinement, ecg_leads, observed_nodes, refine_context
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
@@ -323,7 +323,8 @@ def personalize(
     evidence = SiteEvidence.from_context(obs, observed, sites)  # its sites on obs's device
     objective, taken = [], 0
     if refine.steps:
-        c, objective, taken = refine_context(model, post, obs, observed, evidence.sites, hier, evidence, refine)
+        target, record = obs[..., observed.bool()], observed_nodes(observed)
+        c, objective, taken = refine_context(model, post, target, record, evidence.sites, hier, evidence, refine)
         post = Posterior(c, post.logvar)
     payload = {
         "config": ckpt["config"],
@@ -364,21 +365,27 @@ def _personalize_from_ecg(
 ) -> PersonalizedHeart:
     """:func:`personalize` from 12-lead ECGs: the model's ECG encoder embeds them; the heart keeps the mesh's
     lead field, so its predictions come with their ECGs. No recording is left out (an ECG does not show
-    whether a wave started) and nothing is refined."""
+    whether a wave started); ``refine`` fits ``c`` to the ECGs through the lead field
+    (:func:`~learner.refine.ecg_leads`)."""
     if model.ecg_encoder is None:
         raise InputError(
             "this model reads no ECGs (it was trained without model.ecg_encoder); the shipped model `anatomies` does"
         )
-    if refine.steps:
-        raise InputError("--refine-steps refines c on potentials; a personalisation from ECGs has none to refine on")
     if observations.ecg.shape[2] != model.frames:
         raise InputError(f"the ECGs have {observations.ecg.shape[2]} frames, the model expects {model.frames}")
     hier = _hierarchy(observations.mesh, config.model).to(placed)
     lead_field = LeadField.of_mesh(observations.mesh, observations.electrodes).to(placed)
     sites = torch.as_tensor(np.asarray(observations.sites, np.int64))
     t0 = time.perf_counter()
+    ecg = torch.as_tensor(observations.ecg, device=placed)
     with torch.no_grad():
-        post = model.embed_ecg(torch.as_tensor(observations.ecg, device=placed), lead_field, sites.to(placed), hier)
+        post = model.embed_ecg(ecg, lead_field, sites.to(placed), hier)
+    objective, taken = [], 0
+    if refine.steps:
+        scale = float(ecg.abs().max())
+        record = ecg_leads(lead_field, scale)
+        c, objective, taken = refine_context(model, post, ecg / scale, record, sites.to(placed), hier, None, refine)
+        post = Posterior(c, post.logvar)
     payload = {
         "config": ckpt["config"],
         "subject": observations.subject,
@@ -386,6 +393,9 @@ def _personalize_from_ecg(
         "recorded": "ecg",
         "lead_matrix": lead_field.matrix.cpu(),
         "dropped": [],
+        "refine_steps": refine.steps,
+        "refine_steps_taken": taken,
+        "refine_objective": objective,
         "embed_seconds": time.perf_counter() - t0,
     }
     heart = PersonalizedHeart(

@@ -21,18 +21,20 @@ context set in turn (:func:`refine_context`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from learner.ecg import LeadField
 from learner.graph.hierarchy import MeshHierarchy
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior
 from shared.errors import InputError
 
-__all__ = ["Refinement", "fit_context", "refine_context"]
+__all__ = ["Refinement", "fit_context", "refine_context", "observed_nodes", "ecg_leads"]
 
 #: Most recordings left out in turn to choose the number of refinement steps (spread over the context set).
 HELD_OUT = 3
@@ -55,6 +57,10 @@ class Refinement:
                 raise InputError(f"refinement {name} must be a finite number > 0, got {value!r}")
 
 
+#: How a generated sequence (S, T, N) is recorded: its observed nodes, or its ECG.
+Recorder = Callable[[Tensor], Tensor]
+
+
 def fit_context(
     model: MetaPNS,
     mu: Tensor,
@@ -62,33 +68,28 @@ def fit_context(
     fit: tuple[Tensor, Tensor],
     hierarchy: MeshHierarchy,
     evidence: SiteEvidence | None,
-    mask: Tensor,
+    record: Recorder,
     refinement: Refinement,
     steps: int,
     held_out: tuple[Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, list[float], list[float]]:
-    """Adam on ``c`` for ``steps`` steps on the recordings ``fit`` = (sites, observed values): the final ``c``,
-    the objective per step (``steps + 1`` entries) and, with ``held_out`` = (sites, values), the held-out
-    recordings' mean squared residual at each of the same ``c``."""
+    """Adam on ``c`` for ``steps`` steps on the recordings ``fit`` = (sites, recorded values), which ``record``
+    makes of generated sequences: the final ``c``, the objective per step (``steps + 1`` entries) and, with
+    ``held_out`` = (sites, values), the held-out recordings' mean squared residual at each of the same ``c``."""
     sites, target = fit
     c = mu.clone().requires_grad_(True)
     optimizer = torch.optim.Adam([c], lr=refinement.lr)
 
     def objective() -> Tensor:
-        residual = model.generate(sites, hierarchy, c, evidence=evidence)[..., mask] - target
+        residual = record(model.generate(sites, hierarchy, c, evidence=evidence)) - target
         return 0.5 * residual.pow(2).sum() / refinement.sigma**2 + 0.5 * ((c - mu).pow(2) / var).sum()
 
     def held_out_error() -> list[float]:
         if held_out is None:
             return []
         with torch.no_grad():
-            return [
-                float(
-                    (model.generate(held_out[0], hierarchy, c, evidence=evidence)[..., mask] - held_out[1])
-                    .pow(2)
-                    .mean()
-                )
-            ]
+            generated = model.generate(held_out[0], hierarchy, c, evidence=evidence)
+            return [float((record(generated) - held_out[1]).pow(2).mean())]
 
     history, checked = [], []
     with torch.enable_grad():
@@ -107,19 +108,20 @@ def fit_context(
 def refine_context(
     model: MetaPNS,
     posterior: Posterior,
-    obs: Tensor,
-    observed: Tensor,
+    target: Tensor,
+    record: Recorder,
     sites: Tensor,
     hierarchy: MeshHierarchy,
     evidence: SiteEvidence | None,
     refinement: Refinement,
 ) -> tuple[Tensor, list[float], int]:
-    """The MAP ``c`` for context ``obs`` (K, T, N) stimulated at ``sites`` (K,), its objective per step, and
-    the number of steps taken.
+    """The MAP ``c`` for recordings ``target`` (K, ...) of pacings at ``sites`` (K,), which ``record`` makes
+    of generated sequences (the observed nodes' values: :func:`observed_nodes`; ECGs: :func:`ecg_leads`), its
+    objective per step, and the number of steps taken.
 
     Starts from ``posterior.mu`` and minimises the negative log posterior
     ``0.5 * sum(residual^2) / sigma^2 + 0.5 * sum((c - mu)^2 / var)`` over the
-    observed nodes; only ``c`` moves. The number of steps is chosen on held-out
+    recorded values; only ``c`` moves. The number of steps is chosen on held-out
     recordings (early stopping): each of up to :data:`HELD_OUT` recordings in
     turn is left out, ``c`` is refined on the others for up to
     ``refinement.steps`` steps, and the step count with the smallest mean
@@ -129,8 +131,6 @@ def refine_context(
     has ``taken + 1`` entries, the last one at the returned ``c``.
     """
     mu, var = posterior.mu.detach(), posterior.logvar.detach().exp()
-    mask = observed.bool()
-    target = obs[..., mask]
     k = len(sites)
     if k < 2:
         return mu.clone(), [], 0
@@ -144,7 +144,7 @@ def refine_context(
             (sites[keep], target[keep.to(target.device)]),
             hierarchy,
             evidence,
-            mask,
+            record,
             refinement,
             refinement.steps,
             (sites[left : left + 1], target[left : left + 1]),
@@ -153,5 +153,16 @@ def refine_context(
     taken = int(np.argmin(np.mean(curves, axis=0)))
     if taken == 0:
         return mu.clone(), [], 0
-    c, history, _ = fit_context(model, mu, var, (sites, target), hierarchy, evidence, mask, refinement, taken)
+    c, history, _ = fit_context(model, mu, var, (sites, target), hierarchy, evidence, record, refinement, taken)
     return c, history, taken
+
+
+def observed_nodes(observed: Tensor) -> Recorder:
+    """Record generated sequences at the ``observed`` nodes (N,), as a potential recording is."""
+    mask = observed.bool()
+    return lambda u: u[..., mask]
+
+
+def ecg_leads(lead_field: LeadField, scale: float) -> Recorder:
+    """Record generated sequences as their 12-lead ECGs over ``scale`` (the recorded set's largest value)."""
+    return lambda u: lead_field.ecg(u) / scale

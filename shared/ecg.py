@@ -42,6 +42,7 @@ __all__ = [
     "ECG_ATTRS",
     "SIGMA_I",
     "SIGMA_B",
+    "SHELL_MM",
     "TORSO",
     "Electrodes",
     "PseudoECG",
@@ -57,6 +58,10 @@ ELECTRODES = ("RA", "LA", "LL", "V1", "V2", "V3", "V4", "V5", "V6")
 #: Intracellular conductivity along the fibres (S/m; openCARP's default 0.174) and the body's (S/m; a
 #: homogeneous torso of 0.2, between blood's 0.7 and lung's 0.05-0.1).
 SIGMA_I, SIGMA_B = 0.174, 0.2
+
+#: Thickness (mm) of the wall a triangle surface stands for: the pseudo-ECG of a surface mesh integrates over
+#: a shell of it, as the monodomain on a surface conducts in a shell (about a ventricular wall's 10 mm).
+SHELL_MM = 10.0
 
 #: The torso and electrode placement (mm), in a body frame around the heart's centre: x to the patient's left,
 #: y anterior, z superior. The heart's long axis (base to apex) points left, anterior and down, at
@@ -195,12 +200,12 @@ class PseudoECG:
         sigma_i: float = SIGMA_I,
         sigma_b: float = SIGMA_B,
     ) -> PseudoECG:
-        """The operator of ``mesh`` (tetrahedra) with the tissue's diffusivity ``scale`` per node (``None``: 1),
+        """The operator of ``mesh`` (tetrahedra, or triangles as a shell :data:`SHELL_MM` thick) with the tissue's diffusivity ``scale`` per node (``None``: 1),
         the fibres' ``anisotropy`` and the sheets' ``sheet_anisotropy`` (``None``: isotropic), the tensor the
         simulation conducts with (:func:`~shared.fem.conductivity_tensors`); see the module docstring."""
-        if mesh.cell_type != "tetra":
-            raise MeshError(f"mesh {mesh.name!r}: the pseudo-ECG integrates over a volume (tetrahedral) mesh")
-        grads, volume = element_gradients(mesh.points, mesh.cells)  # (M, 4, 3), (M,)
+        grads, volume = element_gradients(mesh.points, mesh.cells)  # (M, k, 3), (M,)
+        if mesh.cell_type != "tetra":  # a surface: a shell of the wall's thickness
+            volume = volume * SHELL_MM
         centroids = mesh.points[mesh.cells].mean(axis=1)
         d = np.ones(mesh.n_nodes) if scale is None else np.asarray(scale, float)
         weight = sigma_i / (4.0 * np.pi * sigma_b) * volume * d[mesh.cells].mean(axis=1)

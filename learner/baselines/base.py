@@ -10,8 +10,10 @@ of the context stimuli best matches what was observed:
     f(x) = \\frac{1}{K T |O|} \\sum_{k, t} \\sum_{i \\in O}
            \\left(u_{kti}(x) - y_{kti}\\right)^2,
 
-with ``O`` the observed nodes. One evaluation of ``f`` simulates all ``K``
-context stimuli in one batched call of the simulator plug-in
+with ``O`` the observed nodes; from 12-lead ECGs ``y`` (K, 12, T) (``Observations.ecg``) the same mean over
+leads and frames of the candidate's pseudo-ECG (its own tissue weighing the conductivity, through the
+recording's electrodes) against ``y``, over the squared largest recorded value. One evaluation of ``f``
+simulates all ``K`` context stimuli in one batched call of the simulator plug-in
 (:mod:`shared.simulator`), so a budget counts simulator calls (candidates);
 ``FitResult.sequences`` also counts the simulated sequences (``K`` per call).
 The simulator is reached only through its plug-in contract: ``learner`` never
@@ -22,7 +24,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -31,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from learner.baselines.bo import BOSettings, bayes_minimise
 from learner.observations import Observations
+from shared.ecg import PseudoECG, standard_electrodes
 from shared.errors import InputError
 from shared.mesh import Mesh
 from shared.simulator import SimulatorPlugin, load_simulator
@@ -168,7 +171,7 @@ class PersonalisationBaseline(ABC):
         simulated exactly as the data were.
         """
         start = time.perf_counter()
-        y, observed = _check_observations(observations, solver)
+        y, recorded = _check_observations(observations, solver)
         mesh, sites = observations.mesh, np.asarray(observations.sites, dtype=np.int64)
         solver = dict(solver)
         bounds = self._prepare(mesh)
@@ -180,12 +183,13 @@ class PersonalisationBaseline(ABC):
             t0 = time.perf_counter()
             u = np.asarray(self.simulator.simulate(mesh, tissue, sites, solver))
             spent[0] += time.perf_counter() - t0
-            if u.shape != observations.obs.shape:
+            expected = (len(sites), len(observations.times), mesh.n_nodes)
+            if u.shape != expected:
                 raise InputError(
-                    f"the simulator returned shape {u.shape} but the observations have {observations.obs.shape}; "
+                    f"the simulator returned shape {u.shape} but the observations need {expected}; "
                     "pass the solver table of the store the observations come from"
                 )
-            return float(np.mean((u[:, :, observed].astype(np.float64) - y) ** 2))
+            return float(np.mean((recorded(u.astype(np.float64), tissue) - y) ** 2))
 
         trace = bayes_minimise(objective, bounds, self.settings)
         best = trace.x[trace.best]
@@ -225,14 +229,28 @@ class PersonalisationBaseline(ABC):
         return f"{type(self).__name__}({args})"
 
 
-def _check_observations(
-    observations: Observations, solver: Mapping[str, Any]
-) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Observed values (K, T, |O|) as float64 and the mask; refuses what a fit cannot use."""
+Recorder = Callable[[NDArray[np.float64], TissueFields], NDArray[np.float64]]
+
+
+def _check_observations(observations: Observations, solver: Mapping[str, Any]) -> tuple[NDArray[np.float64], Recorder]:
+    """What the fit matches, and how a candidate's simulations (K, T, N) of given tissue are recorded like it:
+    observed values (K, T, |O|) as float64 or ECGs (K, 12, T) over their largest value; refuses what a fit
+    cannot use."""
     if not isinstance(observations, Observations):
         raise InputError(f"observations must be learner.observations.Observations, got {type(observations).__name__}")
     if not isinstance(solver, Mapping):
         raise InputError(f"solver must be the store's solver table (a mapping), got {type(solver).__name__}")
+    _check_times(observations.times, solver)
+    if observations.ecg is not None:
+        mesh = observations.mesh
+        electrodes = observations.electrodes or standard_electrodes(mesh)
+        scale = float(np.abs(observations.ecg).max()) or 1.0
+
+        def ecg(u: NDArray[np.float64], tissue: TissueFields) -> NDArray[np.float64]:
+            lead_matrix = PseudoECG.assemble(mesh, electrodes, tissue.D).lead_matrix()
+            return np.swapaxes(u @ lead_matrix.T, -1, -2) / scale
+
+        return observations.ecg.astype(np.float64) / scale, ecg
     obs = np.asarray(observations.obs)
     observed = np.asarray(observations.observed, dtype=bool)
     if obs.ndim != 3 or obs.shape[0] < 1 or obs.shape[1] < 1:
@@ -242,13 +260,18 @@ def _check_observations(
     y = obs[:, :, observed].astype(np.float64)
     if not np.isfinite(y).all():
         raise InputError("observations contain NaN or inf at observed nodes")
+    return y, lambda u, tissue: u[:, :, observed]
+
+
+def _check_times(times: NDArray, solver: Mapping[str, Any]) -> None:
+    """Refuse recordings whose frame times are not the solver's."""
+    count = len(times)
     frames, interval = solver.get("frames"), solver.get("output_interval")
-    if frames is not None and int(frames) != obs.shape[1]:
-        raise InputError(f"the solver table simulates {frames} frames but the observations have {obs.shape[1]}")
+    if frames is not None and int(frames) != count:
+        raise InputError(f"the solver table simulates {frames} frames but the observations have {count}")
     if interval is not None and frames is not None:
         expected = float(interval) * np.arange(1, int(frames) + 1)
-        if not np.allclose(np.asarray(observations.times, float), expected, rtol=1e-6, atol=1e-9):
+        if not np.allclose(np.asarray(times, float), expected, rtol=1e-6, atol=1e-9):
             raise InputError(
                 f"observation times do not match the solver's frames (every {interval} time units from {interval})"
             )
-    return y, observed

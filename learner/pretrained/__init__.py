@@ -81,7 +81,7 @@ def export(
     """Write the training checkpoint ``source`` as a shipped model in ``folder``: weights and config.json.
 
     The config keeps the model, episode and training settings; the store and
-    run paths are reduced to their names. The store the model was trained on
+    run paths are reduced to their names (a warm start's to its run's and file's). The store the model was trained on
     (``data.store`` of the checkpoint) is read for its spec hash, provenance
     and frame times when it is still there. The model card (README.md) is
     written by hand next to them.
@@ -99,7 +99,8 @@ def export(
     store = config["data"]["store"]
     config["data"]["store"] = Path(store).name
     config["out"] = Path(config["out"]).name
-    config["train"]["init"] = ""
+    init = Path(config["train"]["init"])
+    config["train"]["init"] = str(Path(init.parent.name, init.name)) if init.name else ""  # its run and file
     view = StoreView(store) if Path(store).exists() else None
     weights = {k: v.detach().to("cpu", torch.float32).contiguous().clone() for k, v in ckpt["model"].items()}
     folder.mkdir(parents=True, exist_ok=True)

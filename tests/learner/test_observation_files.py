@@ -95,7 +95,7 @@ def test_activation_maps_read_the_nodes_every_recording_maps(tmp_path, lv):
         ({"obs_mv": "u", "times_ms": 1, "observed": 1}, "obs_mv ranges from"),
         ({"activation_ms": "negative"}, "activation_ms has 1 negative time(s)"),
         ({"activation_ms": "gap", "observed": 1}, "activation_ms is NaN at nodes that observed marks as recorded"),
-        ({}, "lacks array(s) ['obs_mv or obs or activation_ms', 'times_ms or times', 'observed']"),
+        ({}, "lacks array(s) ['obs_mv or obs or activation_ms or ecg_mv or ecg', 'times_ms or times', 'observed']"),
     ],
 )
 def test_unreadable_recordings_are_refused_by_name(tmp_path, lv, recording, arrays, message):

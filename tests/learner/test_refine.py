@@ -11,7 +11,7 @@ from learner.data.episodes import load_episode
 from learner.evaluate import NeuralMethod
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS
-from learner.refine import Refinement, fit_context, refine_context
+from learner.refine import Refinement, fit_context, observed_nodes, refine_context
 from learner.store_view import StoreView
 from shared.errors import InputError
 
@@ -31,8 +31,9 @@ def setup(tiny_store, trained_like):
 def _refine(setup, refinement: Refinement):
     view, hier, ep, model = setup
     post = model.embed(ep.context_obs, ep.observed, hier)
+    target, record = ep.context_obs[..., ep.observed], observed_nodes(ep.observed)
     c, history, taken = refine_context(
-        model, post, ep.context_obs, ep.observed, ep.context_sites, hier, SiteEvidence.of(ep), refinement
+        model, post, target, record, ep.context_sites, hier, SiteEvidence.of(ep), refinement
     )
     return post, c, history, taken
 
@@ -46,7 +47,7 @@ def _fit(setup, post, refinement: Refinement, steps: int, keep=None, held_out=No
     check = None if held_out is None else (ep.context_sites[held_out], target[held_out])
     mu, var = post.mu.detach(), post.logvar.detach().exp()
     fit = (ep.context_sites[keep], target[keep])
-    return fit_context(model, mu, var, fit, hier, SiteEvidence.of(ep), m, refinement, steps, check)
+    return fit_context(model, mu, var, fit, hier, SiteEvidence.of(ep), observed_nodes(m), refinement, steps, check)
 
 
 def _negative_log_posterior(setup, post, c, sigma: float) -> float:
@@ -94,8 +95,9 @@ def test_the_step_count_is_chosen_on_recordings_held_out_in_turn(setup):
 def test_a_single_recording_is_not_refined(setup):
     view, hier, ep, model = setup
     post = model.embed(ep.context_obs[:1], ep.observed, hier)
+    target, record = ep.context_obs[:1, :, ep.observed], observed_nodes(ep.observed)
     c, history, taken = refine_context(
-        model, post, ep.context_obs[:1], ep.observed, ep.context_sites[:1], hier, None, Refinement(steps=10)
+        model, post, target, record, ep.context_sites[:1], hier, None, Refinement(steps=10)
     )
     assert torch.equal(c, post.mu.detach()) and history == [] and taken == 0
 

@@ -10,6 +10,7 @@ import pytest
 import zarr
 
 from learner.observations import Observations
+from shared.ecg import PseudoECG, standard_electrodes
 from shared.mesh import Mesh
 from shared.reader import read_mesh, read_sites
 from shared.simulator import SimulatorPlugin, load_simulator
@@ -33,6 +34,14 @@ class LVProblem:
         """Simulate ``tissue`` through the backend and observe every node."""
         u = self.simulator.simulate(self.mesh, tissue, sites, self.solver)
         return Observations(self.mesh, np.asarray(sites), u, np.ones(self.mesh.n_nodes, bool), self.times)
+
+    def observe_ecg(self, tissue: TissueFields, sites: np.ndarray) -> Observations:
+        """Simulate ``tissue`` and record the 12-lead pseudo-ECG through the standard electrodes."""
+        u = self.simulator.simulate(self.mesh, tissue, sites, self.solver)
+        operator = PseudoECG.assemble(self.mesh, standard_electrodes(self.mesh), tissue.D)
+        ecg = np.swapaxes(u @ operator.lead_matrix().T, -1, -2)
+        nobody = np.zeros(self.mesh.n_nodes, bool)
+        return Observations(self.mesh, np.asarray(sites), None, nobody, self.times, ecg=ecg)
 
 
 class CountingSimulator:

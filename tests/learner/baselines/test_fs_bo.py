@@ -1,4 +1,5 @@
-"""FS-BO recovers a scar in one mesh region within a small budget and predicts targets better than healthy."""
+"""FS-BO recovers a scar in one mesh region within a small budget, from potentials or from the 12-lead ECG, and
+predicts targets better than healthy."""
 
 from __future__ import annotations
 
@@ -18,13 +19,36 @@ def _data_like_scar(a: np.ndarray) -> TissueFields:
     )
 
 
-def test_recovers_the_scarred_region_and_beats_healthy_on_targets(lv):
+def _scar_in_region(lv, region: int) -> TissueFields:
     labels = mesh_regions(lv.mesh)
-    region = 3
     members = np.flatnonzero(labels == region)
     centre = members[np.argmin(((lv.mesh.points[members] - lv.mesh.points[members].mean(0)) ** 2).sum(1))]
-    truth = _data_like_scar(geodesic_scar(lv.mesh, int(centre), 25.0, lv.mesh.mean_edge_length()))
-    assert (labels[truth.label == LABEL_CORE] == region).mean() > 0.9  # a scar in one region
+    return _data_like_scar(geodesic_scar(lv.mesh, int(centre), 25.0, lv.mesh.mean_edge_length()))
+
+
+def _healthy_and_fitted_mse(lv, baseline, truth, targets) -> tuple[float, float]:
+    u_true = lv.simulator.simulate(lv.mesh, truth, targets, lv.solver)
+    u_healthy = lv.simulator.simulate(
+        lv.mesh, fields_from_excitability(np.full(lv.mesh.n_nodes, 0.15)), targets, lv.solver
+    )
+    return float(np.mean((u_healthy - u_true) ** 2)), float(np.mean((baseline.predict(targets) - u_true) ** 2))
+
+
+def test_fitted_to_the_ecg_it_predicts_targets_better_than_healthy(lv):
+    """The same scar, recorded only as the 12-lead ECGs of the context pacings."""
+    truth = _scar_in_region(lv, 3)
+    context, targets = lv.sites[:3], lv.sites[3:]
+    baseline = FSBO(budget=25, seed=0, restarts=4, raw_samples=64)
+    result = baseline.fit(lv.observe_ecg(truth, context), lv.solver)
+    assert result.calls == 25 and int(np.argmax(result.params)) == 3
+    healthy, fitted = _healthy_and_fitted_mse(lv, baseline, truth, targets)
+    assert fitted < 0.5 * healthy
+
+
+def test_recovers_the_scarred_region_and_beats_healthy_on_targets(lv):
+    region = 3
+    truth = _scar_in_region(lv, region)
+    assert (mesh_regions(lv.mesh)[truth.label == LABEL_CORE] == region).mean() > 0.9  # a scar in one region
     context, targets = lv.sites[:3], lv.sites[3:]
 
     baseline = FSBO(budget=25, seed=0, restarts=4, raw_samples=64)
@@ -33,10 +57,5 @@ def test_recovers_the_scarred_region_and_beats_healthy_on_targets(lv):
     assert int(np.argmax(result.params)) == region
     fitted, true = result.tissue.a >= 0.4, truth.label == LABEL_CORE
     assert 2 * (fitted & true).sum() / (fitted.sum() + true.sum()) > 0.5
-
-    u_true = lv.simulator.simulate(lv.mesh, truth, targets, lv.solver)
-    u_healthy = lv.simulator.simulate(
-        lv.mesh, fields_from_excitability(np.full(lv.mesh.n_nodes, 0.15)), targets, lv.solver
-    )
-    fitted_mse = np.mean((baseline.predict(targets) - u_true) ** 2)
-    assert fitted_mse < 0.5 * np.mean((u_healthy - u_true) ** 2)
+    healthy, fitted_mse = _healthy_and_fitted_mse(lv, baseline, truth, targets)
+    assert fitted_mse < 0.5 * healthy
