@@ -177,7 +177,12 @@ def evaluate(
     sets: Annotated[int, typer.Option(min=1, help="Context sets per subject.")] = 3,
     max_targets: Annotated[int, typer.Option(min=0, help="Targets per context set (0 = all).")] = 40,
     observe: Annotated[
-        str | None, typer.Option(help="Observed node set (default: the training one, the first of a mixture).")
+        str | None,
+        typer.Option(
+            help="Observed node set (default: the training one, the first of a mixture), or 'ecg': each context "
+            "set as the 12-lead ECGs of its simulations (a model with an ECG encoder; --noise: a share of the "
+            "largest lead value)."
+        ),
     ] = None,
     noise: Annotated[
         float | None, typer.Option(min=0, callback=finite, help="Observation noise std (default: the training noise).")

@@ -29,7 +29,7 @@ from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS
-from learner.refine import Refinement, observed_nodes, refine_context
+from learner.refine import Refinement, ecg_leads, observed_nodes, refine_context
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
@@ -65,37 +65,48 @@ class EvalSpec:
     context: tuple[int, int] = (1, 5)
     context_sets: int = 3
     max_targets: int = 40  # targets per context set (0 = every other simulation of the subject)
-    observe: str | None = None  # None: the training observation set (the first, for a mixture)
-    noise_std: float | None = None  # None: the training noise
+    observe: str | None = None  # None: the training observation set (the first, for a mixture); "ecg": 12-lead ECGs
+    noise_std: float | None = None  # None: the training noise (with "ecg": a share of the largest lead value)
     seed: int = 0
     dc_frame: int | None = None  # None: default_dc_frame(T)
     batch: int = 16  # sites generated per forward pass
     refine: Refinement = Refinement()  # steps > 0: refine c on each context set (learner.refine)
 
     def __post_init__(self) -> None:
-        if self.observe is not None:
+        if self.observe is not None and self.observe != ECG:
             check_observation_set(self.observe)
         if self.noise_std is not None:
             check_noise_std(self.noise_std)
 
 
+#: The observation that records each context set as the 12-lead ECGs of its simulations (:mod:`learner.ecg`).
+ECG = "ecg"
+
+
 @dataclass(frozen=True)
 class EvalSetting:
-    """How every method sees a subject: the observation (node set, noise) and the mesh hierarchy of the model."""
+    """How every method sees a subject: the observation (node set, noise) and the mesh hierarchy of the model;
+    with ``ecg_noise``, the context recorded as 12-lead ECGs with that noise share instead."""
 
     observation: Observation
     levels: int
     coarsest: int
     working_nodes: int | None = None
+    ecg_noise: float | None = None
 
     @classmethod
     def of(cls, config: LearnerConfig, observe: str | None = None, noise_std: float | None = None) -> EvalSetting:
         """The setting of a model trained with ``config``: its first observation set and noise unless given."""
-        episodes = config.data.episodes
+        episodes, model = config.data.episodes, config.model
+        if observe == ECG:
+            ecg_noise = episodes.ecg_noise if noise_std is None else noise_std
+            return cls(
+                Observation(episodes.primary_observe), model.levels, model.coarsest, model.working_nodes, ecg_noise
+            )
         observation = Observation(
             observe or episodes.primary_observe, episodes.noise_std if noise_std is None else noise_std
         )
-        return cls(observation, config.model.levels, config.model.coarsest, config.model.working_nodes)
+        return cls(observation, model.levels, model.coarsest, model.working_nodes)
 
     def hierarchy(self, view: StoreView, mesh_id: str) -> MeshHierarchy:
         """The mesh hierarchy of ``mesh_id`` that the model works on."""
@@ -106,7 +117,7 @@ class EvalSetting:
     ) -> Episode:
         """The episode of ``subject`` with these context and target rows, observed in this setting."""
         obs = self.observation
-        return load_episode(view.store, subject, context, targets, obs.nodes, obs.noise_std, rng)
+        return load_episode(view.store, subject, context, targets, obs.nodes, obs.noise_std, rng, self.ecg_noise)
 
 
 @dataclass
@@ -188,20 +199,20 @@ class NeuralMethod(Method):
             return {"fit_s": 0.0}
         t0 = time.perf_counter()
         ep = episode.to(self.device)
-        with torch.no_grad():
-            posterior = self.model.embed(ep.context_obs, ep.observed, self._hier)
-        self._evidence = SiteEvidence.of(ep)
+        if ep.context_ecg is None:
+            with torch.no_grad():
+                posterior = self.model.embed(ep.context_obs, ep.observed, self._hier)
+            self._evidence = SiteEvidence.of(ep)
+            target, record = ep.context_obs[..., ep.observed.bool()], observed_nodes(ep.observed)
+        else:
+            with torch.no_grad():
+                posterior = self.model.embed_ecg(ep.context_ecg, ep.lead_field, ep.context_sites, self._hier)
+            scale = float(ep.context_ecg.abs().max())
+            target, record = ep.context_ecg / scale, ecg_leads(ep.lead_field, scale)
         self._c = posterior.mu
         if self.refine.steps:
             self._c, _, _ = refine_context(
-                self.model,
-                posterior,
-                ep.context_obs[..., ep.observed.bool()],
-                observed_nodes(ep.observed),
-                ep.context_sites,
-                self._hier,
-                self._evidence,
-                self.refine,
+                self.model, posterior, target, record, ep.context_sites, self._hier, self._evidence, self.refine
             )
         return {"fit_s": time.perf_counter() - t0}
 

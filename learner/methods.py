@@ -43,14 +43,12 @@ class BaselineMethod(Method):
         self.baseline, self.solver, self.times, self.name = baseline, solver, times, baseline.name
 
     def fit(self, episode: Episode, mesh: Mesh, hierarchy: MeshHierarchy) -> dict[str, float]:
-        obs = Observations(
-            mesh,
-            episode.context_sites.numpy(),
-            episode.context_obs.numpy(),
-            episode.observed.numpy(),
-            self.times,
-            episode.subject_id,
-        )
+        sites, subject = episode.context_sites.numpy(), episode.subject_id
+        if episode.context_ecg is not None:  # through the standard electrodes, as the episode recorded them
+            nobody = np.zeros(mesh.n_nodes, bool)
+            obs = Observations(mesh, sites, None, nobody, self.times, subject, ecg=episode.context_ecg.numpy())
+        else:
+            obs = Observations(mesh, sites, episode.context_obs.numpy(), episode.observed.numpy(), self.times, subject)
         result = self.baseline.fit(obs, self.solver)
         return {"fit_s": result.seconds, "calls": float(result.calls)}
 

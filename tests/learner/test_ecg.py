@@ -3,6 +3,7 @@ model, ECG observation files, and the patient's path from `simgen simulate --obs
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -83,6 +84,15 @@ def test_only_the_ecg_encoder_learns_and_the_frozen_model_is_unchanged(ecg_run):
     assert changed and all(k.startswith("ecg_encoder.") for k in changed)
     assert all(np.isfinite(row["total"]) for row in result.history if "total" in row)
     assert result.best_validation < np.inf
+
+
+def test_evaluate_reads_each_context_set_as_ecgs(ecg_run, tiny_store, tmp_path):
+    trainer, _, _ = ecg_run
+    args = ["evaluate", str(trainer.out / "best.pt"), str(tiny_store), "--sets", "1", "--max-targets", "2"]
+    result = CliRunner().invoke(learner_app, [*args, "--observe", "ecg", "--out", str(tmp_path), "--refine-steps", "2"])
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "evaluation.json").read_text())
+    assert np.isfinite(report["overall"]["target"]["cc_spatial"]["mean"])
 
 
 def test_refining_c_on_ecgs_lowers_their_misfit_through_the_lead_field():
