@@ -2,24 +2,27 @@
 
 A table of cases by category (spec, mesh, store, lock, CLI number, checkpoint,
 observation, output path). Each case runs the real app (``tests/cli_batch.py``
-runs a batch of command lines in one subprocess, so each package is imported
-once per batch) and must exit with code 2 and one line naming the problem
-(typer's framed usage error for an out-of-range option), without a
-traceback. A case that reads a store gets its own copy of a tiny store built
+runs batches of command lines in a subprocess that serves the whole module, so
+each package is imported once per process) and must exit with code 2 and one
+line naming the problem (typer's framed usage error for an out-of-range
+option), without a traceback. A case that reads a store gets its own copy of a tiny store built
 once per module, damaged first where the case says so, and must leave it
 byte-identical.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import json
 import os
+import queue
 import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import typing
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -811,18 +814,80 @@ def digest(store: Path) -> dict[str, str]:
     }
 
 
+class BatchProcess:
+    """A ``tests/cli_batch.py --serve`` subprocess: it imports the packages once and runs batch after batch."""
+
+    def __init__(self) -> None:
+        self.stderr = tempfile.TemporaryFile("w+")  # a file, not a pipe: a full pipe would stall the process
+        self.proc = subprocess.Popen(
+            [sys.executable, "-P", str(ROOT / "tests" / "cli_batch.py"), "--serve"],  # -P: tests/simgen must not
+            stdin=subprocess.PIPE,  # shadow simgen
+            stdout=subprocess.PIPE,
+            stderr=self.stderr,
+            cwd=ROOT,
+            text=True,
+        )
+
+    def run(self, argvs: list[list[str]]) -> list[tuple[int, str]]:
+        try:
+            self.proc.stdin.write(json.dumps(argvs) + "\n")
+            self.proc.stdin.flush()
+            answer = self.proc.stdout.readline()
+        except BrokenPipeError:
+            answer = ""
+        if not answer:  # the process died
+            self.proc.wait(timeout=60)
+            self.stderr.seek(0)
+            raise AssertionError(f"cli_batch.py exited with code {self.proc.returncode}:\n{self.stderr.read()}")
+        return [tuple(result) for result in json.loads(answer)]
+
+    def finish(self) -> None:
+        """Tell the process to exit (it does when its stdin closes)."""
+        with contextlib.suppress(OSError):  # a process that died already
+            self.proc.stdin.close()
+
+    def close(self) -> None:
+        self.finish()
+        try:
+            self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.proc.stdout.close()
+        self.stderr.close()
+
+
+#: The module's idle batch processes (at most two run at once): started on demand, closed after the module.
+_IDLE: queue.SimpleQueue[BatchProcess] = queue.SimpleQueue()
+_STARTED: list[BatchProcess] = []
+
+
 def run_batch(argvs: list[list[str]]) -> list[tuple[int, str]]:
-    """``tests/cli_batch.py`` on ``argvs`` in a subprocess."""
-    proc = subprocess.run(
-        [sys.executable, "-P", str(ROOT / "tests" / "cli_batch.py")],  # -P: tests/simgen must not shadow simgen
-        input=json.dumps(argvs),
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr
-    return [tuple(result) for result in json.loads(proc.stdout)]
+    """``tests/cli_batch.py`` on ``argvs`` in a subprocess, one of the module's (:class:`BatchProcess`)."""
+    try:
+        process = _IDLE.get_nowait()
+    except queue.Empty:
+        process = BatchProcess()
+        _STARTED.append(process)
+    try:
+        results = process.run(argvs)
+    except BaseException:
+        process.close()
+        _STARTED.remove(process)
+        raise
+    _IDLE.put(process)
+    return results
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _close_batch_processes() -> Iterator[None]:
+    yield
+    for process in _STARTED:  # all told to exit first: they exit together
+        process.finish()
+    while _STARTED:
+        _STARTED.pop().close()
+    while not _IDLE.empty():
+        _IDLE.get_nowait()
 
 
 class Outcome(NamedTuple):
@@ -835,7 +900,7 @@ class Outcome(NamedTuple):
     after: dict | None
 
 
-BATCHES = 4  # subprocesses, two at a time: each imports its package once
+BATCHES = 4  # batches, two at a time, on the module's two batch processes (each imports the packages once)
 
 
 @pytest.fixture(scope="module")

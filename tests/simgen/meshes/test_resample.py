@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import io
 import logging
+import pickle
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -48,8 +54,86 @@ def check(mesh: Mesh, nodes: int, kind: str) -> None:
     [(source, 1000, kind) for source in REAL for kind in ("triangle", "tetra")]
     + [("real:rodero01-lv", 5000, "triangle"), ("real:tof-biv", 5000, "tetra")],  # refined; 10-15 s each at 5,000
 )
-def test_shipped_meshes_reach_the_target(source, nodes, kind):
-    check(get_mesh(source, nodes, kind), nodes, kind)
+def test_shipped_meshes_reach_the_target(source, nodes, kind, shared_mesh):
+    check(shared_mesh(source, nodes, kind), nodes, kind)  # get_mesh's mesh, made once: the solver tests use it
+
+
+#: The module's two slowest resamplings, TetGen fills of the merged surface (20 to 45 s each), by test and
+#: kind: they run in one process beside the module's other tests from its start (the suite's machine has 2
+#: cores), each exactly as the test would run it (:data:`_BESIDE_SCRIPT`); the test checks the mesh it made.
+BESIDE = {
+    ("test_surface_merged_from_three_parts", "tetra"): "merged-1000-tetra",
+    ("test_merged_and_dense_surfaces_at_5000_nodes", "tetra"): "merged-5000-tetra",
+}
+_BESIDE_SCRIPT = """
+import pickle, sys, traceback
+from pathlib import Path
+from simgen.meshes import get_mesh
+from simgen.meshes.io import load_mesh
+from simgen.meshes.resample import resample
+
+path, out = sys.argv[1], Path(sys.argv[2])
+jobs = {
+    "merged-1000-tetra": lambda: get_mesh(path, 1000, "tetra"),
+    "merged-5000-tetra": lambda: resample(load_mesh(path), 5000, "tetra"),
+}
+for name in sys.argv[3:]:
+    try:
+        data, suffix = pickle.dumps(jobs[name]()), ".pkl"
+    except Exception:
+        data, suffix = traceback.format_exc().encode(), ".err"
+    (out / (name + ".part")).write_bytes(data)
+    (out / (name + ".part")).rename(out / (name + suffix))
+"""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def beside(request, tmp_path_factory) -> Iterator[dict[str, Callable[[], Mesh]]]:
+    """Starts the :data:`BESIDE` jobs of the tests selected in this module; yields, by job name, a function
+    that waits for its mesh."""
+    selected = {
+        (item.originalname, item.callspec.params.get("kind"))
+        for item in request.session.items
+        if item.module is request.module and hasattr(item, "callspec")
+    }
+    names = [name for test, name in BESIDE.items() if test in selected]
+    if not names:
+        yield {}
+        return
+    folder = tmp_path_factory.mktemp("beside")
+    path = request.getfixturevalue("merged_file")
+    with open(folder / "stderr.txt", "w") as stderr:
+        process = subprocess.Popen(
+            [sys.executable, "-c", _BESIDE_SCRIPT, str(path), str(folder), *names], stderr=stderr, text=True
+        )
+
+    def waiter(name: str) -> Callable[[], Mesh]:
+        def wait() -> Mesh:
+            while True:
+                exited = process.poll() is not None
+                if (folder / f"{name}.pkl").exists():
+                    return pickle.loads((folder / f"{name}.pkl").read_bytes())
+                if (folder / f"{name}.err").exists():
+                    raise AssertionError((folder / f"{name}.err").read_text())
+                if exited:
+                    stderr = (folder / "stderr.txt").read_text()[-3000:]
+                    raise AssertionError(f"the process beside exited ({process.returncode}): {stderr}")
+                time.sleep(0.1)
+
+        return wait
+
+    try:
+        yield {name: waiter(name) for name in names}
+    finally:
+        if process.poll() is None:
+            process.kill()
+        process.wait()
+
+
+def made(beside: dict[str, Callable[[], Mesh]], test: str, kind: str, make: Callable[[], Mesh]) -> Mesh:
+    """The mesh of ``make()``: made beside (:data:`BESIDE`) where it was, else here."""
+    name = BESIDE.get((test, kind))
+    return beside[name]() if name in beside else make()
 
 
 @pytest.fixture(scope="module")
@@ -65,20 +149,38 @@ def test_dense_biv_surface(dense, kind):
     assert hausdorff_distance(dense, mesh) < extract_surface(mesh).mean_edge_length()  # 4.0-4.4 mm, edges 6-8 mm
 
 
-@pytest.mark.parametrize("kind", ["triangle", "tetra"])
-def test_surface_merged_from_three_parts(merged_file, kind, caplog):
-    with caplog.at_level(logging.WARNING, logger="simgen.meshes"):
+@pytest.fixture(scope="module")
+def merged(merged_file) -> tuple[Mesh, str]:
+    """The merged surface as :func:`load_mesh` reads it (loaded once for the module: its repair takes seconds)
+    and the warnings it logged."""
+    logger, logged = logging.getLogger("simgen.meshes"), io.StringIO()
+    handler, level = logging.StreamHandler(logged), logger.level
+    handler.setLevel(logging.WARNING)
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING)
+    try:
         raw = load_mesh(merged_file)
-    assert "winding" in caplog.text and mesh_quality(raw).min_angle < 1.0  # mis-wound part, seam slivers
-    check(get_mesh(str(merged_file), 1000, kind), 1000, kind)  # loaded again, then resampled
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    return raw, logged.getvalue()
 
 
 @pytest.mark.parametrize("kind", ["triangle", "tetra"])
-def test_merged_and_dense_surfaces_at_5000_nodes(merged_file, dense, kind):
+def test_surface_merged_from_three_parts(merged_file, merged, beside, kind):
+    raw, warnings = merged
+    assert "winding" in warnings and mesh_quality(raw).min_angle < 1.0  # mis-wound part, seam slivers
+    test = "test_surface_merged_from_three_parts"
+    check(made(beside, test, kind, lambda: get_mesh(str(merged_file), 1000, kind)), 1000, kind)  # loaded again
+
+
+@pytest.mark.parametrize("kind", ["triangle", "tetra"])
+def test_merged_and_dense_surfaces_at_5000_nodes(merged_file, dense, beside, kind):
     """Finer meshes of the hard surfaces: crease junctions that fold a remeshed fan, creases that leave a
     needle after the last smoothing (6 to 25 s each)."""
-    source = load_mesh(merged_file) if kind == "tetra" else dense
-    check(resample(source, 5000, kind), 5000, kind)
+    test = "test_merged_and_dense_surfaces_at_5000_nodes"
+    source = (lambda: load_mesh(merged_file)) if kind == "tetra" else (lambda: dense)
+    check(made(beside, test, kind, lambda: resample(source(), 5000, kind)), 5000, kind)
 
 
 def test_ct_volume_mesh():

@@ -116,10 +116,10 @@ def activation_agreement(reference: np.ndarray, other: np.ndarray) -> tuple[floa
 
 
 @pytest.mark.parametrize("source", ["lv", "real:rodero01-lv", "real:tof-biv", "real:cobiveco-mean-biv"])
-def test_imex_at_its_step_matches_euler_at_its_stable_one(source):
+def test_imex_at_its_step_matches_euler_at_its_stable_one(source, shared_mesh):
     """Activation times within 2% of the activation range of forward Euler at the mesh's stable step (at most
     0.005 time units), activation maps correlated >= 0.99, the same nodes never activated."""
-    mesh = get_mesh(source, 1000, kind="tetra")
+    mesh = shared_mesh(source, 1000, "tetra")
     sites = np.random.default_rng(0).choice(mesh.n_nodes, 4, replace=False)
     euler_step = Simulator(mesh, config=SolverConfig(integrator="euler")).dt
     euler = Simulator(mesh, config=SolverConfig(integrator="euler", frames=FRAMES, dt=min(euler_step, 0.005)))
@@ -315,10 +315,10 @@ def test_cg_step_solves_the_implicit_system_to_the_tolerance(lv):
 
 
 @pytest.mark.parametrize("source", ["lv", "real:tof-biv"])
-def test_cg_matches_the_factor_solves_and_euler(source):
+def test_cg_matches_the_factor_solves_and_euler(source, shared_mesh):
     """CG against the factor solves (measured 1e-4 to 3e-4 of the activation range) and against Euler at its
     stable step (the 2% bound); the patch is held at exactly 1; threads and batch change nothing."""
-    mesh = get_mesh(source, 1000, kind="tetra")
+    mesh = shared_mesh(source, 1000, "tetra")
     sites = np.random.default_rng(0).choice(mesh.n_nodes, 4, replace=False)
     config = SolverConfig(integrator="imex", frames=FRAMES)
     factor = Simulator(mesh, config=config, imex_solve="factor").run(sites)
