@@ -144,17 +144,23 @@ def table(rows: list[dict]) -> list[str]:
     return lines
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_fold_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of :func:`unseen_folds` and :func:`real_folds`: the model, its store and the real heart's,
+    the context and targets of each unseen subject, how many subjects, the seed."""
     parser.add_argument("--model", default="anatomies", help="shipped model name or checkpoint")
     parser.add_argument("--store", required=True, help="the model's training store (its test split is used)")
     parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
-    parser.add_argument("--observe", nargs="+", default=["electrodes", "surface", "endocardium"])
-    parser.add_argument("--noise-ms", type=float, default=3.0, help="activation-time noise std (ms)")
     parser.add_argument("--context", type=int, default=4, help="context sites per unseen subject")
     parser.add_argument("--targets", type=int, default=5, help="targets per unseen subject")
     parser.add_argument("--subjects", type=int, default=0, help="first N test subjects only (0: all)")
     parser.add_argument("--seed", type=int, default=0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_fold_arguments(parser)
+    parser.add_argument("--observe", nargs="+", default=["electrodes", "surface", "endocardium"])
+    parser.add_argument("--noise-ms", type=float, default=3.0, help="activation-time noise std (ms)")
     add_out_argument(parser, "activation_maps")
     add_publish_argument(parser, "activation_maps")
     args = parser.parse_args()

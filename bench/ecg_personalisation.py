@@ -33,7 +33,7 @@ import numpy as np
 import torch
 import zarr
 
-from bench.activation_maps import NOISE_U, real_folds, unseen_folds
+from bench.activation_maps import NOISE_U, add_fold_arguments, real_folds, unseen_folds
 from bench.common import (
     add_out_argument,
     add_publish_argument,
@@ -196,19 +196,13 @@ def bo_summary(results: list[dict], tissue: str) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", default="anatomies", help="shipped model name or checkpoint")
-    parser.add_argument("--store", required=True, help="the model's training store (its test split is used)")
-    parser.add_argument("--real", required=True, help="real-heart store (specs/realdata.toml)")
+    add_fold_arguments(parser)
     parser.add_argument("--ecg-noise", type=float, default=0.02, help="ECG noise std, share of the largest value")
-    parser.add_argument("--context", type=int, default=4, help="context sites per unseen subject")
-    parser.add_argument("--targets", type=int, default=5, help="targets per unseen subject")
-    parser.add_argument("--subjects", type=int, default=0, help="first N test subjects only (0: all)")
     parser.add_argument("--real-folds", type=int, default=0, help="first N real-heart folds per tissue (0: all)")
     parser.add_argument("--refine-steps", type=int, default=0, help="also the ECG route refined by up to N steps")
     parser.add_argument("--bo-folds", type=int, default=2, help="FS-BO real-heart folds per tissue setting (0: none)")
     parser.add_argument("--bo-budget", type=int, default=40, help="FS-BO simulations per fit")
     parser.add_argument("--bo-only", action="store_true", help="FS-BO alone (the surrogate's folds left out)")
-    parser.add_argument("--seed", type=int, default=0)
     add_out_argument(parser, "ecg_personalisation")
     add_publish_argument(parser, "ecg_personalisation")
     args = parser.parse_args()
