@@ -132,6 +132,13 @@ class PersonalizedHeart:
         return self.posterior.mu.device
 
     @property
+    def lead_field(self) -> LeadField | None:
+        """The mesh's lead field of a heart personalised from ECGs (its predictions' ECGs), else None."""
+        if "lead_matrix" not in self._payload:
+            return None
+        return LeadField(self._payload["lead_matrix"], self._payload["lead_density"])
+
+    @property
     def subject(self) -> str:
         return self._payload.get("subject", "")
 
@@ -189,8 +196,8 @@ class PersonalizedHeart:
                 spread = draws.std(axis=0)
                 act_spread = _activation_spread(draws, self.times)
         ecg = None
-        if "lead_matrix" in self._payload:
-            ecg = LeadField(self._payload["lead_matrix"], torch.zeros(0)).ecg(u.cpu()).numpy()
+        if self.lead_field is not None:
+            ecg = self.lead_field.ecg(u.cpu()).numpy()
         u = u.cpu().numpy()
         activated = (u.max(axis=1) >= 0.5).mean(axis=1)
         return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated, act_spread, ecg)
@@ -392,6 +399,7 @@ def _personalize_from_ecg(
         "context_sites": sites,
         "recorded": "ecg",
         "lead_matrix": lead_field.matrix.cpu(),
+        "lead_density": lead_field.density.cpu(),
         "dropped": [],
         "refine_steps": refine.steps,
         "refine_steps_taken": taken,
