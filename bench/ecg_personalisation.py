@@ -168,14 +168,14 @@ def tables(rows: list[dict], bo_rows: list[dict]) -> list[str]:
     if bo_rows:
         lines += [
             "",
-            "| FS-BO on the real heart | folds | targets | CC fitted to the sock | CC fitted to the ECG "
+            "| FS-BO on | tissue | folds | targets | CC fitted to the sock | CC fitted to the ECG "
             "| s per fit, sock / ECG |",
-            "|---|---:|---:|---:|---:|---:|",
+            "|---|---|---:|---:|---:|---:|---:|",
         ]
         for r in bo_rows:
             lines.append(
-                f"| {r['tissue']} | {r['folds']} | {r['targets']} | {r['sock']['cc']:.3f} | {r['ecg']['cc']:.3f} "
-                f"| {r['sock']['seconds']:.0f} / {r['ecg']['seconds']:.0f} |"
+                f"| {r['hearts']} | {r['tissue']} | {r['folds']} | {r['targets']} | {r['sock']['cc']:.3f} "
+                f"| {r['ecg']['cc']:.3f} | {r['sock']['seconds']:.0f} / {r['ecg']['seconds']:.0f} |"
             )
     return lines
 
@@ -186,8 +186,9 @@ def first_folds(folds: list[tuple], n: int) -> list[tuple]:
     return [f for subject in subjects for f in [f for f in folds if f[0] == subject][: n or None]]
 
 
-def bo_summary(results: list[dict], tissue: str) -> dict:
-    row = {"tissue": tissue, "folds": len(results), "targets": int(sum(len(r["sock"]["cc"]) for r in results))}
+def bo_summary(results: list[dict], hearts: str, tissue: str) -> dict:
+    row = {"hearts": hearts, "tissue": tissue, "folds": len(results)}
+    row["targets"] = int(sum(len(r["sock"]["cc"]) for r in results))
     for route in ROUTES:
         cc = np.concatenate([r[route]["cc"] for r in results])
         row[route] = {"cc": float(np.mean(cc)), "seconds": float(np.mean([r[route]["seconds"] for r in results]))}
@@ -202,6 +203,7 @@ def main() -> None:
     parser.add_argument("--refine-steps", type=int, default=0, help="also the ECG route refined by up to N steps")
     parser.add_argument("--bo-folds", type=int, default=2, help="FS-BO real-heart folds per tissue setting (0: none)")
     parser.add_argument("--bo-budget", type=int, default=40, help="FS-BO simulations per fit")
+    parser.add_argument("--bo-unseen", type=int, default=0, help="FS-BO on the first N unseen subjects too")
     parser.add_argument("--bo-only", action="store_true", help="FS-BO alone (the surrogate's folds left out)")
     add_out_argument(parser, "ecg_personalisation")
     add_publish_argument(parser, "ecg_personalisation")
@@ -218,25 +220,29 @@ def main() -> None:
             keep = [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")]
             rows.append({"hearts": hearts, "tissue": tissue, "folds": len(keep), **summary(keep)})
             print("\n".join(tables(rows[-1:], [])[2 : 2 + len(routes(args))]), flush=True)
-    if args.bo_folds:
-        chosen = first_folds(real, args.bo_folds)
-        results = [bo_fold(args.real, s, c, t, args, [args.seed, i]) for i, (s, c, t) in enumerate(chosen)]
+    bo_sets = (
+        ("unseen sampled", args.store, unseen_folds(args)[: args.bo_unseen]),
+        ("real:tof-biv", args.real, first_folds(real, args.bo_folds) if args.bo_folds else []),
+    )
+    for hearts, store, chosen in bo_sets:
+        if not chosen:
+            continue
+        results = [bo_fold(store, s, c, t, args, [args.seed, i]) for i, (s, c, t) in enumerate(chosen)]
         healthy = [subject.endswith("-healthy") for subject, _, _ in chosen]
         for tissue in ("all", "healthy", "scarred"):
             keep = [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")]
-            bo_rows.append(bo_summary(keep, tissue))
+            if keep:
+                bo_rows.append(bo_summary(keep, hearts, tissue))
     text = [
         f"Machine: {machine_line()}. Model `{args.model}`; the sock with noise {NOISE_U} (u), ECGs with noise "
         f"{args.ecg_noise:g} of the largest lead value; unseen hearts: {args.context} context and {args.targets} "
         f"target sites per test subject; real heart: leave one site out"
         + (f" (the first {args.real_folds} folds of each tissue setting)" if args.real_folds else "")
         + (f"; refined: up to {args.refine_steps} steps" if args.refine_steps else "")
-        + (
-            f"; FS-BO: {args.bo_budget} simulations per fit, the first {args.bo_folds} folds of each real-heart "
-            "tissue setting."
-            if args.bo_folds
-            else "."
-        ),
+        + (f"; FS-BO: {args.bo_budget} simulations per fit" if args.bo_folds or args.bo_unseen else "")
+        + (f", the first {args.bo_folds} real-heart folds of each tissue setting" if args.bo_folds else "")
+        + (f", the first {args.bo_unseen} unseen subjects" if args.bo_unseen else "")
+        + ".",
         "",
         *tables(rows, bo_rows),
         "",
