@@ -147,6 +147,11 @@ def summary(results: list[dict]) -> dict:
 
 
 def tables(rows: list[dict], bo_rows: list[dict]) -> list[str]:
+    return (surrogate_tables(rows) if rows else []) + bo_table(bo_rows)
+
+
+def surrogate_tables(rows: list[dict]) -> list[str]:
+    """Per route: the metrics table and the per-lead ECG correlations."""
     lines = [
         "| hearts | tissue | targets | route | spatial CC | activation error (ms) | ECG CC, mean of the 12 leads "
         "| s to personalise |",
@@ -165,18 +170,24 @@ def tables(rows: list[dict], bo_rows: list[dict]) -> list[str]:
             for route in [k for k in r if k in (*ROUTES, REFINED)]:
                 values = " | ".join(f"{v:.2f}" for v in r[route]["lead_cc"])
                 lines.append(f"| {r['hearts']} | all | from the {route} | {values} |")
-    if bo_rows:
-        lines += [
-            "",
-            "| FS-BO on | tissue | folds | targets | CC fitted to the sock | CC fitted to the ECG "
-            "| s per fit, sock / ECG |",
-            "|---|---|---:|---:|---:|---:|---:|",
-        ]
-        for r in bo_rows:
-            lines.append(
-                f"| {r['hearts']} | {r['tissue']} | {r['folds']} | {r['targets']} | {r['sock']['cc']:.3f} "
-                f"| {r['ecg']['cc']:.3f} | {r['sock']['seconds']:.0f} / {r['ecg']['seconds']:.0f} |"
-            )
+    return lines
+
+
+def bo_table(bo_rows: list[dict]) -> list[str]:
+    """FS-BO fitted to the sock and to the ECG: CC at the targets and seconds per fit (none without rows)."""
+    if not bo_rows:
+        return []
+    lines = [
+        "",
+        "| FS-BO on | tissue | folds | targets | CC fitted to the sock | CC fitted to the ECG "
+        "| s per fit, sock / ECG |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in bo_rows:
+        lines.append(
+            f"| {r['hearts']} | {r['tissue']} | {r['folds']} | {r['targets']} | {r['sock']['cc']:.3f} "
+            f"| {r['ecg']['cc']:.3f} | {r['sock']['seconds']:.0f} / {r['ecg']['seconds']:.0f} |"
+        )
     return lines
 
 
