@@ -200,9 +200,10 @@ class PseudoECG:
         sigma_i: float = SIGMA_I,
         sigma_b: float = SIGMA_B,
     ) -> PseudoECG:
-        """The operator of ``mesh`` (tetrahedra, or triangles as a shell :data:`SHELL_MM` thick) with the tissue's diffusivity ``scale`` per node (``None``: 1),
-        the fibres' ``anisotropy`` and the sheets' ``sheet_anisotropy`` (``None``: isotropic), the tensor the
-        simulation conducts with (:func:`~shared.fem.conductivity_tensors`); see the module docstring."""
+        """The operator of ``mesh`` (tetrahedra, or triangles as a shell :data:`SHELL_MM` thick) with the
+        tissue's diffusivity ``scale`` per node (``None``: 1), the fibres' ``anisotropy`` and the sheets'
+        ``sheet_anisotropy`` (``None``: isotropic), the tensor the simulation conducts with
+        (:func:`~shared.fem.conductivity_tensors`); see the module docstring."""
         grads, volume = element_gradients(mesh.points, mesh.cells)  # (M, k, 3), (M,)
         if mesh.cell_type != "tetra":  # a surface: a shell of the wall's thickness
             volume = volume * SHELL_MM
