@@ -144,6 +144,15 @@ def table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def by_tissue(folds: list[tuple], results: list) -> list[tuple[str, list]]:
+    """The results of ``folds`` (subject, context, targets) grouped as all, healthy and scarred subjects."""
+    healthy = [subject.endswith("-healthy") for subject, _, _ in folds]
+    return [
+        (tissue, [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")])
+        for tissue in ("all", "healthy", "scarred")
+    ]
+
+
 def add_fold_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of :func:`unseen_folds` and :func:`real_folds`: the model, its store and the real heart's,
     the context and targets of each unseen subject, how many subjects, the seed."""
@@ -175,9 +184,7 @@ def main() -> None:
             results = [
                 fold(args.model, store, s, c, t, observe, args, [args.seed, i]) for i, (s, c, t) in enumerate(folds)
             ]
-            healthy = [subject.endswith("-healthy") for subject, _, _ in folds]
-            for tissue in ("all", "healthy", "scarred"):
-                keep = [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")]
+            for tissue, keep in by_tissue(folds, results):
                 rows.append(
                     {"hearts": hearts, "tissue": tissue, "observe": observe, "folds": len(keep), **summary(keep)}
                 )

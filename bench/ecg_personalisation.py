@@ -33,7 +33,7 @@ import numpy as np
 import torch
 import zarr
 
-from bench.activation_maps import NOISE_U, add_fold_arguments, real_folds, unseen_folds
+from bench.activation_maps import NOISE_U, add_fold_arguments, by_tissue, real_folds, unseen_folds
 from bench.common import (
     add_out_argument,
     add_publish_argument,
@@ -222,26 +222,22 @@ def main() -> None:
     check_publish(args.publish)
     start = time.perf_counter()
     rows, bo_rows = [], []
-    real = first_folds(real_folds(args), args.real_folds)
-    sets = (("unseen sampled", args.store, unseen_folds(args)), ("real:tof-biv", args.real, real))
+    real, unseen = first_folds(real_folds(args), args.real_folds), unseen_folds(args)
+    sets = (("unseen sampled", args.store, unseen), ("real:tof-biv", args.real, real))
     for hearts, store, folds in sets[: 0 if args.bo_only else 2]:
         results = [fold(args.model, store, s, c, t, args, [args.seed, i]) for i, (s, c, t) in enumerate(folds)]
-        healthy = [subject.endswith("-healthy") for subject, _, _ in folds]
-        for tissue in ("all", "healthy", "scarred"):
-            keep = [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")]
+        for tissue, keep in by_tissue(folds, results):
             rows.append({"hearts": hearts, "tissue": tissue, "folds": len(keep), **summary(keep)})
             print("\n".join(tables(rows[-1:], [])[2 : 2 + len(routes(args))]), flush=True)
     bo_sets = (
-        ("unseen sampled", args.store, unseen_folds(args)[: args.bo_unseen]),
+        ("unseen sampled", args.store, unseen[: args.bo_unseen]),
         ("real:tof-biv", args.real, first_folds(real, args.bo_folds) if args.bo_folds else []),
     )
     for hearts, store, chosen in bo_sets:
         if not chosen:
             continue
         results = [bo_fold(store, s, c, t, args, [args.seed, i]) for i, (s, c, t) in enumerate(chosen)]
-        healthy = [subject.endswith("-healthy") for subject, _, _ in chosen]
-        for tissue in ("all", "healthy", "scarred"):
-            keep = [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")]
+        for tissue, keep in by_tissue(chosen, results):
             if keep:
                 bo_rows.append(bo_summary(keep, hearts, tissue))
     text = [
