@@ -8,7 +8,9 @@ the finest mesh's epicardium chosen by farthest-point sampling, each paced on
 every mesh by a stimulus centred on the point (its site the nearest node).
 Solver settings are the defaults (``--radius``
 overrides the stimulus radius, ``--legacy`` runs the edge-path patch of 1.5
-mean edge lengths that stores built before the radius was in mm use).
+mean edge lengths that stores built before the radius was in mm use, and
+``--scar-border`` another rule of placing scars on the nodes,
+:data:`simgen.tissue.fields.SCAR_BORDERS`).
 
 Each run is compared with the finest mesh's, whose ``u`` and activation times
 are interpolated (P1, :func:`shared.interpolation.interpolation_matrix`) onto
@@ -46,7 +48,15 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import add_out_argument, machine, machine_line, write_out
+from bench.common import (
+    add_out_argument,
+    add_publish_argument,
+    check_publish,
+    machine,
+    machine_line,
+    publish_out,
+    write_out,
+)
 from learner.metrics import frame_cc
 from shared.capture import started_wave
 from shared.interpolation import interpolation_matrix
@@ -57,7 +67,9 @@ from simgen.meshes import get_mesh
 from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX
 from simgen.observe.sock import farthest_point_sampling
 from simgen.solver.simulate import Simulator, SolverConfig
+from simgen.solver.stimulus import IN_SCAR, patch_mask, scar_share
 from simgen.tissue import default_settings, tissue_fields
+from simgen.tissue.fields import SCAR_BORDERS
 
 HEARTS = ("lv", "biv", *(REAL_PREFIX + name for name in REAL_MESHES))
 TISSUES = ("healthy", "scar-anterior-mid", "scar-septal-basal", "scar-inferior-apical")
@@ -89,27 +101,41 @@ def pacing_positions(mesh: Mesh, count: int) -> np.ndarray:
 
 
 def compare(coarse: Mesh, run, fine: Mesh, reference) -> dict:
-    """One resolution's run against the finest one's, interpolated onto ``coarse``'s nodes (module docstring)."""
+    """One resolution's run against the finest one's, interpolated onto ``coarse``'s nodes (module docstring):
+    per site whether capture flips, and the CC and activation error (NaN unless both meshes start a wave)."""
     weights = interpolation_matrix(fine.points, fine.cells, coarse.points)
     never = weights @ np.isnan(reference.activation).T.astype(float) > 0  # (N, S): a stencil node never activates
     captured, captured_fine = started_wave(run.activated_fraction), started_wave(reference.activated_fraction)
-    ccs, errors = [], []
+    ccs, errors = np.full(len(run.sites), np.nan), np.full(len(run.sites), np.nan)
     for s in range(len(run.sites)):
         if not (captured[s] and captured_fine[s]):
             continue  # a flip is counted as such; no wave on either mesh has no front to compare
         truth = (weights @ reference.u[s].T).T
-        ccs.append(float(np.nanmean(frame_cc(run.u[s], truth))))
+        ccs[s] = float(np.nanmean(frame_cc(run.u[s], truth)))
         t_fine = weights @ np.nan_to_num(reference.activation[s])
         both = np.isfinite(run.activation[s]) & ~never[:, s]
-        errors.append(float(np.abs(run.activation[s][both] - t_fine[both]).mean()) * MS_PER_TIME_UNIT)
+        errors[s] = float(np.abs(run.activation[s][both] - t_fine[both]).mean()) * MS_PER_TIME_UNIT
     return {
         "capture": int(captured.sum()),
-        "flips": int((captured != captured_fine).sum()),
         "activated": [round(float(f), 3) for f in run.activated_fraction],
-        "cc_min": min(ccs, default=float("nan")),
-        "cc_mean": float(np.mean(ccs)) if ccs else float("nan"),
-        "error_mean_ms": float(np.mean(errors)) if errors else float("nan"),
-        "error_worst_ms": max(errors, default=float("nan")),
+        "site_flip": (captured != captured_fine).tolist(),
+        "site_cc": [round(float(c), 4) for c in ccs],
+        "site_error_ms": [round(float(e), 2) for e in errors],
+    }
+
+
+def figures(row: dict, sites: np.ndarray | None = None) -> dict:
+    """A row's flips, smallest and mean CC, mean and worst activation error over ``sites`` (a boolean mask;
+    None: every site)."""
+    keep = np.ones(len(row["site_cc"]), bool) if sites is None else np.asarray(sites)
+    cc, error = np.asarray(row["site_cc"])[keep], np.asarray(row["site_error_ms"])[keep]
+    scored = np.isfinite(cc)
+    return {
+        "flips": int(np.asarray(row["site_flip"])[keep].sum()),
+        "cc_min": float(cc[scored].min()) if scored.any() else float("nan"),
+        "cc_mean": float(cc[scored].mean()) if scored.any() else float("nan"),
+        "error_mean_ms": float(error[scored].mean()) if scored.any() else float("nan"),
+        "error_worst_ms": float(error[scored].max()) if scored.any() else float("nan"),
     }
 
 
@@ -129,13 +155,20 @@ def heart_rows(source: str, args: argparse.Namespace) -> list[dict]:
                 config_here = SolverConfig(stimulus_radius=1.5 * mesh.mean_edge_length(), stimulus_region="geodesic")
             sites = nearest_nodes(mesh.points, positions, np.inf)  # the node nearest each pacing point
             start = time.perf_counter()
-            sim = Simulator(mesh, tissue_fields(mesh, settings[tissue]), config_here)
+            fields = tissue_fields(mesh, settings[tissue], border=args.scar_border)
+            sim = Simulator(mesh, fields, config_here)
             centres = None if args.legacy else positions  # the legacy patch starts at a node
             run = sim.run(sites, threads=args.threads, centres=centres)
-            runs[nodes] = (run, time.perf_counter() - start, sim.stimulus_radius)
-        fine_mesh, reference = meshes[finest][0], runs[finest][0]
+            runs[nodes] = (run, time.perf_counter() - start, sim.stimulus_radius, fields.label)
+        fine_mesh, (reference, _, fine_radius, fine_label) = meshes[finest][0], runs[finest]
+        patches = (
+            patch_mask(fine_mesh, reference.sites, fine_radius, region="geodesic")
+            if args.legacy
+            else patch_mask(fine_mesh, reference.sites, fine_radius, centres=positions)
+        )
+        shares = scar_share(fine_mesh, fine_label, patches)
         for nodes, (mesh, made) in meshes.items():
-            run, seconds, radius = runs[nodes]
+            run, seconds, radius, _ = runs[nodes]
             row = {
                 "heart": source,
                 "tissue": tissue,
@@ -146,11 +179,13 @@ def heart_rows(source: str, args: argparse.Namespace) -> list[dict]:
                 "mesh_s": round(made, 1),
                 "simulate_s": round(seconds, 2),
                 "sites": len(run.sites),
+                "site_scar_share": [round(float(x), 3) for x in shares],
             }
             if nodes == finest:
                 row.update(capture=int(run.started_wave.sum()), flips=0)
             else:
                 row.update(compare(mesh, run, fine_mesh, reference))
+                row.update(figures(row))
             rows.append(row)
             print(_row_line(row), flush=True)
     return rows
@@ -159,6 +194,7 @@ def heart_rows(source: str, args: argparse.Namespace) -> list[dict]:
 def _row_line(row: dict) -> str:
     cells = [row["heart"], row["tissue"], str(row["nodes"]), f"{row['edge_mm']:.2f}", f"{row['radius_mm']:.1f}"]
     cells.append(f"{row['capture']}/{row['sites']}")
+    cells.append(str(int((np.asarray(row["site_scar_share"]) >= IN_SCAR).sum())))
     cells.append(str(row["flips"]))
     if "cc_min" in row:
         cells += [f"{row['cc_min']:.3f}", f"{row['cc_mean']:.3f}", f"{row['error_mean_ms']:.1f}"]
@@ -168,27 +204,65 @@ def _row_line(row: dict) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
-def summary(rows: list[dict], resolutions: list[int]) -> tuple[list[str], int | None]:
-    """Per resolution the worst figures over every heart and tissue, and the converged resolution (or None)."""
+def outside_scars(row: dict) -> np.ndarray:
+    """(S,) the sites of ``row`` paced outside scars: less than
+    :data:`~simgen.solver.stimulus.IN_SCAR` of their stimulus patch in a scar."""
+    return np.asarray(row["site_scar_share"]) < IN_SCAR
+
+
+def summary(rows: list[dict], resolutions: list[int]) -> tuple[list[str], dict[str, int | None]]:
+    """Per resolution the worst figures over every heart and tissue, over every site and over the sites paced
+    outside scars; and for each the converged resolution (or None)."""
     lines = [
-        "| target nodes | capture flips | smallest CC | largest mean activation error (ms) | worst site (ms) |",
-        "|---|---:|---:|---:|---:|",
+        "| target nodes | sites | capture flips | smallest CC | largest mean activation error (ms) | worst site (ms) |",
+        "|---|---|---:|---:|---:|---:|",
     ]
-    ok = {}
-    for nodes in resolutions[:-1]:
-        here = [r for r in rows if r["target"] == nodes]
-        flips = sum(r["flips"] for r in here)
-        cc = min(r["cc_min"] for r in here)
-        error = max(r["error_mean_ms"] for r in here)
-        worst = max(r["error_worst_ms"] for r in here)
-        ok[nodes] = flips == 0 and cc >= GOAL_CC and error <= GOAL_ERROR_MS
-        lines.append(f"| {nodes} | {flips} | {cc:.3f} | {error:.1f} | {worst:.1f} |")
-    converged = None
-    for nodes in reversed(resolutions[:-1]):
-        if not ok[nodes]:
-            break
-        converged = nodes
+    converged: dict[str, int | None] = {}
+    for which, pick in (("every site", lambda r: None), ("paced outside scars", outside_scars)):
+        ok = {}
+        for nodes in resolutions[:-1]:
+            here = [figures(r, pick(r)) for r in rows if r["target"] == nodes]
+            flips = sum(f["flips"] for f in here)
+            cc = np.nanmin([f["cc_min"] for f in here])
+            error = np.nanmax([f["error_mean_ms"] for f in here])
+            worst = np.nanmax([f["error_worst_ms"] for f in here])
+            ok[nodes] = flips == 0 and cc >= GOAL_CC and error <= GOAL_ERROR_MS
+            lines.append(f"| {nodes} | {which} | {flips} | {cc:.3f} | {error:.1f} | {worst:.1f} |")
+        converged[which] = None
+        for nodes in reversed(resolutions[:-1]):
+            if not ok[nodes]:
+                break
+            converged[which] = nodes
     return lines, converged
+
+
+def verdict(converged: dict[str, int | None]) -> str:
+    """The converged resolution (:data:`GOAL_CC`, :data:`GOAL_ERROR_MS`, no flip), for every site and for sites
+    paced outside scars."""
+    parts = [f"{which} {f'from {n} nodes' if n else 'at no resolution here'}" for which, n in converged.items()]
+    return (
+        f"Converged (no capture flip, CC >= {GOAL_CC}, mean activation error <= {GOAL_ERROR_MS:g} ms): "
+        + "; ".join(parts)
+        + "."
+    )
+
+
+def pivot(rows: list[dict], resolutions: list[int]) -> list[str]:
+    """One line per heart and tissue setting, one column per resolution but the finest: smallest CC; mean /
+    worst-site activation error; flips; and the sites paced in a scar."""
+    coarse = resolutions[:-1]
+    lines = ["| heart | tissue | in scar | " + " | ".join(f"{n // 1000}k nodes" for n in coarse) + " |"]
+    lines.append("|---|---|---:|" + "---|" * len(coarse))
+    cells: dict[tuple[str, str, int], dict[int, str]] = {}
+    for r in rows:
+        if r["target"] in coarse:
+            flips = f", {r['flips']} flip{'s' * (r['flips'] > 1)}" if r["flips"] else ""
+            text = f"{r['cc_min']:.3f}; {r['error_mean_ms']:.1f} / {r['error_worst_ms']:.1f} ms{flips}"
+            key = (r["heart"], r["tissue"], int((~outside_scars(r)).sum()))
+            cells.setdefault(key, {})[r["target"]] = text
+    for (heart, tissue, in_scar), by_nodes in cells.items():
+        lines.append(f"| {heart} | {tissue} | {in_scar} | " + " | ".join(by_nodes.get(n, "") for n in coarse) + " |")
+    return lines
 
 
 def main() -> None:
@@ -199,38 +273,52 @@ def main() -> None:
     parser.add_argument("--sites", type=int, default=6, help="pacing positions per heart")
     parser.add_argument("--radius", type=float, default=None, help="stimulus radius in mm (default: the solver's)")
     parser.add_argument("--legacy", action="store_true", help="edge-path patches of 1.5 mean edges, as old stores")
+    parser.add_argument("--scar-border", choices=SCAR_BORDERS, default=SCAR_BORDERS[0], help="scars on the nodes")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=Path("report/bench/convergence-meshes"))
     add_out_argument(parser, "convergence")
+    add_publish_argument(parser, "convergence")
     args = parser.parse_args()
+    check_publish(args.publish)
     args.nodes = sorted(args.nodes)
     header = (
-        "| heart | tissue | nodes | mean edge (mm) | stimulus radius (mm) | capture | flips | CC min | CC mean "
-        "| activation error mean (ms) | worst site (ms) |"
+        "| heart | tissue | nodes | mean edge (mm) | stimulus radius (mm) | capture | in scar | flips | CC min "
+        "| CC mean | activation error mean (ms) | worst site (ms) |"
     )
     print(f"{machine_line()}; {args.sites} pacing positions per heart, compared with {args.nodes[-1]} nodes")
-    print(header + "\n|" + "---|" * 11)
+    print(header + "\n|" + "---|" * 12)
     start = time.perf_counter()
     rows = [row for heart in args.hearts for row in heart_rows(heart, args)]
     lines, converged = summary(rows, args.nodes)
-    stated = f"converged from {converged} nodes" if converged else "no resolution meets the goals"
     text = "\n".join(
         [
             f"Machine: {machine_line()}. {len(args.hearts)} hearts x {len(args.tissue)} tissue settings x "
-            f"{args.sites} pacing positions, each resolution against {args.nodes[-1]} nodes; "
+            f"{args.sites} pacing positions, each resolution against {args.nodes[-1]} nodes, scars placed by the "
+            f"{args.scar_border!r} rule; "
             f"{time.perf_counter() - start:.0f} s.",
             "",
             header,
-            "|" + "---|" * 11,
+            "|" + "---|" * 12,
             *map(_row_line, rows),
             "",
             *lines,
             "",
-            f"Goals: no capture flip, CC >= {GOAL_CC}, mean activation error <= {GOAL_ERROR_MS:g} ms: {stated}.",
+            verdict(converged),
         ]
     )
-    print("\n" + "\n".join(lines) + f"\n\n{stated}")
+    print("\n" + "\n".join(lines) + f"\n\n{verdict(converged)}")
     write_out(args.out, "convergence", text + "\n", {"machine": machine(), "rows": rows, "converged": converged})
+    published = [
+        f"Scars placed by the {args.scar_border!r} rule; {args.sites} pacing positions per heart; "
+        f"{time.perf_counter() - start:.0f} s.",
+        "",
+        *pivot(rows, args.nodes),
+        "",
+        *lines,
+        "",
+        verdict(converged),
+    ]
+    publish_out(args.publish, "convergence", "\n".join(published))
 
 
 if __name__ == "__main__":

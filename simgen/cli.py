@@ -336,6 +336,7 @@ def simulate(
         f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
     )
     _report_no_wave(site_ids, result.activated_fraction)
+    _report_scar_pacing(m, fields.label, site_ids, centres, sim.stimulus_radius)
 
 
 def _ecg(m: Mesh, fields, config: SolverConfig, result, seconds: float, file: Path | None) -> dict[str, np.ndarray]:
@@ -418,6 +419,26 @@ def _report_no_wave(sites: np.ndarray, fraction: np.ndarray) -> None:
             console.print(
                 f"[yellow]site {int(site)} starts no propagating wave[/yellow]: {100 * share:.1f}% of the nodes "
                 "activate (its stimulus patch): the site lies in or against a scar core",
+                soft_wrap=True,
+            )
+
+
+def _report_scar_pacing(m: Mesh, label: np.ndarray, sites: np.ndarray, centres: np.ndarray, radius: float) -> None:
+    """One line per site paced in a scar (:data:`~simgen.solver.stimulus.IN_SCAR`) on a mesh too coarse for a wave
+    leaving a scar to converge (mean edge over :data:`~simgen.solver.stimulus.RESOLVED_SCAR_EDGE`)."""
+    from shared.tissue import LABEL_HEALTHY
+    from simgen.solver.stimulus import IN_SCAR, RESOLVED_SCAR_EDGE, patch_mask, scar_share
+
+    if not (label != LABEL_HEALTHY).any() or (edge := m.mean_edge_length()) <= RESOLVED_SCAR_EDGE:
+        return
+    shares = scar_share(m, label, patch_mask(m, sites, radius, centres=centres))
+    for site, share in zip(m.file_ids(sites), shares):
+        if share >= IN_SCAR:
+            console.print(
+                f"[yellow]site {int(site)} is paced in a scar[/yellow]: {100 * share:.0f}% of its stimulus patch lies "
+                f"in scar core or border zone; on this mesh's {edge:.1f} mm edges whether and when its wave leaves "
+                f"the scar depends on the resolution (it converges at mean edges of {RESOLVED_SCAR_EDGE:g} mm and "
+                "less: docs/method.md, 'Convergence under mesh refinement')",
                 soft_wrap=True,
             )
 

@@ -19,13 +19,20 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import breadth_first_order, dijkstra
 
 from shared.errors import StimulusError
+from shared.fem import lumped_mass
 from shared.mesh import Mesh
+from shared.tissue import LABEL_HEALTHY
 from simgen.meshes.topology import edge_graph
 
-__all__ = ["STIMULUS_REGIONS", "check_sites", "patch_mask"]
+__all__ = ["IN_SCAR", "RESOLVED_SCAR_EDGE", "STIMULUS_REGIONS", "check_sites", "patch_mask", "scar_share"]
 
 #: Shapes of stimulus patch; the first is the default.
 STIMULUS_REGIONS = ("ball", "geodesic")
+#: A site is paced in a scar when at least this share of its patch's volume lies in a scar's core or border zone.
+IN_SCAR = 0.5
+#: Mean edge (mm) up to which a wave leaving a scar from a site paced in it converges under mesh refinement
+#: (docs/method.md, "Convergence under mesh refinement"; outside scars results converge on coarser meshes).
+RESOLVED_SCAR_EDGE = 4.5
 
 
 def check_sites(mesh: Mesh, sites: NDArray[np.integer]) -> NDArray[np.int64]:
@@ -84,3 +91,10 @@ def patch_mask(
         reached = breadth_first_order(graph[inside][:, inside], start, directed=False, return_predecessors=False)
         mask[inside[reached], column] = True
     return mask
+
+
+def scar_share(mesh: Mesh, label: NDArray[np.integer], mask: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """(S,) share of each stimulus patch of ``mask`` (N, S) (:func:`patch_mask`) that lies in a scar's core or
+    border zone (``label`` not healthy), its nodes weighted by their lumped mass (volume)."""
+    mass = lumped_mass(mesh)
+    return ((mass * (np.asarray(label) != LABEL_HEALTHY)) @ mask) / np.maximum(mass @ mask, np.finfo(float).tiny)

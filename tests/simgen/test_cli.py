@@ -225,6 +225,21 @@ def test_simulate_names_every_site_that_starts_no_wave(tmp_path):
     assert f"site {inside} starts no propagating wave" in text(result) and "site 3 starts" not in text(result)
     fraction = np.load(tmp_path / "simulation.npz")["activated_fraction"]
     assert fraction[0] > 0.5 > 0.05 > fraction[1]
+    # paced in a scar on 7.7 mm edges: the resolution decides; site 3 lies in healthy tissue
+    assert f"site {inside} is paced in a scar" in text(result) and "site 3 is paced" not in text(result)
+
+
+def test_simulate_names_no_site_paced_in_a_scar_where_the_mesh_resolves_it(tmp_path):
+    from simgen.meshes import get_mesh
+    from simgen.tissue import default_settings, tissue_fields
+
+    mesh = get_mesh("lv", 5000)
+    assert mesh.mean_edge_length() < 4.5
+    core = np.flatnonzero(tissue_fields(mesh, {s.name: s for s in default_settings()}["scar-septal-basal"]).label == 2)
+    args = ["simulate", str(tmp_path), "--nodes", "5000", "--tissue", "scar-septal-basal", "--sites", str(core[0])]
+    result = runner.invoke(app, args, terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "paced in a scar" not in text(result)
 
 
 def test_sites_by_position_and_region(tmp_path):
