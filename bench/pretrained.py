@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import sys
 import time
 from pathlib import Path
 
@@ -79,7 +81,7 @@ def record_card(model: str, result: dict) -> Path:
         "date": date.today().isoformat(),
         "metrics": card_metrics(result),
         "measured_on": result["machine"],
-        "command": "python -m bench.pretrained --store data/pretrained.zarr --real data/realdata.zarr --record-card",
+        "command": " ".join(["python -m bench.pretrained", shlex.join(sys.argv[1:])]),
     }
     path.write_text(json.dumps(document, indent=1) + "\n")
     return path

@@ -44,8 +44,9 @@ NEW_HEARTS_SPEC = {
 }
 
 
-def test_the_shipped_model_is_safetensors_weights_with_config_and_card():
-    shipped = pretrained.info(NAME)
+@pytest.mark.parametrize("name", pretrained.names())
+def test_every_shipped_model_is_safetensors_weights_with_config_and_card(name):
+    shipped = pretrained.info(name)
     raw = shipped.weights.read_bytes()
     assert len(raw) < 10 * 2**20
     size = int.from_bytes(raw[:8], "little")  # safetensors: header length, JSON header, raw tensor bytes
