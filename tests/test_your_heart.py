@@ -136,6 +136,38 @@ def test_a_patients_mesh_as_it_is_from_recorded_maps_to_new_pacing_sites(tmp_pat
     np.testing.assert_array_equal(np.load(tmp_path / "xyz.npz")["sites"], predicted["sites"])
 
 
+def test_a_heart_with_fibres_personalises_the_fibre_model(tmp_path):
+    """docs/your-heart.md, "A heart that conducts along fibres": rule-based fibres in the mesh file, recordings
+    four times faster along them, the shipped fibre model; it reads no ECGs and says which model does."""
+    heart, rec, truth = tmp_path / "fibres.vtu", tmp_path / "fibre-rec", tmp_path / "truth"
+    run(simgen, "mesh", str(heart), "--mesh", "real:tof-biv", "--nodes", "4000", "--kind", "tetra", "--fibres")
+    assert "fibre" in meshio.read(heart).point_data
+    mesh = ["--mesh", str(heart), *TISSUE, "--anisotropy", "4"]
+    run(simgen, "simulate", str(rec), *mesh, "--site-region", RECORDED, "--observe", "electrodes", "--noise", "2")
+    observations = ["--observations", str(rec / "observations.npz")]
+    run(
+        learner, "personalize", "anatomies-fibres", "--mesh", str(heart), *observations, "--out", str(tmp_path / "h.pt")
+    )
+    run(learner, "predict", str(tmp_path / "h.pt"), "--site-region", NEW, "--out", str(tmp_path / "pred.npz"))
+    run(simgen, "simulate", str(truth), *mesh, "--site-region", NEW)
+    cc = spatial_cc(np.load(tmp_path / "pred.npz")["v_mv"], np.load(truth / "simulation.npz")["v_mv"])
+    assert cc > 0.8, cc  # measured: 0.87
+    ecg = tmp_path / "ecg"
+    run(simgen, "simulate", str(ecg), *mesh, "--site-region", "aha-1", "--observe", "ecg")
+    refused = fails(
+        learner,
+        "personalize",
+        "anatomies-fibres",
+        "--mesh",
+        str(heart),
+        "--observations",
+        str(ecg / "observations.npz"),
+        "--out",
+        str(tmp_path / "e.pt"),
+    )
+    assert "reads no ECGs" in refused and "`anatomies` does" in refused
+
+
 def fails(app, *args: str) -> str:
     """The one-line message of a command that must refuse its input (exit code 2)."""
     result = runner.invoke(app, list(args), terminal_width=200)
