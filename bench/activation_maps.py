@@ -116,6 +116,12 @@ def real_folds(args) -> list[tuple]:
     return folds
 
 
+def real_label(store: str) -> str:
+    """``real:`` and the real hearts (mesh ids) of ``store``, in its order."""
+    view = StoreView(store)
+    return "real:" + ", ".join(dict.fromkeys(view.mesh_of[s] for s in view.subjects))
+
+
 def summary(results: list[dict]) -> dict:
     """Means over every target of the folds, per route, and the difference of the CCs."""
     row = {}
@@ -178,7 +184,7 @@ def main() -> None:
     rows = []
     for hearts, store, folds in (
         ("unseen sampled", args.store, unseen_folds(args)),
-        ("real:tof-biv", args.real, real_folds(args)),
+        (real_label(args.real), args.real, real_folds(args)),
     ):
         for observe in args.observe:
             results = [

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 import zarr
 
-from bench.activation_maps import NOISE_U, add_fold_arguments, by_tissue, real_folds, unseen_folds
+from bench.activation_maps import NOISE_U, add_fold_arguments, by_tissue, real_folds, real_label, unseen_folds
 from bench.common import (
     add_out_argument,
     add_publish_argument,
@@ -223,7 +223,7 @@ def main() -> None:
     start = time.perf_counter()
     rows, bo_rows = [], []
     real, unseen = first_folds(real_folds(args), args.real_folds), unseen_folds(args)
-    sets = (("unseen sampled", args.store, unseen), ("real:tof-biv", args.real, real))
+    sets = (("unseen sampled", args.store, unseen), (real_label(args.real), args.real, real))
     for hearts, store, folds in sets[: 0 if args.bo_only else 2]:
         results = [fold(args.model, store, s, c, t, args, [args.seed, i]) for i, (s, c, t) in enumerate(folds)]
         for tissue, keep in by_tissue(folds, results):
@@ -231,7 +231,7 @@ def main() -> None:
             print("\n".join(tables(rows[-1:], [])[2 : 2 + len(routes(args))]), flush=True)
     bo_sets = (
         ("unseen sampled", args.store, unseen[: args.bo_unseen]),
-        ("real:tof-biv", args.real, first_folds(real, args.bo_folds) if args.bo_folds else []),
+        (real_label(args.real), args.real, first_folds(real, args.bo_folds) if args.bo_folds else []),
     )
     for hearts, store, chosen in bo_sets:
         if not chosen:
