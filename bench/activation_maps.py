@@ -151,12 +151,14 @@ def table(rows: list[dict]) -> list[str]:
 
 
 def by_tissue(folds: list[tuple], results: list) -> list[tuple[str, list]]:
-    """The results of ``folds`` (subject, context, targets) grouped as all, healthy and scarred subjects."""
+    """The results of ``folds`` (subject, context, targets) grouped as all, healthy and scarred subjects; a group
+    without a fold is left out."""
     healthy = [subject.endswith("-healthy") for subject, _, _ in folds]
-    return [
+    groups = [
         (tissue, [r for r, h in zip(results, healthy) if tissue == "all" or h == (tissue == "healthy")])
         for tissue in ("all", "healthy", "scarred")
     ]
+    return [(tissue, kept) for tissue, kept in groups if kept]
 
 
 def add_fold_arguments(parser: argparse.ArgumentParser) -> None:
