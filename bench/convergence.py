@@ -194,7 +194,7 @@ def heart_rows(source: str, args: argparse.Namespace) -> list[dict]:
 def _row_line(row: dict) -> str:
     cells = [row["heart"], row["tissue"], str(row["nodes"]), f"{row['edge_mm']:.2f}", f"{row['radius_mm']:.1f}"]
     cells.append(f"{row['capture']}/{row['sites']}")
-    cells.append(str(int((np.asarray(row["site_scar_share"]) >= IN_SCAR).sum())))
+    cells.append(str(int((~outside_scars(row)).sum())))
     cells.append(str(row["flips"]))
     if "cc_min" in row:
         cells += [f"{row['cc_min']:.3f}", f"{row['cc_mean']:.3f}", f"{row['error_mean_ms']:.1f}"]

@@ -26,7 +26,6 @@ Run::
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
@@ -39,8 +38,7 @@ from bench.common import (
     publish_out,
     write_out,
 )
-from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
-from learner.evaluate import EvalSetting, EvalSpec, evaluate, load_method
+from bench.pretrained import unseen_and_real
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
 
@@ -56,16 +54,12 @@ def by_heart(real: str, folds: list[dict]) -> dict[str, list[float]]:
 
 def model_rows(model: str, args: argparse.Namespace, test: list[str]) -> dict:
     """One model's unseen-heart metrics and its real-heart folds (with the ceiling's)."""
-    start = time.perf_counter()
-    unseen = evaluate(model, args.store, EvalSpec(subjects=tuple(test), context_sets=1, max_targets=args.targets))
-    method, config, _ = load_method(model)
-    real_cfg = BenchmarkConfig(real_data=RealDataSpec(store=args.real, sites=args.sites))
-    real = real_data([method], real_data_setting(real_cfg, EvalSetting.of(config)), real_cfg)
+    unseen, real, name, seconds = unseen_and_real(model, args.store, args.real, test, args.targets, args.sites)
     return {
         "unseen": unseen.overall["target"],
-        "real": by_heart(args.real, real["folds"][method.name]),
+        "real": by_heart(args.real, real["folds"][name]),
         "ceiling": by_heart(args.real, real["folds"]["ceiling"]),
-        "seconds": round(time.perf_counter() - start, 1),
+        "seconds": round(sum(seconds), 1),
     }
 
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from bench.common import add_out_argument, machine_line, write_out
 from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
-from learner.evaluate import EvalSetting, EvalSpec, evaluate, load_method
+from learner.evaluate import EvalReport, EvalSetting, EvalSpec, evaluate, load_method
 from learner.metrics import mse
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint
@@ -51,6 +51,23 @@ def mean_predictor(store: str, train: list[str], test: list[str]) -> float:
         u = read_u(store, subject)
         errors.append(mse(np.broadcast_to(means[None, :, None], u.shape), u))
     return float(np.mean(errors))
+
+
+def unseen_and_real(
+    model: str, store: str, real: str, test: list[str], targets: int, sites: int
+) -> tuple[EvalReport, dict, str, tuple[float, float]]:
+    """``model`` on the ``test`` subjects of ``store`` (one context set each, ``targets`` targets) and on every
+    leave-one-site-out fold of the real hearts of ``real`` (``sites`` each) through the sock: the evaluation
+    report, :func:`~learner.benchmark.real_data`'s result, the model's method name there, and the seconds of
+    each."""
+    start = time.perf_counter()
+    unseen = evaluate(model, store, EvalSpec(subjects=tuple(test), context_sets=1, max_targets=targets))
+    unseen_s = time.perf_counter() - start
+    method, config, _ = load_method(model)
+    start = time.perf_counter()
+    real_cfg = BenchmarkConfig(real_data=RealDataSpec(store=real, sites=sites))
+    folds = real_data([method], real_data_setting(real_cfg, EvalSetting.of(config)), real_cfg)
+    return unseen, folds, method.name, (unseen_s, time.perf_counter() - start)
 
 
 def card_metrics(result: dict) -> dict:
@@ -130,14 +147,9 @@ def main() -> None:
 
     splits = load_checkpoint(args.model, kind="model")["splits"]
     test = list(splits["test"])
-    start = time.perf_counter()
-    unseen = evaluate(args.model, args.store, EvalSpec(subjects=tuple(test), context_sets=1, max_targets=args.targets))
-    unseen_s = time.perf_counter() - start
-    method, config, _ = load_method(args.model)
-    start = time.perf_counter()
-    real_cfg = BenchmarkConfig(real_data=RealDataSpec(store=args.real, sites=args.sites))
-    real = real_data([method], real_data_setting(real_cfg, EvalSetting.of(config)), real_cfg)
-    real_s = time.perf_counter() - start
+    unseen, real, name, (unseen_s, real_s) = unseen_and_real(
+        args.model, args.store, args.real, test, args.targets, args.sites
+    )
     view = StoreView(args.store)
     result = {
         "model": args.model,
@@ -149,7 +161,7 @@ def main() -> None:
             "subjects": real["subjects"],
             "electrodes": real["electrodes"],
             "noise_std": real["noise_std"],
-            **real["methods"][method.name],
+            **real["methods"][name],
             "ceiling": real["ceiling"]["target"],
             "folds": real["folds"],
         },
