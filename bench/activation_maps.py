@@ -8,7 +8,10 @@ crossing of ``u = 0.5`` plus Gaussian noise of ``--noise-ms`` ms, +inf where a
 recorded node never activates), which the model reads through its
 action-potential template (:mod:`learner.activation_maps`). Both predict the
 same unrecorded sites; the table gives the spatial CC and the activation-time
-error of each, and their difference (maps minus potentials).
+error of each, and their difference (maps minus potentials). A model with a
+maps encoder reads a map up to each node's upstroke; its table also gives the
+CC from the same maps read at every frame by its context encoder (the reading
+of a model without one).
 
 * Unseen hearts: the model's test split of ``--store`` (whole sampled anatomies
   never trained on, every tissue setting), one context set of ``--context``
@@ -33,6 +36,7 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -45,6 +49,7 @@ from bench.common import (
     publish_out,
     write_out,
 )
+from learner.activation_maps import ApTemplate
 from learner.data.episodes import load_episode
 from learner.metrics import activation_error_ms, spatial_cc
 from learner.observations import Observations
@@ -67,7 +72,8 @@ def activation_map(u: np.ndarray, activation: np.ndarray, observed: np.ndarray, 
 
 
 def fold(model: str, store: str, subject: str, context: list[int], targets: list[int], observe: str, args, seed):
-    """Spatial CC and activation error (ms) of each target, from potentials and from activation maps."""
+    """Spatial CC and activation error (ms) of each target, from potentials and from activation maps (and, with
+    ``args.every_frame`` the model's template, from the maps read at every frame by the context encoder)."""
     rng = np.random.default_rng(seed)
     ep = load_episode(store, subject, context, targets, observe, NOISE_U, rng)
     view = StoreView(store)
@@ -77,11 +83,13 @@ def fold(model: str, store: str, subject: str, context: list[int], targets: list
     act = activation_map(ep.context_u.numpy(), read_activation(store, subject, context), observed, args.noise_ms, rng)
     truth = ep.target_u.numpy()
     true_act = read_activation(store, subject, targets)
+    maps = Observations(mesh, sites, None, observed, times, subject, activation=act)
+    routes = [("potentials", Observations(mesh, sites, ep.context_obs.numpy(), observed, times, subject))]
+    routes.append(("activation", maps))
+    if args.every_frame is not None:
+        routes.append(("every_frame", replace(maps.at_frames(times, lambda: args.every_frame), recorded=None)))
     out = {}
-    for route, obs in (
-        ("potentials", Observations(mesh, sites, ep.context_obs.numpy(), observed, times, subject)),
-        ("activation", Observations(mesh, sites, None, observed, times, subject, activation=act)),
-    ):
+    for route, obs in routes:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NoWaveWarning)
             heart = personalize(model, obs, device="cpu")
@@ -125,7 +133,7 @@ def real_label(store: str) -> str:
 def summary(results: list[dict]) -> dict:
     """Means over every target of the folds, per route, and the difference of the CCs."""
     row = {}
-    for route in ("potentials", "activation"):
+    for route in [r for r in ("potentials", "activation", "every_frame") if r in results[0]]:
         cc = np.concatenate([r[route]["cc"] for r in results])
         err = np.concatenate([r[route]["error_ms"] for r in results])
         row[route] = {"cc": float(np.mean(cc)), "cc_std": float(np.std(cc)), "error_ms": float(np.nanmean(err))}
@@ -135,16 +143,20 @@ def summary(results: list[dict]) -> dict:
 
 
 def table(rows: list[dict]) -> list[str]:
+    """The rows as a Markdown table; with a column of the maps read at every frame where the rows have one."""
+    every = "every_frame" in rows[0]
     lines = [
         "| hearts | tissue | recorded nodes | targets | CC from potentials | CC from activation maps | difference "
-        "| activation error from potentials / maps (ms) |",
-        "|---|---|---|---:|---:|---:|---:|---:|",
+        + ("| CC from maps read at every frame (difference) " if every else "")
+        + "| activation error from potentials / maps (ms) |",
+        "|---|---|---|---:|---:|---:|---:|" + ("---:|" if every else "") + "---:|",
     ]
     for r in rows:
         p, a = r["potentials"], r["activation"]
+        full = f"| {r['every_frame']['cc']:.3f} ({r['every_frame']['cc'] - p['cc']:+.3f}) " if every else ""
         lines.append(
             f"| {r['hearts']} | {r['tissue']} | {r['observe']} | {r['targets']} | {p['cc']:.3f} +- {p['cc_std']:.3f} "
-            f"| {a['cc']:.3f} +- {a['cc_std']:.3f} | {r['difference']:+.3f} "
+            f"| {a['cc']:.3f} +- {a['cc_std']:.3f} | {r['difference']:+.3f} {full}"
             f"| {p['error_ms']:.1f} / {a['error_ms']:.1f} |"
         )
     return lines
@@ -182,6 +194,9 @@ def main() -> None:
     add_publish_argument(parser, "activation_maps")
     args = parser.parse_args()
     check_publish(args.publish)
+    ckpt = load_checkpoint(args.model, kind="model")
+    maps_encoder = ckpt["config"]["model"].get("maps_encoder", False)
+    args.every_frame = ApTemplate.from_dict(ckpt["ap_template"]) if maps_encoder else None
     start = time.perf_counter()
     rows = []
     for hearts, store, folds in (

@@ -162,7 +162,7 @@ def probe(checkpoint: Path, store: str) -> dict[str, float]:
         )
     )
     hier = {ep.mesh_id: view.hierarchy(ep.mesh_id, cfg.model.levels, cfg.model.coarsest) for ep in episodes}
-    post = [model.embed(ep.context_obs, ep.observed, hier[ep.mesh_id]) for ep in episodes]
+    post = [model.embed(ep.context_obs, ep.observed, hier[ep.mesh_id], ep.context_recorded) for ep in episodes]
     rows = []
     for i, ep in enumerate(episodes):
         truth = ep.target_u

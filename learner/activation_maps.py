@@ -9,6 +9,15 @@ aligned at their first crossing of ``u = 0.5`` (foot, upstroke, plateau and
 repolarisation as the model saw them). A node mapped as never activated
 (``+inf``) stays at rest.
 
+A map fixes a node's potential only up to the end of its upstroke: at rest
+before, rising at the time mapped. What follows (plateau height, action
+potential duration) depends on the tissue, and scar and border zone repolarise
+earlier than the healthy template; rendered, those frames would tell the model
+that scarred tissue is healthy. :meth:`ApTemplate.fixed` marks the frames a map
+fixes (up to :attr:`ApTemplate.upstroke_end` after each activation, and every
+frame of a node never activated); the model reads the others as unrecorded, as
+it reads unobserved nodes.
+
 The template ships with the weights, like torchvision's ``weights.transforms()``:
 a shipped model's config.json holds it (``ap_template``); a training
 checkpoint's is computed from its training store (:func:`template_from_store`).
@@ -23,10 +32,12 @@ import numpy as np
 
 from shared.errors import InputError
 
-__all__ = ["ApTemplate", "template_from_sequences", "template_from_store"]
+__all__ = ["ApTemplate", "UPSTROKE_SHARE", "template_from_sequences", "template_from_store"]
 
 #: Offset step of a template (model time units; 0.1 = 1.29 ms).
 TEMPLATE_STEP = 0.1
+#: The upstroke ends where the template first reaches this share of its peak.
+UPSTROKE_SHARE = 0.95
 
 
 @dataclass(frozen=True)
@@ -46,6 +57,22 @@ class ApTemplate:
         with np.errstate(invalid="ignore"):
             u = np.interp(shift, self.offsets, self.u, left=self.u[0], right=self.u[-1])
         return np.where(np.isnan(shift), 0.0, u).astype(np.float32)
+
+    @property
+    def upstroke_end(self) -> float:
+        """Offset (model time units) at which the upstroke ends: the first offset >= 0 where the template reaches
+        :data:`UPSTROKE_SHARE` of its peak."""
+        after = self.offsets >= 0
+        reached = after & (self.u >= UPSTROKE_SHARE * self.u.max())
+        return float(self.offsets[np.argmax(reached)] if reached.any() else self.offsets[-1])
+
+    def fixed(self, activation: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """``(K, T, N)`` bool: the frames at ``times`` whose potential activation times ``(K, N)`` fix (module
+        docstring): up to :attr:`upstroke_end` after the activation, every frame where never activated (``+inf``),
+        none where unmapped (NaN)."""
+        activation = np.asarray(activation, np.float64)
+        with np.errstate(invalid="ignore"):
+            return np.asarray(times, np.float64)[None, :, None] <= activation[:, None, :] + self.upstroke_end
 
     def to_dict(self) -> dict[str, list[float]]:
         """The template as JSON-ready lists (:meth:`from_dict` inverts it)."""

@@ -68,6 +68,7 @@ class ModelConfig:
     capture_evidence: bool = False  # the gate also reads the context's peak at the site (SiteEvidence)
     working_nodes: int | None = None  # a finer mesh is seen as this many clusters (learner.graph.working); None: as is
     ecg_encoder: bool = False  # metaPNS: a second context encoder that reads 12-lead ECGs (learner.models.ecg_encoder)
+    maps_encoder: bool = False  # metaPNS: a context encoder for activation-time maps, read up to each upstroke
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
@@ -85,8 +86,9 @@ class ModelConfig:
                 f"model.working_nodes must be at least twice model.coarsest ({2 * self.coarsest}), "
                 f"got {self.working_nodes}"
             )
-        if self.ecg_encoder and self.kind != "metapns":
-            raise ConfigError("model.ecg_encoder is a context encoder: set model.kind = 'metapns'")
+        for name in ("ecg_encoder", "maps_encoder"):
+            if getattr(self, name) and self.kind != "metapns":
+                raise ConfigError(f"model.{name} is a context encoder: set model.kind = 'metapns'")
         if self.capture_evidence and not self.capture_gate:
             raise ConfigError("model.capture_evidence is an input of the capture gate: set model.capture_gate too")
 

@@ -29,7 +29,7 @@ from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import METRIC_NAMES, activation_times, sequence_metrics, summarize
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS
-from learner.refine import Refinement, ecg_leads, observed_nodes, refine_context
+from learner.refine import Refinement, ecg_leads, observed_nodes, recorded_values, refine_context
 from learner.runtime import on_device, resolve_device
 from learner.store_view import StoreView
 from learner.train.trainer import load_model
@@ -201,9 +201,10 @@ class NeuralMethod(Method):
         ep = episode.to(self.device)
         if ep.context_ecg is None:
             with torch.no_grad():
-                posterior = self.model.embed(ep.context_obs, ep.observed, self._hier)
+                posterior = self.model.embed(ep.context_obs, ep.observed, self._hier, ep.context_recorded)
             self._evidence = SiteEvidence.of(ep)
-            target, record = ep.context_obs[..., ep.observed.bool()], observed_nodes(ep.observed)
+            target = recorded_values(ep.context_obs, ep.observed, ep.context_recorded)
+            record = observed_nodes(ep.observed)
         else:
             with torch.no_grad():
                 posterior = self.model.embed_ecg(ep.context_ecg, ep.lead_field, ep.context_sites, self._hier)

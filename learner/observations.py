@@ -58,7 +58,10 @@ class Observations:
     at ``times``, leads in the order of :data:`shared.ecg.LEADS`, recorded
     through ``electrodes`` (None: the standard placement by the heart's axes);
     ``observed`` then marks no node. ``labels``: the mesh's region labels
-    where known (sites by region).
+    where known (sites by region). ``recorded`` (K, T, N) bool, set by
+    :meth:`at_frames` for activation maps: the values the recordings fix
+    (:meth:`~learner.activation_maps.ApTemplate.fixed`); None: every frame of
+    every observed node.
     """
 
     mesh: Mesh
@@ -71,6 +74,7 @@ class Observations:
     activation: np.ndarray | None = None  # (K, N) model time units, +inf never activated; instead of obs
     ecg: np.ndarray | None = None  # (K, 12, T) mV at times; instead of obs
     electrodes: Electrodes | None = None  # where the ECG was recorded (None: the standard placement)
+    recorded: np.ndarray | None = None  # (K, T, N) bool with obs: the values fixed (None: every frame observed)
 
     def __post_init__(self) -> None:
         given = [name for name in ("obs", "activation", "ecg") if getattr(self, name) is not None]
@@ -99,6 +103,8 @@ class Observations:
             self.obs = np.where(self.observed, self.obs, 0.0).astype(np.float32)  # unobserved: NaN or anything
         elif np.isnan(self.activation[:, self.observed]).any() or (self.activation[:, self.observed] < 0).any():
             raise InputError("activation times must be >= 0 (or +inf: never activated) at every observed node")
+        if self.recorded is not None and (self.obs is None or self.recorded.shape != self.obs.shape):
+            raise InputError("recorded marks the values of potentials obs and must have their shape (K, T, N)")
         bad = [int(s) for s in self.sites if not 0 <= s < n]
         if bad:
             raise InputError(f"stimulation nodes {bad} are not nodes of the {n}-node mesh")
@@ -124,20 +130,22 @@ class Observations:
         """These recordings as potentials at the model's frame ``times`` (model time units).
 
         Activation times are rendered through ``template()`` (called only for
-        them); potentials at other frame times are resampled linearly
-        (:func:`resample_frames`).
+        them), with ``recorded`` marking the frames they fix; potentials at
+        other frame times are resampled linearly (:func:`resample_frames`).
         """
         times = np.asarray(times, np.float64)
         if self.ecg is not None:
             ecg = resample_ecg(self.ecg, self.times * MS_PER_TIME_UNIT, times * MS_PER_TIME_UNIT)
             return replace(self, ecg=ecg, times=times)
         if self.activation is not None:
-            obs = template().render(self.activation, times)
-        elif len(self.times) == len(times) and np.allclose(self.times, times, rtol=1e-3, atol=1e-6):
+            shape = template()
+            recorded = shape.fixed(self.activation, times) & self.observed
+            return replace(
+                self, obs=shape.render(self.activation, times), times=times, activation=None, recorded=recorded
+            )
+        if len(self.times) == len(times) and np.allclose(self.times, times, rtol=1e-3, atol=1e-6):
             return self
-        else:
-            obs = resample_frames(self.obs, self.times, times)
-        return replace(self, obs=obs, times=times, activation=None)
+        return replace(self, obs=resample_frames(self.obs, self.times, times), times=times)
 
 
 def _span_ms(times: np.ndarray) -> str:

@@ -34,7 +34,7 @@ from learner.metrics import activation_times
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior, build_model
 from learner.observations import Observations
-from learner.refine import Refinement, ecg_leads, observed_nodes, refine_context
+from learner.refine import Refinement, ecg_leads, observed_nodes, recorded_values, refine_context
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
@@ -323,14 +323,15 @@ def personalize(
     hier = _hierarchy(observations.mesh, config.model).to(placed)
     obs = torch.as_tensor(observations.obs[wave], dtype=torch.float32, device=placed)
     observed = torch.as_tensor(observations.observed, device=placed)
+    recorded = None if observations.recorded is None else torch.as_tensor(observations.recorded[wave], device=placed)
     sites = torch.as_tensor(np.asarray(observations.sites, np.int64)[wave])
     t0 = time.perf_counter()
     with torch.no_grad():
-        post = model.embed(obs, observed, hier)
+        post = model.embed(obs, observed, hier, recorded)
     evidence = SiteEvidence.from_context(obs, observed, sites)  # its sites on obs's device
     objective, taken = [], 0
     if refine.steps:
-        target, record = obs[..., observed.bool()], observed_nodes(observed)
+        target, record = recorded_values(obs, observed, recorded), observed_nodes(observed)
         c, objective, taken = refine_context(model, post, target, record, evidence.sites, hier, evidence, refine)
         post = Posterior(c, post.logvar)
     payload = {

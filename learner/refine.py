@@ -34,7 +34,7 @@ from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS, Posterior
 from shared.errors import InputError
 
-__all__ = ["Refinement", "fit_context", "refine_context", "observed_nodes", "ecg_leads"]
+__all__ = ["Refinement", "fit_context", "refine_context", "recorded_values", "observed_nodes", "ecg_leads"]
 
 #: Most recordings left out in turn to choose the number of refinement steps (spread over the context set).
 HELD_OUT = 3
@@ -81,7 +81,7 @@ def fit_context(
     optimizer = torch.optim.Adam([c], lr=refinement.lr)
 
     def objective() -> Tensor:
-        residual = record(model.generate(sites, hierarchy, c, evidence=evidence)) - target
+        residual = _residual(record(model.generate(sites, hierarchy, c, evidence=evidence)), target)
         return 0.5 * residual.pow(2).sum() / refinement.sigma**2 + 0.5 * ((c - mu).pow(2) / var).sum()
 
     def held_out_error() -> list[float]:
@@ -89,7 +89,7 @@ def fit_context(
             return []
         with torch.no_grad():
             generated = model.generate(held_out[0], hierarchy, c, evidence=evidence)
-            return [float((record(generated) - held_out[1]).pow(2).mean())]
+            return [float(_residual(record(generated), held_out[1]).pow(2).sum() / held_out[1].isfinite().sum())]
 
     history, checked = [], []
     with torch.enable_grad():
@@ -121,8 +121,9 @@ def refine_context(
 
     Starts from ``posterior.mu`` and minimises the negative log posterior
     ``0.5 * sum(residual^2) / sigma^2 + 0.5 * sum((c - mu)^2 / var)`` over the
-    recorded values; only ``c`` moves. The number of steps is chosen on held-out
-    recordings (early stopping): each of up to :data:`HELD_OUT` recordings in
+    recorded values (a NaN in ``target`` is a value not recorded,
+    :func:`recorded_values`); only ``c`` moves. The number of steps is chosen
+    on held-out recordings (early stopping): each of up to :data:`HELD_OUT` recordings in
     turn is left out, ``c`` is refined on the others for up to
     ``refinement.steps`` steps, and the step count with the smallest mean
     error on the left-out recordings is then run on all of them; 0 (the
@@ -155,6 +156,19 @@ def refine_context(
         return mu.clone(), [], 0
     c, history, _ = fit_context(model, mu, var, (sites, target), hierarchy, evidence, record, refinement, taken)
     return c, history, taken
+
+
+def _residual(recorded: Tensor, target: Tensor) -> Tensor:
+    """``recorded - target``, 0 where the target is NaN (a value the recording does not fix)."""
+    return torch.where(target.isnan(), torch.zeros_like(recorded), recorded - target)
+
+
+def recorded_values(obs: Tensor, observed: Tensor, recorded: Tensor | None = None) -> Tensor:
+    """The target that :func:`observed_nodes` records: ``obs`` (K, T, N) at the ``observed`` nodes (N,), NaN
+    where ``recorded`` (K, T, N), if given, is false (an activation-time map fixes no potential there)."""
+    if recorded is not None:
+        obs = torch.where(recorded.bool(), obs, torch.full_like(obs, float("nan")))
+    return obs[..., observed.bool()]
 
 
 def observed_nodes(observed: Tensor) -> Recorder:

@@ -117,7 +117,7 @@ def test_a_patients_mesh_as_it_is_from_recorded_maps_to_new_pacing_sites(tmp_pat
     )
     run(learner, "predict", str(tmp_path / "maps.pt"), "--site-region", NEW, "--out", str(tmp_path / "maps.npz"))
     from_maps = spatial_cc(np.load(tmp_path / "maps.npz")["v_mv"], simulated["v_mv"])
-    assert from_maps > 0.7, from_maps
+    assert from_maps > 0.7, from_maps  # measured: 0.73
 
     # the same heart from the 12-lead ECGs of the same pacings (noise 0.02 mV)
     ecg = tmp_path / "ecg"

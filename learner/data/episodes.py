@@ -169,6 +169,9 @@ class Episode:
         Observed context: ``u`` (+ noise) on observed nodes, 0 elsewhere.
     observed : BoolTensor (N,)
         Observation mask.
+    context_recorded : BoolTensor (K, T, N) or None
+        Where the context is recorded as activation-time maps: the values of ``context_obs`` the maps fix
+        (:meth:`~learner.activation_maps.ApTemplate.fixed`); None: every frame of the observed nodes.
     context_u, target_u : FloatTensor (K, T, N), (M, T, N)
         Full ground truth (the loss covers all nodes).
     times : FloatTensor (T,)
@@ -195,6 +198,7 @@ class Episode:
     context_ecg: torch.Tensor | None = None
     lead_matrix: torch.Tensor | None = None
     lead_density: torch.Tensor | None = None
+    context_recorded: torch.Tensor | None = None
 
     @property
     def lead_field(self) -> LeadField | None:
@@ -349,10 +353,12 @@ def _build_episode(
             "lead_matrix": healthy.matrix,
             "lead_density": healthy.density,
         }
+    recorded = None
     if as_map is None:
         obs = observe(context_u, observed, noise_std, rng)
     else:
-        obs = recorded_map(context_u, times, observed, *as_map, rng)
+        obs, recorded = recorded_map(context_u, times, observed, *as_map, rng)
+        recorded = torch.from_numpy(recorded)
     return Episode(
         subject_id=meta.subject_id,
         mesh_id=meta.mesh_id,
@@ -365,6 +371,7 @@ def _build_episode(
         times=torch.from_numpy(np.asarray(times, dtype=np.float32)),
         context_rows=torch.from_numpy(context_rows),
         target_rows=torch.from_numpy(target_rows),
+        context_recorded=recorded,
         **ecg,
     )
 
@@ -396,12 +403,13 @@ def _healthy_lead_field(store: str, mesh_id: str) -> LeadField:
 
 def recorded_map(
     u: NDArray, times: NDArray, observed: NDArray[np.bool_], template: ApTemplate, noise_ms: float, rng
-) -> NDArray[np.float32]:
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """Simulations ``u`` (K, T, N) recorded as activation-time maps at the ``observed`` nodes (noise ``noise_ms``
-    ms, :func:`~shared.capture.mapped_activation`) and read back as potentials through ``template``; 0 elsewhere."""
+    ms, :func:`~shared.capture.mapped_activation`) and read back as potentials through ``template`` (0 elsewhere),
+    with the values the maps fix (:meth:`~learner.activation_maps.ApTemplate.fixed`, at observed nodes)."""
     first = np.stack([activation_times(sequence, times) for sequence in u])
     mapped = mapped_activation(first, u.max(axis=1), noise_ms / MS_PER_TIME_UNIT, rng)
-    return template.render(mapped, times) * observed
+    return template.render(mapped, times) * observed, template.fixed(mapped, times) & observed
 
 
 def load_episode(

@@ -176,7 +176,8 @@ class MeshHierarchy:
         return nodes.long() if self.working is None else self.working.sites(nodes)
 
     def level0_observations(self, obs: Tensor, observed: Tensor) -> tuple[Tensor, Tensor]:
-        """Observed mesh sequences ``(K, T, N)`` and mask ``(N,)`` at level 0 (unchanged without a working map)."""
+        """Observed mesh sequences ``(K, T, N)`` and mask, ``(N,)`` or per value ``(K, T, N)``, at level 0
+        (unchanged without a working map)."""
         return (obs, observed) if self.working is None else self.working.observations(obs, observed)
 
     def to_mesh(self, x: Tensor) -> Tensor:

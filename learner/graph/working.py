@@ -104,10 +104,12 @@ class WorkingMap:
         return self.assign.to(nodes.device)[nodes.long()]
 
     def observations(self, obs: Tensor, observed: Tensor) -> tuple[Tensor, Tensor]:
-        """``(K, T, N)`` observed sequences and the ``(N,)`` mask as ``(K, T, W)`` cluster means and ``(W,)``."""
+        """``(K, T, N)`` observed sequences and their mask, ``(N,)`` or ``(K, T, N)``, as ``(K, T, W)`` cluster
+        means of the observed values and the mask of the clusters holding one, ``(W,)`` or ``(K, T, W)``."""
         w = self.working_nodes
         weight = observed.to(obs.dtype)
-        count = torch.zeros(w, dtype=obs.dtype, device=obs.device).index_add_(0, self.assign, weight)
+        count = torch.zeros(*weight.shape[:-1], w, dtype=obs.dtype, device=obs.device)
+        count.index_add_(weight.dim() - 1, self.assign, weight)
         total = torch.zeros(*obs.shape[:-1], w, dtype=obs.dtype, device=obs.device)
         total.index_add_(obs.dim() - 1, self.assign, obs * weight)
         return total / count.clamp(min=1.0), count > 0

@@ -21,7 +21,9 @@ class ContextEncoder(nn.Module):
     r"""Observed sequences ``(K, T, N_0)`` on nodes ``observed`` to :math:`(\mu_c, \log\sigma^2_c)`.
 
     Each sequence passes the graph encoder (inputs: the observed values, zero
-    elsewhere, and the observation mask), a GCN-GRU over time on the coarsest
+    elsewhere, and the observation mask: the observed nodes ``(N,)``, or per
+    value ``(K, T, N)`` where a recording fixes only some frames of a node, as
+    an activation-time map does), a GCN-GRU over time on the coarsest
     graph and a linear layer compressing time; the embeddings are averaged over
     the set, and two linear layers give the mean and log-variance of ``c``
     (``latent`` channels per coarse node). Averaging makes the embedding
@@ -46,6 +48,8 @@ class ContextEncoder(nn.Module):
         """
         if obs.shape[1] != self.frames:
             raise ValueError(f"context sequences have {obs.shape[1]} frames, the model was built for {self.frames}")
+        if observed.dim() == 3:
+            observed = observed[:, :: self.stride]
         obs, observed = hierarchy.level0_observations(obs[:, :: self.stride], observed)
         k, t, n = obs.shape
         mask = observed.to(obs.dtype).expand(k, t, n)

@@ -211,9 +211,24 @@ class MetaPNS(PNS):
         self.ecg_encoder = (
             EcgEncoder(frames, config.channels, config.hidden, config.latent) if config.ecg_encoder else None
         )
+        self.maps_encoder = (
+            ContextEncoder(frames, config.channels, config.hidden, config.latent, config.context_stride)
+            if config.maps_encoder
+            else None
+        )
 
-    def embed(self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy) -> Posterior:
-        """q(c | Y) from observed sequences ``obs`` (K, T, N) and the observation mask (N,)."""
+    def embed(
+        self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy, recorded: Tensor | None = None
+    ) -> Posterior:
+        """q(c | Y) from observed sequences ``obs`` (K, T, N) at the ``observed`` nodes (N,).
+
+        ``recorded`` (K, T, N) marks, where the sequences are activation-time maps rendered through the action-
+        potential template, the values the maps fix (:meth:`~learner.activation_maps.ApTemplate.fixed`). A model
+        with a maps encoder reads maps through it and that mask; any other reads every frame of the observed
+        nodes with its context encoder, as it was trained to.
+        """
+        if recorded is not None and self.maps_encoder is not None:
+            return Posterior(*self.maps_encoder(obs, recorded, hierarchy))
         return Posterior(*self.context_encoder(obs, observed, hierarchy))
 
     def embed_ecg(self, ecg: Tensor, lead_field: LeadField, sites: Tensor, hierarchy: MeshHierarchy) -> Posterior:

@@ -11,7 +11,10 @@ where ``rec`` is the squared error summed over nodes and frames and averaged
 over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
 embedding of the context set and ``q(c | Y u X)`` that of context and targets
 (both by the same network). An episode whose context is recorded as ECGs
-(``Episode.context_ecg``) takes ``p(c | Y)`` from the ECG encoder instead.
+(``Episode.context_ecg``) takes ``p(c | Y)`` from the ECG encoder instead; one
+whose context is recorded as activation-time maps (``Episode.context_recorded``)
+takes it from the maps encoder of a model that has one (``q(c | Y u X)`` as
+ever).
 PNS has no ``c``: its loss is the reconstruction.
 
 With a capture gate and ``train.gate_loss`` ``w > 0`` the gate ``g`` of every
@@ -137,6 +140,8 @@ def episode_loss(
         prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
         if episode.context_ecg is not None:  # p(c | Y) from the ECGs of the context; q(c | Y u X) as ever
             prior = model.embed_ecg(episode.context_ecg, episode.lead_field, episode.context_sites, hierarchy)
+        elif episode.context_recorded is not None and model.maps_encoder is not None:  # from the maps: the same
+            prior = model.embed(episode.context_obs, episode.observed, hierarchy, episode.context_recorded)
         c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
     if not reconstruction:  # the embedding terms alone: the generator is not run

@@ -154,8 +154,10 @@ class Trainer:
         """Copy the parameters of matching name and shape from a trained checkpoint (fine-tuning).
 
         The checkpoint (a file or a shipped model's name) must not have been
-        trained on a subject this run holds out for validation or test.
-        Returns the names copied and those left at their fresh initialisation.
+        trained on a subject this run holds out for validation or test. A
+        maps encoder the checkpoint lacks starts as a copy of its context
+        encoder (the same network, to be fine-tuned on maps). Returns the names
+        copied and those left at their fresh initialisation.
         """
         ckpt = load_checkpoint(path, kind="model")
         held_out = set(ckpt["splits"].get("train", ())) & {*self.splits["validation"], *self.splits["test"]}
@@ -165,7 +167,11 @@ class Trainer:
                 f"run holds out, e.g. {sorted(held_out)[0]!r} (data.split must match)"
             )
         own = self.model.state_dict()
-        taken = {k: v for k, v in ckpt["model"].items() if k in own and own[k].shape == v.shape}
+        weights = dict(ckpt["model"])
+        for name, value in ckpt["model"].items():
+            if name.startswith("context_encoder."):
+                weights.setdefault(name.replace("context_encoder.", "maps_encoder.", 1), value)
+        taken = {k: v for k, v in weights.items() if k in own and own[k].shape == v.shape}
         self.model.load_state_dict(taken, strict=False)
         return {"copied": sorted(taken), "fresh": sorted(set(own) - set(taken))}
 
@@ -320,7 +326,7 @@ class Trainer:
                 if ep.context_ecg is not None:
                     c, evidence = self.model.embed_ecg(ep.context_ecg, ep.lead_field, ep.context_sites, hier).mu, None
                 elif self.model.conditioned:
-                    c = self.model.embed(ep.context_obs, ep.observed, hier).mu
+                    c = self.model.embed(ep.context_obs, ep.observed, hier, ep.context_recorded).mu
                 pred = self.model.generate(ep.target_sites, hier, c, evidence=evidence)
             total, n = total + float(((pred.float() - ep.target_u) ** 2).mean()), n + 1
         total, n = self.world.all_sum([total, n], self.device)

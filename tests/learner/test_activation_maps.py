@@ -29,6 +29,15 @@ def test_rendering_is_the_template_shifted_to_each_activation_time():
     assert np.allclose(u[0, :, 2], template.u[0]) and np.all(u[0, :, 3] == 0)  # never activated: rest; unmapped: 0
 
 
+def test_a_map_fixes_each_nodes_frames_up_to_the_end_of_its_upstroke():
+    template = ApTemplate(np.array([-1.0, 0.0, 1.0, 2.0, 3.0]), np.array([0.0, 0.5, 0.96, 1.0, 0.8]))
+    assert template.upstroke_end == 1.0  # the first offset >= 0 at 95% of the peak
+    fixed = template.fixed(np.array([[0.5, np.inf, np.nan]]), np.array([0.0, 1.0, 1.5, 2.0, 3.0]))
+    assert fixed.shape == (1, 5, 3) and fixed.dtype == bool
+    np.testing.assert_array_equal(fixed[0, :, 0], [True, True, True, False, False])  # up to 0.5 + 1.0
+    assert fixed[0, :, 1].all() and not fixed[0, :, 2].any()  # never activated: rest throughout; unmapped: none
+
+
 def test_the_template_of_shifted_waveforms_is_the_waveform():
     rng = np.random.default_rng(0)
     shifts = rng.uniform(1.0, 10.0, (3, 40))
@@ -73,9 +82,13 @@ def test_an_episode_recorded_as_maps_is_its_maps_rendered(tiny_store):
     assert np.array_equal(ep.context_sites, same.context_sites)  # the maps change the recordings, not the sites
     u, observed = ep.context_u.numpy(), ep.observed.numpy()
     times = ep.times.numpy().astype(np.float64)
-    expected = recorded_map(u, times, observed, template, 0.0, np.random.default_rng(0))
+    expected, fixed = recorded_map(u, times, observed, template, 0.0, np.random.default_rng(0))
     np.testing.assert_allclose(ep.context_obs.numpy(), expected, atol=1e-6)
     assert not ep.context_obs.numpy()[:, :, ~observed].any()
+    # the encoder reads the frames the maps fix: observed nodes up to their upstrokes
+    np.testing.assert_array_equal(ep.context_recorded.numpy(), fixed)
+    assert not fixed[:, :, ~observed].any() and fixed[:, 0, observed].all() and not fixed[:, -1, observed].all()
+    assert same.context_recorded is None
     with pytest.raises(InputError, match="activation_maps"):
         EpisodeSpec(activation_maps=1.5)
     with pytest.raises(InputError, match="activation_noise_ms"):

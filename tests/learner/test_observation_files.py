@@ -84,6 +84,10 @@ def test_activation_maps_read_the_nodes_every_recording_maps(tmp_path, lv):
     a = 50.0 / MS
     np.testing.assert_allclose(rendered.obs[0, :, 25], np.interp(MODEL_TIMES - a, [-1, 0, 1], [0, 0.5, 1]), atol=1e-6)
     assert not rendered.obs[1, :, 30].any() and not rendered.obs[:, :, 15].any()
+    # the model reads each node up to the end of its upstroke (offset 1.0 here), never-activated nodes throughout
+    assert obs.recorded is None and rendered.recorded.shape == rendered.obs.shape
+    np.testing.assert_array_equal(rendered.recorded[0, :, 25], MODEL_TIMES <= a + 1.0)
+    assert rendered.recorded[1, :, 30].all() and not rendered.recorded[:, :, 15].any()
 
 
 @pytest.mark.parametrize(

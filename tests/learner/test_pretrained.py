@@ -48,7 +48,7 @@ NEW_HEARTS_SPEC = {
 def test_every_shipped_model_is_safetensors_weights_with_config_and_card(name):
     shipped = pretrained.info(name)
     raw = shipped.weights.read_bytes()
-    assert len(raw) < 10 * 2**20
+    assert len(raw) < 16 * 2**20  # small enough to ship in the package
     size = int.from_bytes(raw[:8], "little")  # safetensors: header length, JSON header, raw tensor bytes
     header = json.loads(raw[8 : 8 + size])
     tensors = {k: v for k, v in header.items() if k != "__metadata__"}

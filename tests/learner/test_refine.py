@@ -11,7 +11,7 @@ from learner.data.episodes import load_episode
 from learner.evaluate import NeuralMethod
 from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import MetaPNS
-from learner.refine import Refinement, fit_context, observed_nodes, refine_context
+from learner.refine import Refinement, fit_context, observed_nodes, recorded_values, refine_context
 from learner.store_view import StoreView
 from shared.errors import InputError
 
@@ -59,6 +59,29 @@ def _negative_log_posterior(setup, post, c, sigma: float) -> float:
     residual = pred[..., m] - ep.context_obs.numpy()[..., m]
     mu, var = post.mu.detach().numpy(), post.logvar.detach().exp().numpy()
     return 0.5 * float((residual**2).sum()) / sigma**2 + 0.5 * float(((c.numpy() - mu) ** 2 / var).sum())
+
+
+def test_values_a_recording_does_not_fix_add_nothing_to_the_objective(setup):
+    view, hier, ep, model = setup
+    m = ep.observed.bool()
+    recorded = m.expand_as(ep.context_obs).clone()
+    recorded[:, 10:] = False  # an activation map fixes the first frames only
+    target = recorded_values(ep.context_obs, m, recorded)
+    assert target.shape == (2, view.frames, int(m.sum())) and target[:, 10:].isnan().all()
+    assert torch.equal(target[:, :10], ep.context_obs[:, :10][..., m])
+    post = model.embed(ep.context_obs, recorded, hier)
+    mu, var = post.mu.detach(), post.logvar.detach().exp()
+    refinement = Refinement(steps=3)
+    fit = (ep.context_sites, target)
+    c, history, checked = fit_context(
+        model, mu, var, fit, hier, SiteEvidence.of(ep), observed_nodes(m), refinement, 3, fit
+    )
+    assert np.isfinite(history).all() and np.isfinite(checked).all()
+    with torch.no_grad():
+        pred = model.generate(ep.context_sites, hier, mu)[..., m]
+    residual = (pred - ep.context_obs[..., m])[:, :10]
+    assert history[0] == pytest.approx(0.5 * float(residual.pow(2).sum()) / 0.2**2, rel=1e-4)  # c = mu: no prior term
+    assert checked[0] == pytest.approx(float(residual.pow(2).mean()), rel=1e-4)
 
 
 def test_no_steps_keeps_the_encoders_mean(setup):

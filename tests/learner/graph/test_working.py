@@ -95,6 +95,23 @@ def test_observations_are_the_means_of_each_clusters_observed_nodes(hierarchy):
         torch.testing.assert_close(pooled[..., cluster], expected)
 
 
+def test_a_mask_per_value_pools_each_frame_over_its_own_recorded_nodes(hierarchy):
+    w = hierarchy.working
+    n = w.mesh_nodes
+    observed = torch.zeros(n, dtype=torch.bool)
+    observed[::3] = True
+    obs = torch.randn(2, 3, n) * observed
+    every = observed.expand(2, 3, n)
+    pooled, seen = w.observations(obs, every)  # every frame recorded: the node mask's pooling, per value
+    expected, expected_seen = w.observations(obs, observed)
+    torch.testing.assert_close(pooled, expected)
+    assert torch.equal(seen, expected_seen.expand(2, 3, -1))
+    recorded = every.clone()
+    recorded[1, 2] = False  # the second recording fixes nothing at its last frame
+    pooled, seen = w.observations(obs, recorded)
+    assert not seen[1, 2].any() and torch.equal(pooled[0], expected[0]) and not pooled[1, 2].any()
+
+
 def test_the_hierarchy_with_its_map_round_trips_through_arrays_and_the_cache(fine, hierarchy, tmp_path):
     again = MeshHierarchy.from_arrays(hierarchy.arrays())
     assert again.sizes == hierarchy.sizes

@@ -84,6 +84,38 @@ def test_unobserved_values_do_not_reach_the_embedding(setup):
     assert torch.equal(model.embed(noisy, ep.observed, hier).mu, model.embed(ep.context_obs, ep.observed, hier).mu)
 
 
+@pytest.mark.parametrize("stride", [1, 3])
+def test_a_mask_per_value_reads_only_the_recorded_values(setup, stride):
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    model = MetaPNS(CONFIG.__class__(**{**CONFIG.__dict__, "context_stride": stride}), view.frames).eval()
+    every = ep.observed.expand_as(ep.context_obs)
+    node_mask = model.embed(ep.context_obs, ep.observed, hier)
+    torch.testing.assert_close(model.embed(ep.context_obs, every, hier).mu, node_mask.mu)
+    recorded = every.clone()
+    recorded[:, 6:] = False  # an activation map fixes the early frames only
+    noisy = ep.context_obs.clone()
+    noisy[:, 6:] = 123.0
+    partial = model.embed(ep.context_obs, recorded, hier)
+    assert torch.equal(model.embed(noisy, recorded, hier).mu, partial.mu)
+    assert not torch.allclose(partial.mu, node_mask.mu)
+
+
+def test_maps_reach_the_maps_encoder_through_their_mask_and_no_other_encoder(setup):
+    view, hier, ep = setup
+    torch.manual_seed(0)
+    plain = MetaPNS(CONFIG, view.frames).eval()
+    model = MetaPNS(CONFIG.__class__(**{**CONFIG.__dict__, "maps_encoder": True}), view.frames).eval()
+    model.load_state_dict(plain.state_dict(), strict=False)
+    recorded = ep.observed.expand_as(ep.context_obs).clone()
+    recorded[:, 6:] = False
+    maps = model.maps_encoder(ep.context_obs, recorded, hier)[0]
+    context = model.context_encoder(ep.context_obs, ep.observed, hier)[0]
+    assert torch.equal(model.embed(ep.context_obs, ep.observed, hier, recorded).mu, maps)
+    assert torch.equal(model.embed(ep.context_obs, ep.observed, hier).mu, context)  # potentials: the context encoder
+    assert torch.equal(plain.embed(ep.context_obs, ep.observed, hier, recorded).mu, context)  # every frame, as trained
+
+
 def test_frame_count_mismatch_is_refused(setup):
     view, hier, ep = setup
     model = MetaPNS(CONFIG, view.frames + 1)

@@ -80,6 +80,34 @@ def test_c_from_context_generates_from_the_context_embedding(tiny_store, tiny_co
     assert float(context.target_mse) != float(posterior.target_mse)
 
 
+def test_maps_are_embedded_by_the_maps_encoder_of_a_model_that_has_one(tiny_store, tiny_config, tmp_path):
+    """With a maps encoder, a maps episode's p(c | Y) is the maps encoder's reading of the maps up to each upstroke;
+    q(c | Y u X), and p(c | Y) of a model without one, the context encoder's of every frame."""
+    import dataclasses
+
+    import numpy as np
+
+    from learner.activation_maps import ApTemplate
+    from learner.data.episodes import recorded_map
+    from learner.train.loss import episode_loss
+
+    for maps_encoder in (True, False):
+        model, ep, hier = _model_and_episode(tiny_store, tiny_config, tmp_path / "run", {"maps_encoder": maps_encoder})
+        offsets = np.linspace(-40, 40, 801)
+        template = ApTemplate(offsets, 1.0 / (1.0 + np.exp(-4.0 * offsets)) * (offsets < 20))
+        u, times, observed = ep.context_u.numpy(), ep.times.numpy().astype(np.float64), ep.observed.numpy()
+        obs, recorded = recorded_map(u, times, observed, template, 0.0, np.random.default_rng(0))
+        maps = dataclasses.replace(ep, context_obs=torch.from_numpy(obs), context_recorded=torch.from_numpy(recorded))
+        terms = episode_loss(model, maps, hier, 1.0, 1.0, reconstruction=False)
+        extra = ep.target_u * ep.observed
+        prior, posterior = model.embed_prior_and_posterior(maps.context_obs, extra, ep.observed, hier)
+        if maps_encoder:
+            prior = model.embed(maps.context_obs, ep.observed, hier, maps.context_recorded)
+            assert not torch.equal(prior.mu, model.embed(maps.context_obs, ep.observed, hier).mu)
+        torch.testing.assert_close(terms.kl_posterior, gaussian_kl(posterior, prior))
+        torch.testing.assert_close(terms.kl_prior, standard_normal_kl(prior))
+
+
 def test_gate_loss_is_the_gates_cross_entropy_against_waves_started(tiny_store, tiny_config, tmp_path):
     """``gate_bce`` by hand: -mean(y log g + (1 - y) log(1 - g)) over context and target sites, y from the truth."""
     from learner.metrics import wave_started

@@ -247,3 +247,24 @@ def test_warm_start_copies_matching_parameters_and_refuses_other_splits(tiny_sto
     )
     with pytest.raises(InputError, match="other subject splits"):
         Trainer(other, progress=False)
+
+    # a maps encoder starts as the context encoder it lacks, and trains alone on maps read up to each upstroke
+    maps = tiny_config(
+        tiny_store,
+        tmp_path / "maps",
+        epochs=1,
+        init=str(tmp_path / "pre" / "last.pt"),
+        trainable=["maps_encoder"],
+        c_from="context",
+        model={"maps_encoder": True},
+    )
+    episodes = dataclasses.replace(maps.data.episodes, activation_maps=1.0)
+    maps = dataclasses.replace(maps, data=dataclasses.replace(maps.data, episodes=episodes))
+    trainer = Trainer(maps, progress=False)
+    assert trainer.warm_start["fresh"] == []
+    start = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+    assert all(torch.equal(v, pre[k.replace("maps_encoder.", "context_encoder.")]) for k, v in start.items())
+    trainer.fit()
+    end = trainer.model.state_dict()
+    changed = {k for k in end if not torch.equal(end[k], start[k])}
+    assert changed and all(k.startswith("maps_encoder.") for k in changed)
