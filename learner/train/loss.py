@@ -140,7 +140,7 @@ def episode_loss(
         prior, posterior = model.embed_prior_and_posterior(episode.context_obs, extra, episode.observed, hierarchy)
         if episode.context_ecg is not None:  # p(c | Y) from the ECGs of the context; q(c | Y u X) as ever
             prior = model.embed_ecg(episode.context_ecg, episode.lead_field, episode.context_sites, hierarchy)
-        elif episode.context_recorded is not None and model.maps_encoder is not None:  # from the maps: the same
+        elif episode.context_recorded is not None and model.maps_encoder is not None:  # p(c | Y) from the maps
             prior = model.embed(episode.context_obs, episode.observed, hierarchy, episode.context_recorded)
         c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
