@@ -138,10 +138,10 @@ class Observations:
             ecg = resample_ecg(self.ecg, self.times * MS_PER_TIME_UNIT, times * MS_PER_TIME_UNIT)
             return replace(self, ecg=ecg, times=times)
         if self.activation is not None:
-            shape = template()
-            recorded = shape.fixed(self.activation, times) & self.observed
+            waveform = template()
+            recorded = waveform.fixed(self.activation, times) & self.observed
             return replace(
-                self, obs=shape.render(self.activation, times), times=times, activation=None, recorded=recorded
+                self, obs=waveform.render(self.activation, times), times=times, activation=None, recorded=recorded
             )
         if len(self.times) == len(times) and np.allclose(self.times, times, rtol=1e-3, atol=1e-6):
             return self
