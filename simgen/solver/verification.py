@@ -49,18 +49,28 @@ def speed_error(mesh: Mesh, a: float, diffusivity: float = 1.0, **config) -> flo
 
 
 def action_potential_duration(
-    mesh: Mesh, x: float, model: CellModel | None = None, level: float = 0.5, a: float = 0.15
+    mesh: Mesh,
+    x: float,
+    model: CellModel | None = None,
+    level: float = 0.5,
+    a: float = 0.15,
+    repolarised: float | None = None,
+    window: float = 50.0,
 ) -> float:
-    """Time (time units) ``u`` stays above ``level`` at the node nearest ``(x, 0)`` after a planar stimulus
-    of tissue with excitability ``a`` (APD50)."""
+    """Time (time units) from ``u`` rising through ``level`` to its falling through ``repolarised`` (unset:
+    ``level``, APD50; 0.1: APD90) at the node nearest ``(x, 0)`` after a planar stimulus of tissue with
+    excitability ``a``, within ``window`` time units."""
     n = mesh.n_nodes
     tissue = TissueFields(np.full(n, a), np.ones(n), np.zeros(n, np.int8))
-    cfg = SolverConfig(diffusivity=1.0, output_interval=0.05, frames=1000, model=model or APParams())
+    interval = 0.05
+    cfg = SolverConfig(diffusivity=1.0, output_interval=interval, frames=int(np.ceil(window / interval)), model=model or APParams())
     result = Simulator(mesh, tissue, cfg).run_patches((mesh.points[:, 0] <= 1.0)[:, None])
     node = int(np.argmin(np.hypot(mesh.points[:, 0] - x, mesh.points[:, 1])))
     u, t = result.u[0, :, node], result.times
+    if not (u >= level).any():
+        raise InputError(f"the tissue did not excite (a = {a:g}): no action potential")
     up = int(np.argmax(u >= level))
-    down = up + int(np.argmax(u[up:] < level))
+    down = up + int(np.argmax(u[up:] < (level if repolarised is None else repolarised)))
     if down <= up:
         raise InputError("no repolarisation within the simulated window")
     return float(t[down] - t[up])

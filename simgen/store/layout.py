@@ -314,7 +314,7 @@ def subject_attrs(
         "mesh_id": s.mesh_id,
         "tissue": spec_dict_of(s.tissue),
         "chunk_sites": output.chunk_sites,
-        "solver": solver_attrs(setup, subject_solver(solver, s.tissue)),
+        "solver": solver_attrs(setup, subject_solver(solver, s.tissue), s.tissue.apd_scale),
         "split": canonical_part(s.id),
         DIGESTS: {name: array_digest(value) for name, value in values.items()},
     }

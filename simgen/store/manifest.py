@@ -162,8 +162,13 @@ def sock_electrodes(mesh: Mesh, n_electrodes: int) -> NDArray[np.int64]:
 
 
 def subject_solver(solver: SolverConfig, tissue: TissueSpec) -> SolverConfig:
-    """The solver settings of a subject of ``tissue``: its own ``anisotropy`` where it sets one."""
-    return solver if tissue.anisotropy is None else replace(solver, anisotropy=tissue.anisotropy)
+    """The solver settings of a subject of ``tissue``: its own ``anisotropy`` and ``apd_scale`` where it sets
+    them (the cell model's :meth:`apd_scaled`)."""
+    if tissue.anisotropy is not None:
+        solver = replace(solver, anisotropy=tissue.anisotropy)
+    if tissue.apd_scale is not None:
+        solver = replace(solver, model=solver.model.apd_scaled(tissue.apd_scale))
+    return solver
 
 
 def entry_mesh(entry: MeshEntry) -> Mesh:

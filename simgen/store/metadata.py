@@ -106,12 +106,14 @@ def simulation_attrs(solver: SolverConfig) -> dict:
     }
 
 
-def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
+def solver_attrs(setup: SubjectSetup, solver: SolverConfig, apd_scale: float | None = None) -> dict:
     """Subject attribute ``solver``: integrator, time step and stimulus as the solver resolved them on its mesh,
-    and the subject's ``anisotropy`` where it conducts along fibres."""
+    the subject's ``anisotropy`` where it conducts along fibres and its tissue's ``apd_scale`` where it sets one."""
     anisotropy = {} if solver.anisotropy is None else {"anisotropy": solver.anisotropy}
+    apd = {} if apd_scale is None else {"apd_scale": apd_scale}
     return {
         **anisotropy,
+        **apd,
         "integrator": setup.integrator,
         "dt": setup.dt,
         "steps_per_frame": setup.steps_per_frame,
@@ -122,8 +124,8 @@ def solver_attrs(setup: SubjectSetup, solver: SolverConfig) -> dict:
 
 
 def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mesh) -> SolverConfig:
-    """``solver`` as it ran on the subject (``mesh`` its mesh): its recorded integrator, stimulus and
-    anisotropy (none recorded: isotropic).
+    """``solver`` as it ran on the subject (``mesh`` its mesh): its recorded integrator, stimulus,
+    anisotropy (none recorded: isotropic) and action-potential scale (none recorded: the model's own).
 
     A resumed build, a repair and ``verify`` simulate with these, so a store
     keeps its results whatever the defaults of the code that resumes it.
@@ -133,8 +135,10 @@ def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mes
     """
     record = subject_attrs(store, subject_id).get("solver") or {}
     radius = record.get("stimulus_radius", solver.stimulus_radius)
+    model = solver.model.apd_scaled(record["apd_scale"]) if "apd_scale" in record else solver.model
     return dataclasses.replace(
         solver,
+        model=model,
         anisotropy=record.get("anisotropy"),
         integrator=read_integrator(store, subject_id),
         stimulus_radius=LEGACY_EDGES * mesh.mean_edge_length() if radius is None else radius,

@@ -30,6 +30,11 @@ Example (TOML)::
     [meshes.shape_ranges]
     rv_width = [24.0, 36.0]  # drawn from this interval instead of the default one
 
+    [tissue_prior]  # 8 more settings "draw-000" .. "draw-007", drawn (docs/dataset.md, Tissue prior)
+    count = 8
+    cv = [0.4, 1.2]  # m/s; or D = [0.3, 3.0], a diffusivity scale
+    scars = [0, 2]
+
     [sites]
     count = 20
 
@@ -65,6 +70,7 @@ from simgen.meshes.shipped import is_real, real_mesh_file
 from simgen.meshes.units import MM_PER_UNIT
 from simgen.solver.simulate import SolverConfig
 from simgen.tissue.defaults import default_settings
+from simgen.tissue.prior import TissuePrior, draw_tissues
 
 __all__ = [
     "MeshEntry",
@@ -283,7 +289,8 @@ class BuildSpec:
     """A whole dataset: meshes x tissue settings, sites, solver and output settings.
 
     ``tissue`` names settings of :func:`simgen.tissue.default_settings`
-    (``"default"`` selects all 16); ``custom_tissue`` adds inline settings.
+    (``"default"`` selects all 16); ``custom_tissue`` adds inline settings, and
+    the draws of a spec file's ``[tissue_prior]`` table (:mod:`simgen.tissue.prior`).
     Every mesh is simulated under every setting; subject ids are
     ``f"{mesh_id}-{setting_name}"``.
     """
@@ -426,6 +433,22 @@ def _expand_entry(entry: Any) -> list[Any]:
     ]
 
 
+def _expand_tissue(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with its ``[tissue_prior]`` table replaced by the ``[[custom_tissue]]`` tables of its draws
+    (:func:`simgen.tissue.prior.draw_tissues`, after any given ones); without a ``tissue`` key, a spec with a
+    prior simulates its draws alone."""
+    if "tissue_prior" not in data:
+        return data
+    data = dict(data)
+    prior = from_mapping(TissuePrior, data.pop("tissue_prior"), "tissue_prior")
+    solver = from_mapping(SolverConfig, data.get("solver", {}), "solver")
+    custom = data.get("custom_tissue", [])
+    if not isinstance(custom, list):
+        raise ConfigError(f"custom_tissue must be a list of tables, got {custom!r}")
+    draws = [to_mapping(t) for t in draw_tissues(prior, solver)]
+    return {**data, "tissue": data.get("tissue", []), "custom_tissue": [*custom, *draws]}
+
+
 def spec_from_mapping(data: dict[str, Any], base_dir: Path | None = None) -> BuildSpec:
     """A :class:`BuildSpec` from a TOML/JSON mapping, strictly.
 
@@ -433,12 +456,13 @@ def spec_from_mapping(data: dict[str, Any], base_dir: Path | None = None) -> Bui
     (e.g. ``solver.frame``); invalid values raise the matching
     :class:`~shared.errors.InputError` subclass. With ``base_dir``, relative
     mesh-file sources are resolved against it. ``shape = "random"`` mesh
-    tables are expanded into their anatomies first, so the spec (and its
-    hash) lists every anatomy with its parameters.
+    tables are expanded into their anatomies first, and a ``[tissue_prior]``
+    into its draws, so the spec (and its hash) lists every anatomy and every
+    tissue with its parameters.
     """
     if not isinstance(data, dict):
         raise ConfigError(f"build spec: expected a table, got {type(data).__name__}")
-    data = _expand_meshes(data)
+    data = _expand_tissue(_expand_meshes(data))
     if base_dir is not None:
         data = _resolve_sources(data, Path(base_dir))
     return from_mapping(BuildSpec, data)

@@ -1,4 +1,4 @@
-"""Tissue model: AHA segments, scar regions and per-node tissue fields."""
+"""Tissue model: AHA segments, scar regions, per-node tissue fields, the tissue prior and physical read-outs."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ from simgen.tissue.defaults import (
     default_settings,
     tissue_spec_from_mapping,
 )
-from simgen.tissue.fields import scar_regions, tissue_fields
+from simgen.tissue.fields import fibrosis_mask, scar_regions, tissue_fields, wall_centre
+from simgen.tissue.prior import TissuePrior, draw_tissues
+from simgen.tissue.tune import Physical, physical
 
 __all__ = [
     "APEX_CAP",
@@ -27,4 +29,10 @@ __all__ = [
     "tissue_spec_from_mapping",
     "scar_regions",
     "tissue_fields",
+    "fibrosis_mask",
+    "wall_centre",
+    "TissuePrior",
+    "draw_tissues",
+    "Physical",
+    "physical",
 ]

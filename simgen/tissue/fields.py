@@ -1,7 +1,8 @@
 """Per-node tissue fields (excitability ``a``, diffusivity scale ``D``, label) from a spec.
 
-Each scar has a *core* (its region: AHA segments or a Euclidean ball) and a
-*border zone*: the non-core nodes within ``border_width`` mm of the core,
+Each scar has a *core* (its region: AHA segments, a Euclidean ball, or an
+ellipsoid in a ventricle's wall placed in the heart's own coordinates,
+:class:`~shared.tissue.ScarSpec`) and a *border zone*: the non-core nodes within ``border_width`` mm of the core,
 measured as the shortest path along mesh edges (a geodesic distance, so a
 border does not jump across the LV cavity or between walls). Where the
 distance starts is :data:`SCAR_BORDERS`' choice:
@@ -16,8 +17,10 @@ distance starts is :data:`SCAR_BORDERS`' choice:
   vanishes at 1,000 nodes); stores built before ``"boundary"`` existed used
   it, and record no ``scar_border`` in their ``simulation`` attribute.
 
-Overlaps: a core beats any border; among cores, and among borders, the
-material with the higher ``a`` wins (ties: the lower ``D``).
+Overlaps: a core beats any border, a border beats fibrosis; among cores,
+and among borders, the material with the higher ``a`` wins (ties: the lower
+``D``). Diffuse fibrosis (:class:`~shared.tissue.FibrosisSpec`) is painted
+first, on the patches of a seeded Voronoi field in space (:func:`fibrosis_mask`).
 """
 
 from __future__ import annotations
@@ -26,32 +29,111 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 from shared.errors import TissueError
 from shared.mesh import Mesh
 from shared.tissue import (
     LABEL_BORDER,
     LABEL_CORE,
+    LABEL_FIBROSIS,
     LABEL_HEALTHY,
+    FibrosisSpec,
     Material,
     ScarSpec,
     TissueFields,
     TissueSpec,
 )
+from simgen.meshes.fibres import laplace
 from simgen.meshes.topology import edge_graph
-from simgen.tissue.aha import aha_segments
+from simgen.tissue.aha import aha_segments, estimate_axis, longitudinal_angular
 
-__all__ = ["SCAR_BORDERS", "tissue_fields", "scar_regions"]
+__all__ = ["SCAR_BORDERS", "tissue_fields", "scar_regions", "fibrosis_mask", "wall_centre"]
+
+#: Most Voronoi points a fibrosis pattern spreads over a mesh's bounding box.
+MAX_PATCHES = 2_000_000
 
 #: Where a border zone's width is measured from; the first is the default (module docstring).
 SCAR_BORDERS = ("boundary", "nodes")
 
 
-def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | None) -> NDArray[np.bool_]:
+class _Frame:
+    """What placing wall scars on one mesh needs, computed once: heights, angles, the long axis and the
+    transmural coordinate (volume meshes with an endocardium and an epicardium; else ``None``)."""
+
+    def __init__(self, mesh: Mesh) -> None:
+        self.axis = mesh.axis if mesh.axis is not None else estimate_axis(mesh)
+        self.height, self.angle = longitudinal_angular(mesh)
+        offset = mesh.points - np.asarray(self.axis.apex)
+        along = offset @ self.axis.direction
+        self.radial = np.linalg.norm(offset - along[:, None] * self.axis.direction, axis=1)
+        sets = mesh.node_sets
+        self.transmural = None
+        if mesh.cell_type == "tetra" and "endocardium" in sets and "epicardium" in sets:
+            self.transmural = laplace(mesh, {0.0: mesh.nodes("endocardium"), 1.0: mesh.nodes("epicardium")})
+
+
+def wall_centre(mesh: Mesh, scar: ScarSpec, frame: _Frame | None = None) -> int | None:
+    """The node a ``region = "wall"`` scar is centred on, or ``None`` where the mesh lacks its ventricle.
+
+    Among the ventricle's endocardial nodes (``lv_endocardium`` or, on an LV, ``endocardium``;
+    ``rv_endocardium``) those within 2 mm of the nearest to the scar's height and angle (distances in mm
+    along the wall: height times the axis length, angle times the distance from the axis); of these the
+    nearest, or on the RV the one farthest from the axis (the free wall, not the septum's RV face).
+    """
+    frame = frame or _Frame(mesh)
+    rv = scar.ventricle == "rv"
+    name = "rv_endocardium" if rv else ("lv_endocardium" if "lv_endocardium" in mesh.node_sets else "endocardium")
+    if name not in mesh.node_sets:
+        if rv:
+            return None
+        name = "surface"
+    nodes = np.unique(mesh.nodes(name))
+    turn = np.radians((frame.angle[nodes] - scar.angle + 180.0) % 360.0 - 180.0)
+    apart = np.hypot((frame.height[nodes] - scar.height) * frame.axis.length, turn * frame.radial[nodes])
+    near = nodes[apart <= apart.min() + 2.0]
+    if rv:
+        return int(near[np.argmax(frame.radial[near])])
+    return int(nodes[np.argmin(apart)])
+
+
+def _wall_core(mesh: Mesh, scar: ScarSpec, frame: _Frame) -> NDArray[np.bool_] | None:
+    """The nodes of a wall scar's ellipsoid (``None``: its ventricle is not in the mesh)."""
+    centre = wall_centre(mesh, scar, frame)
+    if centre is None:
+        return None
+    d = frame.axis.direction
+    offset = mesh.points - mesh.points[centre]
+    radial = mesh.points[centre] - np.asarray(frame.axis.apex)
+    radial -= (radial @ d) * d
+    radial /= max(np.linalg.norm(radial), 1e-12)
+    around = np.cross(d, radial)
+    long_axis = scar.radius * (scar.elongation or 1.0)
+    inside = ((offset @ d) / long_axis) ** 2 + ((offset @ radial) ** 2 + (offset @ around) ** 2) / scar.radius**2 <= 1
+    if frame.transmural is not None and scar.transmural is not None:
+        inside &= frame.transmural <= scar.transmural
+    inside[centre] = True
+    return inside
+
+
+def _core(
+    mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | None, frame: _Frame | None
+) -> NDArray[np.bool_] | None:
     if scar.region == "segments":
         assert segments is not None
         core = np.isin(segments, np.asarray(scar.segments, dtype=np.int8))
         what = f"AHA segments {list(scar.segments)}"
+    elif scar.region == "wall":
+        assert frame is not None
+        core = _wall_core(mesh, scar, frame)
+        if core is None:
+            if scar.optional:
+                return None
+            raise TissueError(
+                f"scar {index}: a wall scar in the RV, and mesh {mesh.name!r} has no rv_endocardium "
+                "(set optional = true to leave such a scar out)"
+            )
+        what = f"wall ellipsoid at height {scar.height:g}, angle {scar.angle:g} deg"
     else:
         if scar.node is not None:
             if not 0 <= scar.node < mesh.n_nodes:
@@ -69,7 +151,8 @@ def _core(mesh: Mesh, scar: ScarSpec, index: int, segments: NDArray[np.int8] | N
 def scar_regions(
     mesh: Mesh, spec: TissueSpec, graph: sp.csr_matrix | None = None, border: str = SCAR_BORDERS[0]
 ) -> list[tuple[NDArray[np.bool_], NDArray[np.bool_]]]:
-    """``(core, border)`` boolean node masks of every scar, before overlap rules.
+    """``(core, border)`` boolean node masks of every scar, before overlap rules; an optional wall scar in a
+    ventricle the mesh lacks has two empty masks.
 
     ``graph``: the mesh's :func:`~simgen.meshes.topology.edge_graph`, when the
     caller has it. ``border``: where the border width is measured from
@@ -81,11 +164,15 @@ def scar_regions(
     segments = None
     if any(s.region == "segments" for s in spec.scars):
         segments = aha_segments(mesh)
+    frame = _Frame(mesh) if any(s.region == "wall" for s in spec.scars) else None
     if graph is None and any(s.border_width > 0 for s in spec.scars):
         graph = edge_graph(mesh)
     regions = []
     for i, scar in enumerate(spec.scars):
-        core = _core(mesh, scar, i, segments)
+        core = _core(mesh, scar, i, segments, frame)
+        if core is None:
+            regions.append((np.zeros(mesh.n_nodes, bool), np.zeros(mesh.n_nodes, bool)))
+            continue
         band = np.zeros_like(core)
         if scar.border_width > 0:
             distance = _from_boundary if border == "boundary" else _from_nodes
@@ -136,7 +223,7 @@ def tissue_fields(
     Returns
     -------
     TissueFields with float64 ``a`` and ``D`` and int8 ``label``
-    (0 healthy, 1 border zone, 2 core).
+    (0 healthy, 1 border zone, 2 core, 3 fibrosis).
 
     Raises
     ------
@@ -168,6 +255,8 @@ def tissue_fields(
             f"{union.mean():.1%} of the nodes (max_scar_fraction={max_scar_fraction})"
         )
 
+    if spec.fibrosis is not None:
+        _paint(fibrosis_mask(mesh, spec.fibrosis), spec.fibrosis.material, LABEL_FIBROSIS, a, D, label)
     # Borders first, then cores, so a core always overrides a border.
     for scar, (_, border) in zip(spec.scars, regions):
         _paint(border, scar.border, LABEL_BORDER, a, D, label)
@@ -191,9 +280,27 @@ def _paint(
 ) -> None:
     """Set ``mat`` and ``lab`` on ``mask`` in place where ``mat`` beats what is there.
 
-    ``mat`` beats any other label, and within label ``lab`` a material with a
-    lower ``a`` (ties: a higher ``D``).
+    ``mat`` beats any other label (the callers paint fibrosis, then borders, then cores), and within label
+    ``lab`` a material with a lower ``a`` (ties: a higher ``D``).
     """
     beats = (mat.a > a) | ((mat.a == a) & (mat.D < D))
     take = mask & ((label != lab) | beats)
     a[take], D[take], label[take] = mat.a, mat.D, lab
+
+
+def fibrosis_mask(mesh: Mesh, fibrosis: FibrosisSpec) -> NDArray[np.bool_]:
+    """The fibrotic nodes of ``fibrosis`` on ``mesh``: each node takes the patch of its nearest point of a
+    grid of spacing ``patch`` mm over the bounding box, jittered within its cell, and a patch is fibrotic
+    with probability ``density`` (a generator seeded by ``fibrosis.seed``)."""
+    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    shape = np.maximum(np.ceil((hi - lo) / fibrosis.patch).astype(np.int64), 1)
+    if int(np.prod(shape)) > MAX_PATCHES:
+        raise TissueError(
+            f"fibrosis patch size {fibrosis.patch:g} mm is too small for mesh {mesh.name!r} "
+            f"({int(np.prod(shape)):,} patches, at most {MAX_PATCHES:,})"
+        )
+    rng = np.random.default_rng(fibrosis.seed)
+    cells = np.stack(np.meshgrid(*(np.arange(k) for k in shape), indexing="ij"), axis=-1).reshape(-1, 3)
+    points = lo + (cells + rng.random(cells.shape)) * fibrosis.patch
+    fibrotic = rng.random(len(points)) < fibrosis.density
+    return fibrotic[cKDTree(points).query(mesh.points)[1]]

@@ -10,7 +10,9 @@ holds) with:
   ``lap``, written once over the operations of :mod:`simgen.solver.cells.ops`, so the numba kernels
   (scalars and SIMD vectors) and the torch backend run the same text;
 * ``max_rate`` (the reaction's stiffness, for the explicit stability limit), ``dt_accuracy`` (the
-  step the reaction needs), ``resting_v`` (the second variable at rest) and ``front_speed(D, a)``.
+  step the reaction needs), ``resting_v`` (the second variable at rest), ``front_speed(D, a)`` and
+  ``apd_scaled(scale)`` (the model with ``scale`` times its action-potential duration: a tissue's
+  :attr:`~shared.tissue.TissueSpec.apd_scale`).
 
 Both state variables live on the nodes; ``u`` is the normalised potential in both models.
 """

@@ -12,7 +12,7 @@ Physical read-out: ``V[mV] = 100 u - 80`` and ``t[ms] = 12.9 t``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar, Literal, NamedTuple
 
 import numpy as np
@@ -100,6 +100,11 @@ class APParams:
     def front_speed(self, D: float, a: float) -> float:
         """Planar front speed (mm per time unit; recovery neglected): ``sqrt(2 k D)(1/2 - a)``."""
         return front_speed(D, a, self.k)
+
+    def apd_scaled(self, scale: float) -> APParams:
+        """The model with about ``scale`` times its action-potential duration: the recovery rates ``eps0``,
+        ``mu1`` and ``eps_simple`` divided by ``scale`` (the upstroke and front speed unchanged)."""
+        return replace(self, eps0=self.eps0 / scale, mu1=self.mu1 / scale, eps_simple=self.eps_simple / scale)
 
     def describe(self) -> str:
         """One line for a dataset card."""

@@ -19,7 +19,7 @@ Times are given in ms and run in the solver's time unit (12.9 ms).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar, Literal, NamedTuple
 
 import numpy as np
@@ -109,6 +109,10 @@ class MSParams:
     def action_potential_duration(self, a: float) -> float:
         """The closed-form action potential duration (ms): ``tau_close ln(1 / (4 a (1 - a)))``."""
         return float(self.tau_close * np.log(1.0 / (4.0 * a * (1.0 - a))))
+
+    def apd_scaled(self, scale: float) -> MSParams:
+        """The model with ``scale`` times its action-potential duration: ``tau_close`` multiplied."""
+        return replace(self, tau_close=self.tau_close * scale)
 
     def describe(self) -> str:
         """One line for a dataset card."""
