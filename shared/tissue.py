@@ -43,7 +43,12 @@ APD_SCALE_RANGE = (0.5, 2.0)
 
 LABEL_HEALTHY, LABEL_BORDER, LABEL_CORE, LABEL_FIBROSIS = 0, 1, 2, 3
 #: What each tissue label stands for.
-LABEL_NAMES = {LABEL_HEALTHY: "healthy", LABEL_BORDER: "border zone", LABEL_CORE: "scar core", LABEL_FIBROSIS: "fibrosis"}
+LABEL_NAMES = {
+    LABEL_HEALTHY: "healthy",
+    LABEL_BORDER: "border zone",
+    LABEL_CORE: "scar core",
+    LABEL_FIBROSIS: "fibrosis",
+}
 
 #: Name -> AHA segments of the 15 default scars (simgen.tissue builds them; readers need their names).
 DEFAULT_SCARS: dict[str, tuple[int, ...]] = {
@@ -181,9 +186,9 @@ class ScarSpec:
 class FibrosisSpec:
     """Diffuse patchy fibrosis: patches of about ``patch`` mm, of which a share ``density`` (0-1) is fibrotic.
 
-    The patches are the Voronoi cells of points spread ``patch`` mm apart over the mesh's bounding box, each
-    fibrotic with probability ``density`` (seeded by ``seed``), so the pattern lies in space, the same at
-    every resolution of one mesh. Fibrotic nodes outside scars take ``material`` (label 3).
+    The patches are the Voronoi cells of points of a jittered lattice of spacing ``patch`` mm anchored at the
+    origin, each fibrotic with probability ``density`` (seeded by ``seed``), so the pattern lies in space,
+    the same at every resolution of one mesh. Fibrotic nodes outside scars take ``material`` (label 3).
     """
 
     density: float
@@ -220,7 +225,9 @@ class TissueSpec:
             raise TissueError(f"tissue {self.name!r}: anisotropy must be a ratio D_l / D_t >= 1, got {self.anisotropy}")
         lo, hi = APD_SCALE_RANGE
         if self.apd_scale is not None and not (np.isfinite(self.apd_scale) and lo <= self.apd_scale <= hi):
-            raise TissueError(f"tissue {self.name!r}: apd_scale {self.apd_scale} outside the admissible range {APD_SCALE_RANGE}")
+            raise TissueError(
+                f"tissue {self.name!r}: apd_scale {self.apd_scale} outside the admissible range {APD_SCALE_RANGE}"
+            )
         if self.apd_scale == 1.0:  # the default written out: unset
             object.__setattr__(self, "apd_scale", None)
 

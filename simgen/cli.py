@@ -97,9 +97,9 @@ HelixEpiOpt = Annotated[
     typer.Option(min=-90, max=90, callback=finite, help="Rule-based fibres: helix angle at the epicardium (deg)."),
 ]
 TISSUE_HELP = (
-    "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; scars, each with region "
-    "('segments' + segments 1-17, or 'sphere' + node or centre and radius in mm), border_width in mm, core and "
-    "border {a, D} (docs/formats.md, examples/scar.toml)."
+    "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; apd_scale; fibrosis; scars, each "
+    "with region ('segments' + segments 1-17, 'sphere' + node or centre and radius in mm, or 'wall' + height, "
+    "angle, radius), border_width in mm, core and border {a, D} (docs/formats.md, examples/scar.toml)."
 )
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler.")]
 WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]
@@ -162,16 +162,41 @@ def mesh(
 
 
 @app.command()
-def tissues() -> None:
-    """List the sixteen default tissue settings (healthy + 15 scars)."""
-    table = Table("name", "scars (AHA segments)", "border (mm)")
-    for spec in default_settings():
-        table.add_row(
-            spec.name,
-            "; ".join(",".join(map(str, s.segments)) for s in spec.scars) or "-",
-            "; ".join(f"{s.border_width:g}" for s in spec.scars) or "-",
-        )
-    console.print(table)
+def tissues(
+    spec: Annotated[
+        Path | None,
+        typer.Option(help="A build spec: list its settings, named and drawn ([tissue_prior]); unset: the 16 defaults."),
+    ] = None,
+    png: Annotated[Path | None, typer.Option(help="Draw the first --show settings on a mesh into this PNG.")] = None,
+    show: Annotated[int, typer.Option(min=1, max=12, help="How many settings the PNG draws.")] = 4,
+    mesh: Annotated[
+        str | None,
+        typer.Option("--mesh", help="The mesh the PNG draws on: 'lv', 'biv', a file; default: the spec's first."),
+    ] = None,
+) -> None:
+    """List tissue settings in physical terms: CV (m/s, along / across fibres) and APD90 (ms) measured on a strip,
+    scars and fibrosis; with --png, a picture of a few on a mesh."""
+    from simgen.store.manifest import entry_mesh
+    from simgen.store.spec import load_spec
+    from simgen.tissue.report import TISSUE_COLUMNS, plot_tissue_draws, tissue_rows
+
+    settings, solver, first = default_settings(), SolverConfig(), None
+    try:
+        if spec is not None:
+            build = load_spec(spec)
+            settings, solver, first = build.settings(), build.solver, build.meshes[0]
+        table = Table()
+        for column in TISSUE_COLUMNS:
+            table.add_column(column, no_wrap=column == "name")
+        for row in tissue_rows(settings, solver):
+            table.add_row(*(escape(row[c]) for c in TISSUE_COLUMNS))
+        console.print(table)
+        if png is not None:
+            on = get_mesh(mesh or "lv", 2000, "tetra") if mesh is not None or first is None else entry_mesh(first)
+            plot_tissue_draws(on, settings[:show], png)
+            console.print(f"wrote {png}")
+    except (InputError, OSError) as exc:
+        _fail(exc, spec)
 
 
 @app.command()

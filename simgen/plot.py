@@ -25,15 +25,27 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.errors import InputError
 from shared.mesh import Mesh
+from shared.tissue import LABEL_NAMES
 from simgen.meshes.topology import boundary_faces
 
-__all__ = ["VIEWS", "surface_triangles", "plot_activation_maps", "plot_tissue", "plot_surfaces", "plot_mesh_overview"]
+__all__ = [
+    "VIEWS",
+    "surface_triangles",
+    "plot_activation_maps",
+    "plot_tissue",
+    "plot_tissues",
+    "plot_surfaces",
+    "plot_mesh_overview",
+]
 
 #: Default camera views as (elevation, azimuth) in degrees: front and back.
 VIEWS: tuple[tuple[float, float], ...] = ((12.0, 0.0), (12.0, 180.0))
 
 _NAN_COLOUR = (0.72, 0.72, 0.72, 1.0)
-_TISSUE_COLOURS = {0: ("healthy", "#efd3c4"), 1: ("border zone", "#f28e2b"), 2: ("scar core", "#7a0b0b")}
+_TISSUE_COLOURS = {
+    label: (LABEL_NAMES[label], colour)
+    for label, colour in zip(sorted(LABEL_NAMES), ("#efd3c4", "#f28e2b", "#7a0b0b", "#5a8f5a"))
+}
 # Surface parts in drawing priority: a face takes the first set holding all its nodes.
 _PART_COLOURS = {
     "base": ("base rim", "#9a9a9a"),
@@ -215,24 +227,38 @@ def plot_activation_maps(
 
 
 def plot_tissue(mesh: Mesh, label: ArrayLike, path: str | PathLike[str], title: str = "tissue") -> None:
-    """Scar core / border zone / healthy tissue on the surface, two views, as a PNG.
+    """One tissue's labels on the surface, two views, as a PNG (:func:`plot_tissues` with one row)."""
+    plot_tissues(mesh, np.asarray(label)[None], [title], path)
 
-    ``label`` is the (N,) node label of :class:`shared.tissue.TissueFields`
-    (0 healthy, 1 border zone, 2 scar core); a face takes the highest label
-    of its nodes so that thin scars stay visible.
+
+def plot_tissues(
+    mesh: Mesh,
+    labels: ArrayLike,
+    titles: Sequence[str],
+    path: str | PathLike[str],
+    views: Sequence[tuple[float, float]] = VIEWS,
+) -> None:
+    """Tissues on the surface, one row per tissue and one column per view, as a PNG.
+
+    ``labels`` (K, N) are node labels of :class:`shared.tissue.TissueFields`
+    (:data:`shared.tissue.LABEL_NAMES`: healthy, border zone, scar core,
+    fibrosis); a face takes the highest label of its nodes so that thin scars
+    stay visible.
     """
-    lab = np.asarray(label)
-    _check_nodal(mesh, lab, "label", ndim=1)
+    lab = np.asarray(labels)
+    _check_nodal(mesh, lab, "labels", ndim=2)
+    if len(titles) != len(lab):
+        raise InputError(f"got {len(titles)} titles for {len(lab)} tissues")
     if not np.isin(lab, list(_TISSUE_COLOURS)).all():
         raise InputError(f"tissue labels must be in {sorted(_TISSUE_COLOURS)}, got {np.unique(lab)}")
     faces = surface_triangles(mesh)
     palette = np.array([to_rgba(_TISSUE_COLOURS[k][1]) for k in sorted(_TISSUE_COLOURS)])
-    rgba = palette[lab[faces].max(axis=1).astype(np.intp)]
-    fig, axes = _grid(1, len(VIEWS))
-    for ax, view in zip(axes[0], VIEWS):
-        _draw_surface(ax, mesh, faces, rgba, view)
-        ax.set_title(f"azimuth {view[1]:g}\N{DEGREE SIGN}", fontsize=9, pad=-4)
-    fig.suptitle(title, fontsize=11)
+    fig, axes = _grid(len(lab), len(views))
+    for row, (values, title) in enumerate(zip(lab, titles)):
+        rgba = palette[values[faces].max(axis=1).astype(np.intp)]
+        for ax, view in zip(axes[row], views):
+            _draw_surface(ax, mesh, faces, rgba, view)
+            ax.set_title(f"{title}  (azimuth {view[1]:g}\N{DEGREE SIGN})", fontsize=9, pad=-4)
     _colour_key(fig, _TISSUE_COLOURS, loc="center right")
     _save(fig, path)
 

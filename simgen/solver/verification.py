@@ -63,7 +63,8 @@ def action_potential_duration(
     n = mesh.n_nodes
     tissue = TissueFields(np.full(n, a), np.ones(n), np.zeros(n, np.int8))
     interval = 0.05
-    cfg = SolverConfig(diffusivity=1.0, output_interval=interval, frames=int(np.ceil(window / interval)), model=model or APParams())
+    frames = int(np.ceil(window / interval))
+    cfg = SolverConfig(diffusivity=1.0, output_interval=interval, frames=frames, model=model or APParams())
     result = Simulator(mesh, tissue, cfg).run_patches((mesh.points[:, 0] <= 1.0)[:, None])
     node = int(np.argmin(np.hypot(mesh.points[:, 0] - x, mesh.points[:, 1])))
     u, t = result.u[0, :, node], result.times

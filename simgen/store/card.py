@@ -18,9 +18,11 @@ import numpy as np
 import zarr
 
 from shared.capture import started_wave
+from shared.config import from_mapping
 from shared.mesh import Mesh
 from shared.reader import check_store, integrator_of
 from shared.schema import METADATA_VERSION, subject_path
+from shared.tissue import FibrosisSpec, ScarSpec
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
 from simgen.meshes.quality import mesh_quality
 from simgen.solver.cells import CellModel
@@ -28,6 +30,7 @@ from simgen.store import location
 from simgen.store.metadata import LEGACY_REGION, recorded_scar_border, simulation_attrs
 from simgen.store.spec import spec_from_mapping
 from simgen.store.structure import refuse_damaged
+from simgen.tissue.report import fibrosis_summary, scar_summary
 
 __all__ = ["StoreFacts", "store_facts", "short_card", "dataset_card", "CITATIONS"]
 
@@ -160,11 +163,12 @@ def _table(header: tuple[str, ...], rows: list[tuple]) -> list[str]:
 
 
 def _scar_text(scar: dict) -> str:
-    where = (
-        f"AHA segments {','.join(map(str, scar['segments']))}"
-        if scar["region"] == "segments"
-        else f"sphere of {scar['radius']:g} mm"
-    )
+    if scar["region"] == "segments":
+        where = f"AHA segments {','.join(map(str, scar['segments']))}"
+    elif scar["region"] == "sphere":
+        where = f"sphere of {scar['radius']:g} mm"
+    else:
+        where = f"wall ellipsoid {scar_summary(from_mapping(ScarSpec, scar))}"
     border = f", border {scar['border_width']:g} mm (a {scar['border']['a']:g}, D {scar['border']['D']:g})"
     return f"{where}: core a {scar['core']['a']:g}, D {scar['core']['D']:g}" + (border if scar["border_width"] else "")
 
@@ -248,7 +252,10 @@ def _parameters(store: str, facts: StoreFacts) -> list[str]:
         groups = [zarr.open_group(store, path=subject_path(i), mode="r") for i in ids]
         a = [float(f(g["a"][...])) for g in groups for f in (np.min, np.max)]
         D = [float(f(g["D"][...])) for g in groups for f in (np.min, np.max)]
-        scars = "; ".join(_scar_text(s) for s in tissue["scars"]) or "none"
+        parts = [_scar_text(s) for s in tissue["scars"]]
+        if tissue.get("fibrosis"):
+            parts.append(f"fibrosis {fibrosis_summary(from_mapping(FibrosisSpec, tissue['fibrosis']))}")
+        scars = "; ".join(parts) or "none"
         tissue_rows.append((name, len(ids), f"{tissue['healthy']['a']:g}", scars, _span(a), _span(D)))
     return [
         "## Parameters",

@@ -63,6 +63,7 @@ class _Frame:
 
     def __init__(self, mesh: Mesh) -> None:
         self.axis = mesh.axis if mesh.axis is not None else estimate_axis(mesh)
+        self.edge = mesh.mean_edge_length()
         self.height, self.angle = longitudinal_angular(mesh)
         offset = mesh.points - np.asarray(self.axis.apex)
         along = offset @ self.axis.direction
@@ -77,9 +78,10 @@ def wall_centre(mesh: Mesh, scar: ScarSpec, frame: _Frame | None = None) -> int 
     """The node a ``region = "wall"`` scar is centred on, or ``None`` where the mesh lacks its ventricle.
 
     Among the ventricle's endocardial nodes (``lv_endocardium`` or, on an LV, ``endocardium``;
-    ``rv_endocardium``) those within 2 mm of the nearest to the scar's height and angle (distances in mm
-    along the wall: height times the axis length, angle times the distance from the axis); of these the
-    nearest, or on the RV the one farthest from the axis (the free wall, not the septum's RV face).
+    ``rv_endocardium``) those within 2 mm, or 1.5 mean edges, of the nearest to the scar's height and
+    angle (distances in mm along the wall: height times the axis length, angle times the distance from
+    the axis); of these the nearest, or on the RV the one farthest from the axis (the free wall, not the
+    septum's RV face). A mesh without endocardial node sets places an LV scar on its surface.
     """
     frame = frame or _Frame(mesh)
     rv = scar.ventricle == "rv"
@@ -91,7 +93,7 @@ def wall_centre(mesh: Mesh, scar: ScarSpec, frame: _Frame | None = None) -> int 
     nodes = np.unique(mesh.nodes(name))
     turn = np.radians((frame.angle[nodes] - scar.angle + 180.0) % 360.0 - 180.0)
     apart = np.hypot((frame.height[nodes] - scar.height) * frame.axis.length, turn * frame.radial[nodes])
-    near = nodes[apart <= apart.min() + 2.0]
+    near = nodes[apart <= apart.min() + max(2.0, 1.5 * frame.edge)]
     if rv:
         return int(near[np.argmax(frame.radial[near])])
     return int(nodes[np.argmin(apart)])
@@ -281,26 +283,41 @@ def _paint(
     """Set ``mat`` and ``lab`` on ``mask`` in place where ``mat`` beats what is there.
 
     ``mat`` beats any other label (the callers paint fibrosis, then borders, then cores), and within label
-    ``lab`` a material with a lower ``a`` (ties: a higher ``D``).
+    ``lab`` a material with a higher ``a`` (ties: a lower ``D``).
     """
     beats = (mat.a > a) | ((mat.a == a) & (mat.D < D))
     take = mask & ((label != lab) | beats)
     a[take], D[take], label[take] = mat.a, mat.D, lab
 
 
+def _cell_hash(cells: NDArray[np.int64], seed: int, stream: int) -> NDArray[np.float64]:
+    """Uniform numbers in [0, 1) from integer lattice cells (K, 3), the seed and a stream number: a
+    splitmix64 mix of the three indices, so a cell's numbers depend on the cell alone, not on which
+    others a mesh's bounding box holds."""
+    with np.errstate(over="ignore"):
+        h = np.full(len(cells), np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(stream))
+        for axis in range(3):
+            h ^= cells[:, axis].astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15) + (h << np.uint64(6))
+            h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            h ^= h >> np.uint64(31)
+    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+
 def fibrosis_mask(mesh: Mesh, fibrosis: FibrosisSpec) -> NDArray[np.bool_]:
     """The fibrotic nodes of ``fibrosis`` on ``mesh``: each node takes the patch of its nearest point of a
-    grid of spacing ``patch`` mm over the bounding box, jittered within its cell, and a patch is fibrotic
-    with probability ``density`` (a generator seeded by ``fibrosis.seed``)."""
-    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
-    shape = np.maximum(np.ceil((hi - lo) / fibrosis.patch).astype(np.int64), 1)
+    lattice of spacing ``patch`` mm anchored at the origin, each point jittered within its cell, and a patch
+    is fibrotic with probability ``density``. Jitter and draw come from the cell's indices and
+    ``fibrosis.seed`` alone, so the pattern lies in space: the same on every mesh of one heart."""
+    lo = np.floor(mesh.points.min(axis=0) / fibrosis.patch).astype(np.int64) - 1
+    hi = np.floor(mesh.points.max(axis=0) / fibrosis.patch).astype(np.int64) + 1
+    shape = hi - lo + 1
     if int(np.prod(shape)) > MAX_PATCHES:
         raise TissueError(
             f"fibrosis patch size {fibrosis.patch:g} mm is too small for mesh {mesh.name!r} "
             f"({int(np.prod(shape)):,} patches, at most {MAX_PATCHES:,})"
         )
-    rng = np.random.default_rng(fibrosis.seed)
-    cells = np.stack(np.meshgrid(*(np.arange(k) for k in shape), indexing="ij"), axis=-1).reshape(-1, 3)
-    points = lo + (cells + rng.random(cells.shape)) * fibrosis.patch
-    fibrotic = rng.random(len(points)) < fibrosis.density
-    return fibrotic[cKDTree(points).query(mesh.points)[1]]
+    cells = lo + np.stack(np.meshgrid(*(np.arange(k) for k in shape), indexing="ij"), axis=-1).reshape(-1, 3)
+    jitter = np.stack([_cell_hash(cells, fibrosis.seed, axis) for axis in range(3)], axis=1)
+    fibrotic = _cell_hash(cells, fibrosis.seed, 3) < fibrosis.density
+    return fibrotic[cKDTree((cells + jitter) * fibrosis.patch).query(mesh.points)[1]]

@@ -56,16 +56,23 @@ MAX_DRAWS = 1000
 
 Range = tuple[float, float]
 
-#: AHA segments next to each segment: around its ring, and the rings above and below.
-SEGMENT_NEIGHBOURS: dict[int, tuple[int, ...]] = {
-    **{s: ((s - 2) % 6 + 1, s % 6 + 1, s + 6) for s in range(1, 7)},
-    **{s: ((s - 8) % 6 + 7, (s - 6) % 6 + 7, s - 6, {7: 13, 8: 14, 9: 14, 10: 15, 11: 16, 12: 16}[s]) for s in range(7, 13)},
-    13: (16, 14, 7, 17),
-    14: (13, 15, 8, 17),
-    15: (14, 16, 10, 17),
-    16: (15, 13, 11, 17),
-    17: (13, 14, 15, 16),
-}
+
+def _segment_neighbours() -> dict[int, tuple[int, ...]]:
+    """Adjacent AHA segments: around each ring, basal to mid by sector, mid to the apical sector it meets,
+    and the apical ring to the apex."""
+    rings = (range(1, 7), range(7, 13), range(13, 17))
+    edges = {(r[i], r[(i + 1) % len(r)]) for r in rings for i in range(len(r))}
+    edges |= {(s, s + 6) for s in range(1, 7)} | {(s, 17) for s in range(13, 17)}
+    edges |= {(7, 13), (8, 14), (9, 14), (10, 15), (11, 16), (12, 16)}
+    neighbours: dict[int, set[int]] = {s: set() for s in range(1, 18)}
+    for a, b in edges:
+        neighbours[a].add(b)
+        neighbours[b].add(a)
+    return {s: tuple(sorted(n)) for s, n in neighbours.items()}
+
+
+#: AHA segments next to each segment (symmetric).
+SEGMENT_NEIGHBOURS: dict[int, tuple[int, ...]] = _segment_neighbours()
 
 #: Heights (0 apex, 1 base) a wall scar's centre is drawn in.
 WALL_HEIGHTS = (0.1, 0.9)
@@ -207,10 +214,11 @@ def _scar(prior: TissuePrior, rng: np.random.Generator) -> ScarSpec:
 def _draw(prior: TissuePrior, index: int, solver: SolverConfig) -> TissueSpec:
     rng = np.random.default_rng((prior.seed, index))
     a = _round(_uniform(rng, prior.a))
+    apd = None if prior.apd_scale is None else _round(_uniform(rng, prior.apd_scale))
     if prior.cv is not None:
         from simgen.tissue.tune import diffusivity_for_speed  # a strip simulation: only where asked for
 
-        D = diffusivity_for_speed(_uniform(rng, prior.cv), a, solver)
+        D = diffusivity_for_speed(_uniform(rng, prior.cv), a, solver, apd)
         if not D_RANGE[0] < D <= D_RANGE[1]:
             raise ConfigError(
                 f"[tissue_prior] cv = {list(prior.cv)} m/s needs a diffusivity scale D = {D:.3g} at a = {a:g}, "
@@ -218,7 +226,6 @@ def _draw(prior: TissuePrior, index: int, solver: SolverConfig) -> TissueSpec:
             )
     else:
         D = _log_uniform(rng, prior.D)
-    apd = None if prior.apd_scale is None else _round(_uniform(rng, prior.apd_scale))
     scars = tuple(_scar(prior, rng) for _ in range(int(rng.integers(prior.scars[0], prior.scars[1] + 1))))
     fibrosis = None
     if rng.random() < prior.fibrosis:

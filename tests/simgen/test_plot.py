@@ -77,5 +77,5 @@ def test_bad_inputs(tet: Mesh, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="stim_nodes"):
         plot_activation_maps(tet, act, ["a", "b"], tmp_path / "x.png", stim_nodes=[0, tet.n_nodes])
     with pytest.raises(InputError, match="labels"):
-        plot_tissue(tet, np.full(tet.n_nodes, 3), tmp_path / "x.png")
+        plot_tissue(tet, np.full(tet.n_nodes, 4), tmp_path / "x.png")
     assert not (tmp_path / "x.png").exists()
