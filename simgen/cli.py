@@ -171,7 +171,7 @@ def tissues(
     show: Annotated[int, typer.Option(min=1, max=12, help="How many settings the PNG draws.")] = 4,
     mesh: Annotated[
         str | None,
-        typer.Option("--mesh", help="The mesh the PNG draws on: 'lv', 'biv', a file; default: the spec's first."),
+        typer.Option("--mesh", help="The PNG's mesh: 'lv', 'biv', a file (default: the spec's first, or lv)."),
     ] = None,
 ) -> None:
     """List tissue settings in physical terms: CV (m/s, along / across fibres) and APD90 (ms) measured on a strip,
@@ -190,13 +190,18 @@ def tissues(
             table.add_column(column, no_wrap=column == "name")
         for row in tissue_rows(settings, solver):
             table.add_row(*(escape(row[c]) for c in TISSUE_COLUMNS))
-        console.print(table)
-        if png is not None:
-            on = get_mesh(mesh or "lv", 2000, "tetra") if mesh is not None or first is None else entry_mesh(first)
-            plot_tissue_draws(on, settings[:show], png)
-            console.print(f"wrote {png}")
     except (InputError, OSError) as exc:
         _fail(exc, spec)
+    console.print(table)
+    if png is None:
+        return
+    try:
+        on = get_mesh(mesh or "lv", 2000, "tetra") if mesh is not None or first is None else entry_mesh(first)
+        png.parent.mkdir(parents=True, exist_ok=True)
+        plot_tissue_draws(on, settings[:show], png)
+    except (InputError, OSError) as exc:
+        _fail(exc, png)
+    console.print(f"wrote {png}")
 
 
 @app.command()

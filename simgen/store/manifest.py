@@ -34,6 +34,7 @@ from simgen.meshes.catalog import get_mesh
 from simgen.meshes.fibres import ldrb_frames
 from simgen.meshes.topology import edge_graph
 from simgen.observe.sock import Sock, farthest_point_sampling
+from simgen.solver.cells import with_apd_scale
 from simgen.solver.simulate import SolverConfig, assemble
 from simgen.store.spec import BuildSpec, MeshEntry, SiteSelection
 from simgen.tissue.fields import SCAR_BORDERS, tissue_fields
@@ -166,9 +167,7 @@ def subject_solver(solver: SolverConfig, tissue: TissueSpec) -> SolverConfig:
     them (the cell model's :meth:`apd_scaled`)."""
     if tissue.anisotropy is not None:
         solver = replace(solver, anisotropy=tissue.anisotropy)
-    if tissue.apd_scale is not None:
-        solver = replace(solver, model=solver.model.apd_scaled(tissue.apd_scale))
-    return solver
+    return replace(solver, model=with_apd_scale(solver.model, tissue.apd_scale))
 
 
 def entry_mesh(entry: MeshEntry) -> Mesh:

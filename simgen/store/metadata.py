@@ -20,6 +20,7 @@ from shared.errors import ConfigError
 from shared.mesh import Mesh
 from shared.reader import read_integrator, subject_attrs
 from shared.units import MS_PER_TIME_UNIT, TIME_UNITS
+from simgen.solver.cells import with_apd_scale
 from simgen.solver.integrators import AUTO, INTEGRATORS
 from simgen.solver.simulate import SolverConfig
 from simgen.store.manifest import SubjectSetup
@@ -135,10 +136,9 @@ def recorded_solver(store: str, subject_id: str, solver: SolverConfig, mesh: Mes
     """
     record = subject_attrs(store, subject_id).get("solver") or {}
     radius = record.get("stimulus_radius", solver.stimulus_radius)
-    model = solver.model.apd_scaled(record["apd_scale"]) if "apd_scale" in record else solver.model
     return dataclasses.replace(
         solver,
-        model=model,
+        model=with_apd_scale(solver.model, record.get("apd_scale")),
         anisotropy=record.get("anisotropy"),
         integrator=read_integrator(store, subject_id),
         stimulus_radius=LEGACY_EDGES * mesh.mean_edge_length() if radius is None else radius,

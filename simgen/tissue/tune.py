@@ -31,7 +31,7 @@ from shared.errors import TissueError
 from shared.tissue import TissueSpec
 from shared.units import MS_PER_TIME_UNIT
 from simgen.meshes.slab import strip
-from simgen.solver.cells import CellModel
+from simgen.solver.cells import CellModel, with_apd_scale
 from simgen.solver.simulate import SolverConfig
 from simgen.solver.verification import action_potential_duration, measured_front_speed, planar_run
 
@@ -67,11 +67,6 @@ def apd90(model: CellModel, a: float) -> float:
     return MS_PER_TIME_UNIT * action_potential_duration(mesh, x=5.0, model=model, a=a, repolarised=0.1, window=150.0)
 
 
-def _model(tissue: TissueSpec, solver: SolverConfig) -> CellModel:
-    """The cell model ``tissue`` runs under: ``solver``'s, scaled by the tissue's ``apd_scale``."""
-    return solver.model if tissue.apd_scale is None else solver.model.apd_scaled(tissue.apd_scale)
-
-
 def _speed(model: CellModel, solver: SolverConfig, a: float, D: float) -> float:
     """m/s at diffusivity ``solver.diffusivity * D`` (mm^2 per time unit)."""
     return float(np.sqrt(solver.diffusivity * D) * unit_speed(model, a) / MS_PER_TIME_UNIT)
@@ -81,7 +76,7 @@ def physical(tissue: TissueSpec, solver: SolverConfig) -> Physical:
     """The healthy tissue of ``tissue`` under ``solver`` in physical terms (see the module docstring)."""
     a, D = tissue.healthy.a, tissue.healthy.D
     anisotropy = tissue.anisotropy or solver.anisotropy
-    model = _model(tissue, solver)
+    model = with_apd_scale(solver.model, tissue.apd_scale)
     across = None if anisotropy is None else _speed(model, solver, a, D / anisotropy)
     return Physical(_speed(model, solver, a, D), across, apd90(model, a))
 
@@ -89,5 +84,5 @@ def physical(tissue: TissueSpec, solver: SolverConfig) -> Physical:
 def diffusivity_for_speed(cv: float, a: float, solver: SolverConfig, apd_scale: float | None = None) -> float:
     """The diffusivity scale ``D`` at which tissue with excitability ``a`` (and ``apd_scale``) conducts at
     ``cv`` m/s (along fibres) under ``solver``."""
-    model = _model(TissueSpec(apd_scale=apd_scale), solver)
+    model = with_apd_scale(solver.model, apd_scale)
     return float((cv * MS_PER_TIME_UNIT / unit_speed(model, a)) ** 2 / solver.diffusivity)

@@ -25,7 +25,7 @@ from shared.errors import ConfigError
 from simgen.solver.cells.aliev_panfilov import APParams
 from simgen.solver.cells.mitchell_schaeffer import MSParams
 
-__all__ = ["CellModel", "CELL_MODELS", "APParams", "MSParams", "cell_model"]
+__all__ = ["CellModel", "CELL_MODELS", "APParams", "MSParams", "cell_model", "with_apd_scale"]
 
 #: Any cell model's parameters.
 CellModel = Union[APParams, MSParams]  # noqa: UP007 - a runtime union that shared.config converts from TOML
@@ -39,3 +39,9 @@ def cell_model(name: str, **params: float) -> CellModel:
     if name not in CELL_MODELS:
         raise ConfigError(f"unknown cell model {name!r}; allowed: {', '.join(map(repr, CELL_MODELS))}")
     return CELL_MODELS[name](**params)
+
+
+def with_apd_scale(model: CellModel, scale: float | None) -> CellModel:
+    """``model`` with ``scale`` times its action-potential duration (``None``: ``model`` itself), as a tissue's
+    :attr:`~shared.tissue.TissueSpec.apd_scale` runs it."""
+    return model if scale is None else model.apd_scaled(scale)
