@@ -370,6 +370,10 @@ def predict(
     samples: Annotated[
         int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
     ] = 0,
+    tissue: Annotated[
+        Path | None,
+        typer.Option(help="Also write the heart's tissue estimate (.npz, as `learner tissue --out`) to this file."),
+    ] = None,
     device: DeviceOpt = "auto",
 ) -> None:
     """Predict full-mesh sequences for new stimulation sites (node ids, points or regions)."""
@@ -386,8 +390,11 @@ def predict(
         points = parse_points(site_xyz) if site_xyz is not None else None
         regions = parse_regions(site_region) if site_region is not None else []
         pred = heart.predict(heart.sites(ids, points, regions, site_tolerance), samples=samples)
+        estimate = heart.tissue() if tissue is not None else None
     except InputError as exc:
         _fail(exc)
+    if estimate is not None:
+        _write_tissue(estimate, tissue)
     arrays = pred.arrays()
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -417,6 +424,52 @@ def predict(
             console.print(f"wrote {plot_prediction(pred, png)}")
         except (OSError, ValueError) as exc:
             _fail(exc, png)
+
+
+def _write_tissue(estimate, out: Path) -> None:
+    """Write a tissue estimate's arrays to ``out`` (.npz) and say what it holds."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(out, **estimate.arrays())
+    except OSError as exc:
+        _fail(exc, out)
+    console.print(f"{estimate.summary()} -> {out}", soft_wrap=True)
+
+
+@app.command("tissue")
+def tissue_command(
+    personalized: Annotated[Path, typer.Argument(help="Personalised surrogate (from `learner personalize`).")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            help=".npz: abnormal_probability, abnormal_spread and abnormal per node, cv_m_per_s, cv_spread_m_per_s, "
+            "cv_draws_m_per_s and the mesh (points, cells)."
+        ),
+    ] = Path("tissue.npz"),
+    vtk: Annotated[
+        Path | None, typer.Option(help=".vtu of the mesh with abnormal_probability, abnormal_spread and abnormal.")
+    ] = None,
+    png: Annotated[Path | None, typer.Option(help="PNG of the abnormal-tissue probability and its spread.")] = None,
+    samples: Annotated[int, typer.Option(min=2, max=10_000, help="Draws of c the estimate averages.")] = 32,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the draws.")] = 0,
+    device: DeviceOpt = "auto",
+) -> None:
+    """What a personalised heart infers about its tissue: where it is scarred and how fast it conducts (m/s)."""
+    from learner.personalized import PersonalizedHeart
+    from learner.tissue_estimate import plot_tissue_estimate, write_tissue_vtk
+
+    try:
+        estimate = PersonalizedHeart.load(personalized, device).tissue(samples, seed)
+    except InputError as exc:
+        _fail(exc)
+    _write_tissue(estimate, out)
+    for path, write in ((vtk, write_tissue_vtk), (png, plot_tissue_estimate)):
+        if path is not None:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                console.print(f"wrote {write(estimate, path)}")
+            except (OSError, ValueError) as exc:
+                _fail(exc, path)
 
 
 @app.command()

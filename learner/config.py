@@ -69,6 +69,7 @@ class ModelConfig:
     working_nodes: int | None = None  # a finer mesh is seen as this many clusters (learner.graph.working); None: as is
     ecg_encoder: bool = False  # metaPNS: a second context encoder that reads 12-lead ECGs (learner.models.ecg_encoder)
     maps_encoder: bool = False  # metaPNS: a context encoder for activation-time maps, read up to each upstroke
+    tissue_head: bool = False  # metaPNS: c also gives abnormal tissue per node and the CV (learner.models.tissue_head)
 
     def __post_init__(self) -> None:
         if self.levels != len(self.channels) + 1:
@@ -86,9 +87,9 @@ class ModelConfig:
                 f"model.working_nodes must be at least twice model.coarsest ({2 * self.coarsest}), "
                 f"got {self.working_nodes}"
             )
-        for name in ("ecg_encoder", "maps_encoder"):
+        for name in ("ecg_encoder", "maps_encoder", "tissue_head"):
             if getattr(self, name) and self.kind != "metapns":
-                raise ConfigError(f"model.{name} is a context encoder: set model.kind = 'metapns'")
+                raise ConfigError(f"model.{name} reads the context's c: set model.kind = 'metapns'")
         if self.capture_evidence and not self.capture_gate:
             raise ConfigError("model.capture_evidence is an input of the capture gate: set model.capture_gate too")
 
@@ -111,6 +112,7 @@ class TrainConfig:
     cc_loss: float = (
         0.0  # weight of 1 - spatial correlation of each decoded frame, as learner.metrics.spatial_cc (0 = off)
     )
+    tissue_loss: float = 0.0  # weight of the tissue head's abnormal-tissue BCE plus squared log-CV error (0 = off)
     seed: int = 0
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     max_minutes: float = 0.0  # wall-time budget: no epoch starts that would end past it (0 = no limit)
@@ -130,6 +132,8 @@ class TrainConfig:
             raise ConfigError(f"train.gate_loss must be >= 0, got {self.gate_loss}")
         if self.cc_loss < 0:
             raise ConfigError(f"train.cc_loss must be >= 0, got {self.cc_loss}")
+        if self.tissue_loss < 0:
+            raise ConfigError(f"train.tissue_loss must be >= 0, got {self.tissue_loss}")
         if self.trainable and not self.init:
             raise ConfigError("train.trainable freezes the rest of the model: give the trained model as train.init")
         if not self.reconstruction and (self.gate_loss or self.cc_loss):
@@ -155,6 +159,8 @@ class LearnerConfig:
             )
         if self.data.episodes.ecg > 0 and not self.model.ecg_encoder:
             raise ConfigError("data.episodes.ecg records context sets as ECGs: set model.ecg_encoder = true")
+        if self.train.tissue_loss > 0 and not self.model.tissue_head:
+            raise ConfigError("train.tissue_loss fits the tissue head: set model.tissue_head = true")
         if self.train.gate_loss > 0 and not (self.model.kind == "metapns" and self.model.capture_gate):
             raise ConfigError(
                 "train.gate_loss fits the capture gate: set model.kind = 'metapns' and model.capture_gate"

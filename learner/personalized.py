@@ -37,6 +37,7 @@ from learner.observations import Observations
 from learner.refine import Refinement, ecg_leads, observed_nodes, recorded_values, refine_context
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
+from learner.tissue_estimate import TISSUE_SAMPLES, TissueEstimate, estimate_tissue
 from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
 from shared.capture import recorded_fraction, started_wave
@@ -201,6 +202,11 @@ class PersonalizedHeart:
         u = u.cpu().numpy()
         activated = (u.max(axis=1) >= 0.5).mean(axis=1)
         return Prediction(sites.astype(np.int64), u, self.times, self.mesh, spread, seconds, activated, act_spread, ecg)
+
+    def tissue(self, samples: int = TISSUE_SAMPLES, seed: int = 0) -> TissueEstimate:
+        """What the heart infers about its tissue: abnormal-tissue probability per node and the healthy CV in m/s,
+        each with its spread over ``samples`` draws of ``c`` (:mod:`learner.tissue_estimate`)."""
+        return estimate_tissue(self.model, self.posterior, self.hierarchy, self.mesh, samples, seed)
 
     def save(self, path: str | Path) -> Path:
         """Write the heart to ``path`` (a personalised surrogate file that :meth:`load` reads)."""

@@ -24,7 +24,10 @@ SCALES = {
     "activation": ("turbo_r", "activation time (ms)"),
     "spread": ("viridis", "spread over draws (ms)"),
     "error": ("magma_r", "|prediction - truth| (ms)"),
+    "probability": ("Reds", "probability of scar core or border zone"),
 }
+#: Scales whose colours run over a fixed range, whatever the values.
+FIXED_TOP = {"probability": 1.0}
 
 
 def plot_activation_panels(
@@ -48,6 +51,7 @@ def plot_activation_panels(
         top[scale] = max(top.get(scale, 0.0), peak)
     if vmax is not None:
         top["activation"] = vmax
+    top |= {scale: value for scale, value in FIXED_TOP.items() if scale in top}
     size = float(np.clip(6000.0 / len(points), 1.0, 12.0))
     n_cols = max(len(cols) for _, cols in rows) * len(_VIEWS)
     height = 2.8 * len(rows) + 1.0
@@ -84,7 +88,9 @@ def plot_activation_panels(
     for i, (scale, mappable) in enumerate(drawn.items()):  # one horizontal colour bar per scale, along the bottom
         cax = fig.add_axes((0.3 + 0.36 * i, 0.42 / height, 0.3, bar_height))
         fig.colorbar(mappable, cax=cax, orientation="horizontal", label=SCALES[scale][1])
-    handles = [Line2D([], [], ls="", marker="o", color="0.8", label="never activated")]
+    handles = []
+    if any(not np.isfinite(np.asarray(values, np.float64)).all() for _, values, _ in columns):
+        handles.append(Line2D([], [], ls="", marker="o", color="0.8", label="never activated"))
     if sites is not None:
         handles.append(Line2D([], [], ls="", marker="*", color="k", ms=12, label="paced site"))
     fig.legend(handles=handles, loc="lower left", fontsize=9, frameon=False)

@@ -55,6 +55,11 @@ class StoreView:
         return {sid: subject_attrs(self.store, sid)["mesh_id"] for sid in self.subjects}
 
     @cached_property
+    def tissue_of(self) -> dict[str, str]:
+        """Subject id -> name of its tissue setting."""
+        return {sid: subject_attrs(self.store, sid)["tissue"]["name"] for sid in self.subjects}
+
+    @cached_property
     def stored_split(self) -> dict[str, str]:
         """Subject id -> part of the store's canonical split (empty for a version-1 store)."""
         return read_split(self.store)

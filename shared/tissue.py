@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import TissueError
+from shared.units import MS_PER_TIME_UNIT
 
 __all__ = [
     "Material",
@@ -32,6 +33,9 @@ __all__ = [
     "LABEL_NAMES",
     "DEFAULT_SCARS",
     "DEFAULT_SETTING_NAMES",
+    "ABNORMAL_LABELS",
+    "front_speed",
+    "healthy_speed",
 ]
 
 #: Admissible excitability ``a`` (healthy 0.15; 0.5 and above does not propagate).
@@ -49,6 +53,9 @@ LABEL_NAMES = {
     LABEL_CORE: "scar core",
     LABEL_FIBROSIS: "fibrosis",
 }
+
+#: The labels of abnormal tissue, what a personalised heart's abnormal-tissue map estimates: scar core and border.
+ABNORMAL_LABELS = (LABEL_BORDER, LABEL_CORE)
 
 #: Name -> AHA segments of the 15 default scars (simgen.tissue builds them; readers need their names).
 DEFAULT_SCARS: dict[str, tuple[int, ...]] = {
@@ -250,3 +257,18 @@ class TissueFields:
             raise TissueError("tissue fields a, D and label must have the same length")
         if not (np.all(np.isfinite(self.a)) and np.all(np.isfinite(self.D))):
             raise TissueError("tissue fields contain NaN or infinite values")
+
+
+def front_speed(D: float, a: float, k: float = 8.0) -> float:
+    """Aliev-Panfilov's planar front speed (recovery neglected): ``sqrt(2kD)(1/2 - a)``, mesh units per time unit
+    at diffusivity ``D``."""
+    return float(np.sqrt(2.0 * k * D) * (0.5 - a))
+
+
+def healthy_speed(tissue: TissueSpec, diffusivity: float, k: float = 8.0) -> float:
+    """The conduction velocity (m/s, along fibres) of ``tissue``'s healthy material on mm meshes under a solver of
+    base ``diffusivity`` (mm^2 per time unit) and Aliev-Panfilov's ``k``, from :func:`front_speed`.
+
+    It is within 3 % of the speed measured on a strip (``simgen.tissue.tune``) for excitability 0.12-0.25, and
+    what a learner can know without running the simulator."""
+    return front_speed(diffusivity * tissue.healthy.D, tissue.healthy.a, k) / MS_PER_TIME_UNIT

@@ -47,14 +47,16 @@ from shared.reader import (
     read_index_set,
     read_mesh,
     read_sites,
+    read_solver_settings,
     read_times,
     read_tissue,
     subject_array,
     subject_attrs,
 )
+from shared.tissue import ABNORMAL_LABELS, Material, TissueSpec, healthy_speed
 from shared.units import MS_PER_TIME_UNIT
 
-__all__ = ["OBSERVATION_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode"]
+__all__ = ["OBSERVATION_SETS", "EpisodeSpec", "Episode", "EpisodeDataset", "load_episode", "tissue_truth"]
 
 
 @dataclass(frozen=True)
@@ -182,6 +184,10 @@ class Episode:
         the posterior of the training objective).
     lead_matrix, lead_density : FloatTensor (12, N), (N, 12) or None
         With ``context_ecg``: the mesh's healthy lead field (:class:`~learner.ecg.LeadField`).
+    abnormal : BoolTensor (N,)
+        The subject's scar core and border-zone nodes (:func:`tissue_truth`), what a tissue head is fitted to.
+    cv : FloatTensor ()
+        Its healthy tissue's conduction velocity in m/s (:func:`tissue_truth`).
     """
 
     subject_id: str
@@ -199,6 +205,8 @@ class Episode:
     lead_matrix: torch.Tensor | None = None
     lead_density: torch.Tensor | None = None
     context_recorded: torch.Tensor | None = None
+    abnormal: torch.Tensor | None = None
+    cv: torch.Tensor | None = None
 
     @property
     def lead_field(self) -> LeadField | None:
@@ -339,9 +347,11 @@ def _build_episode(
     rng: np.random.Generator | None,
     as_map: tuple[ApTemplate, float] | None = None,
     as_ecg: tuple[LeadField, LeadField, float] | None = None,
+    truth: tuple[NDArray[np.bool_], float] | None = None,
 ) -> Episode:
     """An episode of the given rows; ``as_map`` = (template, noise in ms) records its context as activation maps,
-    ``as_ecg`` = (the subject's lead field, the mesh's healthy one, noise share) as 12-lead ECGs."""
+    ``as_ecg`` = (the subject's lead field, the mesh's healthy one, noise share) as 12-lead ECGs; ``truth`` is
+    the subject's :func:`tissue_truth`."""
     k = context_rows.size
     data = u.rows("u", np.concatenate([context_rows, target_rows]))  # checked: done, checksums, fingerprint, finite
     context_u, target_u = data[:k], data[k:]
@@ -372,8 +382,24 @@ def _build_episode(
         context_rows=torch.from_numpy(context_rows),
         target_rows=torch.from_numpy(target_rows),
         context_recorded=recorded,
+        abnormal=None if truth is None else torch.from_numpy(truth[0]),
+        cv=None if truth is None else torch.tensor(truth[1], dtype=torch.float32),
         **ecg,
     )
+
+
+@cache
+def tissue_truth(store: str, subject_id: str) -> tuple[NDArray[np.bool_], float]:
+    """A subject's abnormal nodes (scar core or border zone, :data:`~shared.tissue.ABNORMAL_LABELS`) and its
+    healthy tissue's conduction velocity in m/s (:func:`~shared.tissue.healthy_speed`; NaN under a cell model
+    other than Aliev-Panfilov, whose closed form it is); cached per process."""
+    label = read_tissue(store, subject_id).label
+    healthy = subject_attrs(store, subject_id)["tissue"].get("healthy") or {}
+    solver = read_solver_settings(store)
+    k = (solver.get("model") or {"k": 8.0}).get("k")
+    tissue = TissueSpec(healthy=Material(**healthy))
+    cv = float("nan") if k is None else healthy_speed(tissue, float(solver["diffusivity"]), float(k))
+    return np.isin(label, ABNORMAL_LABELS), cv
 
 
 def recorded_ecg(u: torch.Tensor, lead_field: LeadField, noise: float, rng: np.random.Generator | None) -> torch.Tensor:
@@ -463,7 +489,10 @@ def load_episode(
     _refuse_missing(meta, meta.chunks_of(np.concatenate([context_rows, target_rows])))
     u, times = SubjectReader(store, subject_id), read_times(store, subject_id)
     as_ecg = None if ecg_noise is None else (*subject_lead_fields(store, subject_id, meta.mesh_id), ecg_noise)
-    return _build_episode(meta, u, times, context_rows, target_rows, meta.observed[0], noise_std, rng, None, as_ecg)
+    truth = tissue_truth(store, subject_id)
+    return _build_episode(
+        meta, u, times, context_rows, target_rows, meta.observed[0], noise_std, rng, None, as_ecg, truth
+    )
 
 
 class EpisodeDataset(IterableDataset):
@@ -672,6 +701,7 @@ class EpisodeDataset(IterableDataset):
         if spec.ecg and rng.random() < spec.ecg:
             meta = self._meta[i]
             as_ecg = (*subject_lead_fields(self.store, meta.subject_id, meta.mesh_id), spec.ecg_noise)
+        truth = tissue_truth(self.store, self.subjects[i])
         return _build_episode(
-            self._meta[i], u, times, context_rows, target_rows, observed, spec.noise_std, rng, as_map, as_ecg
+            self._meta[i], u, times, context_rows, target_rows, observed, spec.noise_std, rng, as_map, as_ecg, truth
         )

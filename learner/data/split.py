@@ -11,13 +11,18 @@ the canonical split of :mod:`shared.split`, which subjects added later never
 change). With ``by = "mesh"`` the computed cut is over meshes (anatomies)
 instead of subjects: every subject of an anatomy lands in the same part, so
 validation and test anatomies are never seen in training, whatever their
-tissue.
+tissue. With ``by = "mesh+tissue"`` the meshes and the tissue settings are
+cut apart, by the same fractions: a subject lands in a part when its mesh and
+its tissue both do (its tissue counts as every part's when it is one of
+``train_tissues``, settings every anatomy is trained on); the subjects of a
+training mesh under a held-out tissue, or the other way round, are left out,
+so test subjects pair an unseen anatomy with an unseen tissue draw.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -51,8 +56,13 @@ class SplitSpec:
         ``"computed"``: shuffle and cut as above; ``"store"``: the split
         recorded in the store (``seed`` and the fractions are then unused).
     by
-        What the computed cut shuffles: ``"subject"`` or ``"mesh"`` (whole
-        anatomies; the fractions are then fractions of the meshes).
+        What the computed cut shuffles: ``"subject"``, ``"mesh"`` (whole
+        anatomies; the fractions are then fractions of the meshes) or
+        ``"mesh+tissue"`` (meshes and tissue settings each; module docstring).
+    train_tissues
+        With ``by = "mesh+tissue"``: tissue settings that take no part in the
+        tissue cut, so that every part has them (e.g. named settings beside
+        a spec's drawn ones).
     train_count
         ``0``: train on the whole training part; ``n > 0``: on only ``n`` of
         its units (meshes with ``by = "mesh"``, subjects otherwise), the first
@@ -66,15 +76,17 @@ class SplitSpec:
     held_out_meshes: tuple[str, ...] = ()
     train_meshes: tuple[str, ...] = ()
     source: Literal["computed", "store"] = "computed"
-    by: Literal["subject", "mesh"] = "subject"
+    by: Literal["subject", "mesh", "mesh+tissue"] = "subject"
     train_count: int = 0
+    train_tissues: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # TOML gives lists; a tuple keeps the spec hashable and comparable.
-        for name in ("held_out_meshes", "train_meshes"):
+        for name in ("held_out_meshes", "train_meshes", "train_tissues"):
             value = getattr(self, name)
             if isinstance(value, str):
-                raise InputError(f"{name} must be a list of mesh ids, not the string {value!r}")
+                what = "tissue setting names" if name == "train_tissues" else "mesh ids"
+                raise InputError(f"{name} must be a list of {what}, not the string {value!r}")
             object.__setattr__(self, name, tuple(value))
         both = sorted(set(self.held_out_meshes) & set(self.train_meshes))
         if both:
@@ -87,15 +99,17 @@ class SplitSpec:
                 raise InputError(f"{name} fraction must be in [0, 1), got {value!r}")
         if self.source not in ("computed", "store"):
             raise InputError(f"split source must be 'computed' or 'store', got {self.source!r}")
-        if self.by not in ("subject", "mesh"):
-            raise InputError(f"split by must be 'subject' or 'mesh', got {self.by!r}")
+        if self.by not in ("subject", "mesh", "mesh+tissue"):
+            raise InputError(f"split by must be 'subject', 'mesh' or 'mesh+tissue', got {self.by!r}")
+        if self.train_tissues and self.by != "mesh+tissue":
+            raise InputError("split train_tissues keeps tissues out of the tissue cut: set by = 'mesh+tissue'")
         if isinstance(self.train_count, bool) or not isinstance(self.train_count, (int, np.integer)):
             raise InputError(f"train_count must be an integer (0 = all), got {self.train_count!r}")
         if self.train_count < 0:
             raise InputError(f"train_count must be >= 0 (0 = all), got {self.train_count}")
-        if self.by == "mesh" and self.source == "store":
+        if self.by != "subject" and self.source == "store":
             raise InputError(
-                "split by = 'mesh' cuts anatomies, but the store's split is per subject; use source = 'computed'"
+                f"split by = {self.by!r} cuts anatomies, but the store's split is per subject; use source = 'computed'"
             )
         if self.validation + self.test >= 1.0:
             raise InputError(
@@ -114,6 +128,7 @@ def split_subjects(
     mesh_of: Mapping[str, str],
     spec: SplitSpec = SplitSpec(),
     stored: Mapping[str, str] | None = None,
+    tissue_of: Mapping[str, str] | None = None,
 ) -> dict[str, list[str]]:
     """Split subjects into disjoint ``train``, ``validation`` and ``test`` lists.
 
@@ -121,7 +136,9 @@ def split_subjects(
     ``round(spec.validation * n)`` and ``test`` ``round(spec.test * n)`` of them
     (then shrunk, test first, until at least one subject is left for training);
     ``train`` gets the rest. With ``spec.by == "mesh"`` the same cut is made
-    over the meshes, and each subject follows its mesh. ``spec.train_count``
+    over the meshes, and each subject follows its mesh; with ``"mesh+tissue"``
+    also over the tissue settings (``tissue_of``: subject id -> setting name),
+    each subject kept where its mesh and tissue agree. ``spec.train_count``
     then shrinks ``train`` (:class:`SplitSpec`). With ``spec.source == "store"``
     they take their part in ``stored`` (the store's split,
     :func:`shared.reader.read_split`) instead. The subjects on
@@ -173,16 +190,57 @@ def split_subjects(
             raise InputError("data.split.source = 'store' needs the store's split (StoreView.stored_split)")
         parts = _stored_parts(rest, held_out, stored)
     else:
-        if spec.by == "mesh":
-            cut = _cut(sorted({mesh_of[s] for s in rest}), spec)
-            part_of = {m: part for part, meshes in cut.items() for m in meshes}
-            parts = {part: [s for s in rest if part_of[mesh_of[s]] == part] for part in SPLITS}
+        if spec.by == "mesh+tissue":
+            parts = _mesh_and_tissue_parts(rest, mesh_of, tissue_of, spec)
+        elif spec.by == "mesh":
+            parts = _parts_of_units(rest, mesh_of, spec)
         else:
             parts = _cut(rest, spec)
         parts["test"] = sorted(parts["test"] + held_out)
     if spec.train_count:
-        parts["train"] = _first_units(parts["train"], mesh_of if spec.by == "mesh" else None, spec)
+        parts["train"] = _first_units(parts["train"], mesh_of if spec.by != "subject" else None, spec)
     parts["train"] = sorted(parts["train"] + always_train)
+    return parts
+
+
+def _unit_parts(units: Iterable[str], spec: SplitSpec, salt: int = 0) -> dict[str, str]:
+    """Unit -> part of the computed cut of the sorted ``units`` (``salt`` > 0: a shuffle of its own)."""
+    cut = _cut(sorted(set(units)), spec if not salt else _salted(spec, salt))
+    return {u: part for part, members in cut.items() for u in members}
+
+
+def _salted(spec: SplitSpec, salt: int) -> SplitSpec:
+    return replace(spec, seed=int(np.random.default_rng([spec.seed, salt]).integers(2**31)))
+
+
+def _parts_of_units(rest: list[str], unit_of: Mapping[str, str], spec: SplitSpec) -> dict[str, list[str]]:
+    part_of = _unit_parts((unit_of[s] for s in rest), spec)
+    return {part: [s for s in rest if part_of[unit_of[s]] == part] for part in SPLITS}
+
+
+def _mesh_and_tissue_parts(
+    rest: list[str], mesh_of: Mapping[str, str], tissue_of: Mapping[str, str] | None, spec: SplitSpec
+) -> dict[str, list[str]]:
+    """Subjects whose mesh and tissue fall in the same part of their cuts (module docstring)."""
+    if tissue_of is None:
+        raise InputError("split by = 'mesh+tissue' needs each subject's tissue setting (StoreView.tissue_of)")
+    missing = [s for s in rest if s not in tissue_of]
+    if missing:
+        raise InputError(f"no tissue setting given for subject(s): {', '.join(sorted(missing))}")
+    kept = set(spec.train_tissues)
+    unknown = sorted(kept - {tissue_of[s] for s in rest})
+    if unknown:
+        raise InputError(f"train_tissues {', '.join(unknown)} not used by any subject")
+    mesh_part = _unit_parts((mesh_of[s] for s in rest), spec)
+    cut = [tissue_of[s] for s in rest if tissue_of[s] not in kept]
+    if len(set(cut)) < 2:
+        raise InputError("split by = 'mesh+tissue' needs at least 2 tissue settings outside train_tissues")
+    tissue_part = _unit_parts(cut, spec, salt=1)
+    parts: dict[str, list[str]] = {part: [] for part in SPLITS}
+    for s in rest:
+        part = mesh_part[mesh_of[s]]
+        if tissue_of[s] in kept or tissue_part[tissue_of[s]] == part:
+            parts[part].append(s)
     return parts
 
 

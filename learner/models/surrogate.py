@@ -31,6 +31,7 @@ from learner.models.ecg_encoder import EcgEncoder
 from learner.models.graph_decoder import GraphDecoder
 from learner.models.graph_encoder import GraphEncoder
 from learner.models.site_evidence import EVIDENCE_FEATURES, SiteEvidence
+from learner.models.tissue_head import TissueHead
 from learner.nn.gated_transition import ConditionalGatedTransition
 from learner.nn.residual_block import ResidualGraphBlock
 
@@ -216,6 +217,7 @@ class MetaPNS(PNS):
             if config.maps_encoder
             else None
         )
+        self.tissue_head = TissueHead(config.latent, config.channels, config.hidden) if config.tissue_head else None
 
     def embed(
         self, obs: Tensor, observed: Tensor, hierarchy: MeshHierarchy, recorded: Tensor | None = None
@@ -236,6 +238,13 @@ class MetaPNS(PNS):
         if self.ecg_encoder is None:
             raise ValueError("this model reads no ECGs: it was built without model.ecg_encoder")
         return Posterior(*self.ecg_encoder(ecg, lead_field, sites, hierarchy))
+
+    def tissue(self, c: Tensor, hierarchy: MeshHierarchy) -> tuple[Tensor, Tensor]:
+        """What a draw of ``c`` says about the tissue: abnormal-tissue logits on the mesh's nodes ``(N,)`` and the
+        healthy tissue's log conduction velocity (m/s) ``()`` (:class:`~learner.models.tissue_head.TissueHead`)."""
+        if self.tissue_head is None:
+            raise ValueError("this model infers no tissue: it was built without model.tissue_head")
+        return self.tissue_head(c, hierarchy)
 
     def embed_prior_and_posterior(
         self, context: Tensor, extra: Tensor, observed: Tensor, hierarchy: MeshHierarchy

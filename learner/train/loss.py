@@ -6,6 +6,7 @@ r"""The episode loss (docs/method.md, "Training objective") (negative ELBO of th
       + \lambda_1 \mathrm{KL}(q(c \mid Y \cup X) \,\|\, p(c \mid Y))
       + \lambda_2 \mathrm{KL}(p(c \mid Y) \,\|\, \mathcal{N}(0, I))
       \; [+ \, w \, \mathrm{BCE}(g, \mathrm{wave})] \; [+ \, w_{cc} (1 - \mathrm{CC})]
+      \; [+ \, w_t (\mathrm{BCE}(p, \mathrm{abnormal}) + (\log \hat{v} - \log v)^2)]
 
 where ``rec`` is the squared error summed over nodes and frames and averaged
 over sequences (a Gaussian log-likelihood up to constants), ``p(c | Y)`` is the
@@ -30,6 +31,14 @@ between prediction and truth (:func:`spatial_correlation`, the evaluation's
 also weighs the nearly uniform frames of a fully excited heart, whose
 variations of a few thousandths the squared error ignores (docs/anatomies.md).
 
+With a tissue head and ``train.tissue_loss`` ``w_t > 0``, a draw of ``c`` from
+``p(c | Y)`` (the context alone, as a personalised heart has it) is read by the
+head (:meth:`~learner.models.surrogate.MetaPNS.tissue`): its abnormal-tissue
+probability ``p`` is fitted to the subject's scar core and border nodes by the
+cross-entropy averaged over nodes, its conduction velocity ``v-hat`` to the
+healthy tissue's ``v`` by the squared log error (left out where the store's
+cell model has no closed form, ``Episode.cv`` NaN).
+
 The optimiser gets :math:`\mathcal{L} / (N T)` for a mesh of ``N`` nodes and
 ``T`` frames: mean squared errors plus KL terms weighted by
 :math:`\lambda_i / (N T)`. That is the same objective, episode by episode, with
@@ -49,16 +58,25 @@ from learner.data.episodes import Episode
 from learner.graph.hierarchy import MeshHierarchy
 from learner.metrics import wave_started
 from learner.models.site_evidence import SiteEvidence
-from learner.models.surrogate import PNS, Posterior
+from learner.models.surrogate import PNS, MetaPNS, Posterior
 
-__all__ = ["LossTerms", "gaussian_kl", "standard_normal_kl", "spatial_correlation", "episode_loss", "EpisodeObjective"]
+__all__ = [
+    "LossTerms",
+    "gaussian_kl",
+    "standard_normal_kl",
+    "spatial_correlation",
+    "episode_loss",
+    "tissue_terms",
+    "EpisodeObjective",
+]
 
 
 @dataclass
 class LossTerms:
     """The loss and its parts: ``total`` is what the optimiser gets (the negative ELBO per node and frame, plus the
     weighted gate cross-entropy and correlation terms); the MSEs, KLs, ``gate_bce`` (0 without a gate loss) and
-    ``spatial_cc`` (0 without a correlation loss) as defined above."""
+    ``spatial_cc`` (0 without a correlation loss), ``tissue_bce`` and ``cv_log_error`` (the squared log error of the
+    conduction velocity; both 0 without a tissue loss) as defined above."""
 
     total: Tensor
     target_mse: Tensor
@@ -67,6 +85,8 @@ class LossTerms:
     kl_prior: Tensor
     gate_bce: Tensor
     spatial_cc: Tensor
+    tissue_bce: Tensor
+    cv_log_error: Tensor
 
     def as_floats(self) -> dict[str, float]:
         """Detached values for logging."""
@@ -113,6 +133,7 @@ def episode_loss(
     gate_weight: float = 0.0,
     cc_weight: float = 0.0,
     reconstruction: bool = True,
+    tissue_weight: float = 0.0,
 ) -> LossTerms:
     """Loss of one episode; ``frames`` restricts the reconstruction to a subset of frame indices.
 
@@ -124,7 +145,8 @@ def episode_loss(
     drawn from: ``"posterior"`` q(c | Y u X), or ``"context"`` p(c | Y), the
     embedding a trained model is given at test time. ``gate_weight`` is the
     weight ``w`` of the capture gate's cross-entropy (a model without a gate
-    with ``w > 0`` is an error); ``cc_weight`` that of ``1 - CC``. Without
+    with ``w > 0`` is an error); ``cc_weight`` that of ``1 - CC``;
+    ``tissue_weight`` that of the tissue head's terms. Without
     ``reconstruction`` the loss is the KL terms alone (the MSEs are reported as
     0): an encoder trained beside a frozen model then learns to match its
     posterior, at the cost of the encoders only.
@@ -132,7 +154,7 @@ def episode_loss(
     sites = torch.cat([episode.context_sites, episode.target_sites])
     truth = torch.cat([episode.context_u, episode.target_u])
     zero = torch.zeros((), device=truth.device)
-    c, evidence, kl_q, kl_p = None, None, zero, zero
+    c, evidence, kl_q, kl_p, prior = None, None, zero, zero, None
     if model.conditioned:
         # the context only: a target's own sequence would give its answer away; an ECG shows no site's own values
         evidence = SiteEvidence.of(episode) if episode.context_ecg is None else None
@@ -144,10 +166,16 @@ def episode_loss(
             prior = model.embed(episode.context_obs, episode.observed, hierarchy, episode.context_recorded)
         c = (prior if c_from == "context" else posterior).sample(generator)
         kl_q, kl_p = gaussian_kl(posterior, prior), standard_normal_kl(prior)
+    tissue_bce, cv_error = zero, zero
+    if tissue_weight > 0:
+        if prior is None:
+            raise ValueError("train.tissue_loss fits the tissue head of a metaPNS: this model has no c")
+        tissue_bce, cv_error = tissue_terms(model, prior.sample(generator), episode, hierarchy)
+    tissue = tissue_weight * (tissue_bce + cv_error)
     if not reconstruction:  # the embedding terms alone: the generator is not run
         per_value = 1.0 / (truth.shape[-1] * model.frames)
-        total = kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
-        return LossTerms(total, zero, zero, kl_q, kl_p, zero, zero)
+        total = kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p) + tissue
+        return LossTerms(total, zero, zero, kl_q, kl_p, zero, zero, tissue_bce, cv_error)
     pred, logit = model.generate_with_gate(sites, hierarchy, c, frames, evidence)
     gate_bce = zero
     if gate_weight > 0:
@@ -164,8 +192,22 @@ def episode_loss(
     target_mse, context_mse = err[k:].mean(), err[:k].mean()
     total = target_mse + context_mse + kl_weight * per_value * (lambda1 * kl_q + lambda2 * kl_p)
     cc = spatial_correlation(pred, truth) if cc_weight > 0 else zero
-    total = total + gate_weight * gate_bce + (cc_weight * (1 - cc) if cc_weight > 0 else zero)
-    return LossTerms(total, target_mse, context_mse, kl_q, kl_p, gate_bce, cc)
+    total = total + gate_weight * gate_bce + (cc_weight * (1 - cc) if cc_weight > 0 else zero) + tissue
+    return LossTerms(total, target_mse, context_mse, kl_q, kl_p, gate_bce, cc, tissue_bce, cv_error)
+
+
+def tissue_terms(model: PNS, c: Tensor, episode: Episode, hierarchy: MeshHierarchy) -> tuple[Tensor, Tensor]:
+    """The tissue head's cross-entropy against the episode's abnormal nodes and its squared log-CV error (0 where
+    the episode's ``cv`` is NaN) for the draw ``c``."""
+    if not isinstance(model, MetaPNS) or model.tissue_head is None:
+        raise ValueError("train.tissue_loss fits the tissue head: this model has none (model.tissue_head)")
+    if episode.abnormal is None or episode.cv is None:
+        raise ValueError(f"episode of {episode.subject_id!r} carries no tissue truth (Episode.abnormal, Episode.cv)")
+    logit, log_cv = model.tissue(c, hierarchy)
+    bce = binary_cross_entropy_with_logits(logit, episode.abnormal.to(logit))
+    cv = episode.cv.to(log_cv)
+    error = (log_cv - torch.log(cv)) ** 2 if bool(torch.isfinite(cv)) else torch.zeros_like(log_cv)
+    return bce, error
 
 
 class EpisodeObjective(nn.Module):
@@ -181,11 +223,13 @@ class EpisodeObjective(nn.Module):
         gate_weight: float = 0.0,
         cc_weight: float = 0.0,
         reconstruction: bool = True,
+        tissue_weight: float = 0.0,
     ) -> None:
         super().__init__()
         self.model, self.lambda1, self.lambda2 = model, lambda1, lambda2
         self.posterior_targets, self.c_from = posterior_targets, c_from
         self.gate_weight, self.cc_weight, self.reconstruction = gate_weight, cc_weight, reconstruction
+        self.tissue_weight = tissue_weight
 
     def forward(
         self,
@@ -209,4 +253,5 @@ class EpisodeObjective(nn.Module):
             self.gate_weight,
             self.cc_weight,
             self.reconstruction,
+            self.tissue_weight,
         )

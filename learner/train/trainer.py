@@ -104,7 +104,8 @@ class Trainer:
         self.out = Path(config.out)
         self.view = StoreView(config.data.store, cache_dir=self.out / "hierarchies")
         stored = self.view.stored_split if config.data.split.source == "store" else None  # one read per subject
-        self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split, stored)
+        tissue_of = self.view.tissue_of if config.data.split.by == "mesh+tissue" else None
+        self.splits = split_subjects(self.view.subjects, self.view.mesh_of, config.data.split, stored, tissue_of)
         torch.manual_seed(cfg.seed)
         self.model: PNS = build_model(config.model, self.view.frames).to(self.device)
         self.objective: nn.Module = EpisodeObjective(
@@ -116,6 +117,7 @@ class Trainer:
             cfg.gate_loss,
             cfg.cc_loss,
             cfg.reconstruction,
+            cfg.tissue_loss,
         )
         self.optimizer = torch.optim.Adam(trainable_parameters(self.model, cfg.trainable), lr=cfg.lr)
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, cfg.lr_halve_every, gamma=0.5)
@@ -392,6 +394,8 @@ class Trainer:
             "kl_prior",
             "gate_bce",
             "spatial_cc",
+            "tissue_bce",
+            "cv_log_error",
             "grad_norm_median",
             "grad_norm_max",
             "val_target_mse",

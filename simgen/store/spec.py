@@ -434,18 +434,26 @@ def _expand_entry(entry: Any) -> list[Any]:
 
 
 def _expand_tissue(data: dict[str, Any]) -> dict[str, Any]:
-    """``data`` with its ``[tissue_prior]`` table replaced by the ``[[custom_tissue]]`` tables of its draws
-    (:func:`simgen.tissue.prior.draw_tissues`, after any given ones); without a ``tissue`` key, a spec with a
-    prior simulates its draws alone."""
+    """``data`` with its ``[tissue_prior]`` table (or ``[[tissue_prior]]`` tables, each with its own ``name``)
+    replaced by the ``[[custom_tissue]]`` tables of its draws (:func:`simgen.tissue.prior.draw_tissues`, after any
+    given ones); without a ``tissue`` key, a spec with a prior simulates its draws alone."""
     if "tissue_prior" not in data:
         return data
     data = dict(data)
-    prior = from_mapping(TissuePrior, data.pop("tissue_prior"), "tissue_prior")
+    tables = data.pop("tissue_prior")
+    tables = tables if isinstance(tables, list) else [tables]
+    priors = [
+        from_mapping(TissuePrior, t, f"tissue_prior[{i}]" if len(tables) > 1 else "tissue_prior")
+        for i, t in enumerate(tables)
+    ]
+    names = [p.name for p in priors]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"[[tissue_prior]] tables need distinct names (their draws' prefixes), got {names}")
     solver = from_mapping(SolverConfig, data.get("solver", {}), "solver")
     custom = data.get("custom_tissue", [])
     if not isinstance(custom, list):
         raise ConfigError(f"custom_tissue must be a list of tables, got {custom!r}")
-    draws = [to_mapping(t) for t in draw_tissues(prior, solver)]
+    draws = [to_mapping(t) for prior in priors for t in draw_tissues(prior, solver)]
     return {**data, "tissue": data.get("tissue", []), "custom_tissue": [*custom, *draws]}
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import InputError
+from shared.tissue import front_speed
 from shared.units import MS_PER_TIME_UNIT, to_millivolts
 from simgen.solver.cells.ops import fma, register_rates
 
@@ -117,8 +118,3 @@ def reaction(u: NDArray, v: NDArray, a: NDArray | float, p: APParams = APParams(
     eps = p.eps0 + p.mu1 * v / (u + p.mu2) if p.variant == "standard" else p.eps_simple
     dv = eps * (-v - p.k * u * (u - a - 1.0))
     return du, dv
-
-
-def front_speed(D: float, a: float, k: float = 8.0) -> float:
-    """Planar front speed of the excitation (recovery neglected): ``sqrt(2kD)(1/2 - a)``."""
-    return float(np.sqrt(2.0 * k * D) * (0.5 - a))

@@ -188,7 +188,9 @@ def test_train_count_above_the_training_part_is_refused():
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"by": "site"}, "split by must be 'subject' or 'mesh'"),
+        ({"by": "site"}, "split by must be 'subject', 'mesh' or 'mesh\\+tissue'"),
+        ({"by": "mesh+tissue", "source": "store"}, "per subject"),
+        ({"train_tissues": ["healthy"]}, "set by = 'mesh\\+tissue'"),
         ({"by": "mesh", "source": "store"}, "per subject"),
         ({"train_count": -1}, "train_count must be >= 0"),
         ({"train_count": 2.5}, "train_count must be an integer"),
@@ -197,3 +199,42 @@ def test_train_count_above_the_training_part_is_refused():
 def test_split_by_bad_values(kwargs, message):
     with pytest.raises(InputError, match=message):
         SplitSpec(**kwargs)
+
+
+def _prior_ids(meshes: int = 20, draws: int = 10) -> tuple[list[str], dict[str, str], dict[str, str]]:
+    """Subjects of ``meshes`` anatomies x (2 named settings + ``draws`` drawn ones)."""
+    tissues = ["healthy", "scar-apex", *(f"draw-{i:03d}" for i in range(draws))]
+    pairs = [(f"m{m:02d}", t) for m in range(meshes) for t in tissues]
+    ids = [f"{m}-{t}" for m, t in pairs]
+    return ids, {i: m for i, (m, _) in zip(ids, pairs)}, {i: t for i, (_, t) in zip(ids, pairs)}
+
+
+def test_split_by_mesh_and_tissue_holds_out_anatomies_and_draws():
+    ids, mesh_of, tissue_of = _prior_ids()
+    spec = SplitSpec(validation=0.1, test=0.2, by="mesh+tissue", train_tissues=("healthy", "scar-apex"))
+    parts = split_subjects(ids, mesh_of, spec, tissue_of=tissue_of)
+    meshes = {name: {mesh_of[s] for s in parts[name]} for name in SPLITS}
+    draws = {name: {tissue_of[s] for s in parts[name]} - {"healthy", "scar-apex"} for name in SPLITS}
+    # the mesh cut is the one of by = "mesh": a model trained by mesh alone holds out the same anatomies
+    by_mesh = split_subjects(ids, mesh_of, replace(spec, by="mesh", train_tissues=()))
+    assert meshes == {name: {mesh_of[s] for s in by_mesh[name]} for name in SPLITS}
+    assert (len(draws["train"]), len(draws["validation"]), len(draws["test"])) == (7, 1, 2)
+    for a, b in (("train", "validation"), ("train", "test"), ("validation", "test")):
+        assert not meshes[a] & meshes[b] and not draws[a] & draws[b]
+    # every named setting in every part; a subject pairing a training mesh with a test draw is in no part
+    assert all({"healthy", "scar-apex"} <= {tissue_of[s] for s in parts[name]} for name in SPLITS)
+    assert sum(map(len, parts.values())) == 14 * 9 + 2 * 3 + 4 * 4
+    assert split_subjects(list(reversed(ids)), mesh_of, spec, tissue_of=tissue_of) == parts
+
+
+def test_split_by_mesh_and_tissue_refusals():
+    ids, mesh_of, tissue_of = _prior_ids(meshes=4, draws=1)
+    spec = SplitSpec(by="mesh+tissue")
+    with pytest.raises(InputError, match="needs each subject's tissue"):
+        split_subjects(ids, mesh_of, spec)
+    with pytest.raises(InputError, match="no tissue setting given"):
+        split_subjects(ids, mesh_of, spec, tissue_of={})
+    with pytest.raises(InputError, match="train_tissues scar-x not used"):
+        split_subjects(ids, mesh_of, replace(spec, train_tissues=("scar-x",)), tissue_of=tissue_of)
+    with pytest.raises(InputError, match="at least 2 tissue settings"):
+        split_subjects(ids, mesh_of, replace(spec, train_tissues=("healthy", "scar-apex")), tissue_of=tissue_of)

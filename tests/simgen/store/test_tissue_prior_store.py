@@ -232,3 +232,20 @@ def test_the_store_verifies(prior_store) -> None:
     report = verify_store(store, sample=2)
     assert report.ok, report.problems
     assert report.chunks_recomputed == 6
+
+
+def test_several_priors_draw_under_their_own_names() -> None:
+    """``[[tissue_prior]]`` tables: each draws its settings, named by its own prefix; one table is the same as the
+    single ``[tissue_prior]`` of the same content."""
+    slow = {"name": "slow", "count": 2, "seed": 1, "D": [0.3, 0.5], "scars": [0, 0]}
+    scar = {"name": "scar", "count": 1, "seed": 2, "scars": [1, 1]}
+    both = spec_to_dict(spec_from_mapping({"tissue_prior": [slow, scar]}))
+    assert [t["name"] for t in both["custom_tissue"]] == ["slow-000", "slow-001", "scar-000"]
+    assert all(0.3 <= t["healthy"]["D"] <= 0.5 for t in both["custom_tissue"][:2])
+    assert spec_to_dict(spec_from_mapping({"tissue_prior": [slow]})) == spec_to_dict(
+        spec_from_mapping({"tissue_prior": slow})
+    )
+    with pytest.raises(ConfigError, match="distinct names"):
+        spec_from_mapping({"tissue_prior": [slow, slow]})
+    with pytest.raises(ConfigError, match=r"tissue_prior\[1\]"):
+        spec_from_mapping({"tissue_prior": [slow, {**scar, "colour": 1}]})

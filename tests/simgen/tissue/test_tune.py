@@ -128,3 +128,13 @@ def test_non_conducting_tissue_is_refused() -> None:
         physical(_tissue(a=0.5), SOLVER)
     with pytest.raises(TissueError, match="does not conduct"):
         diffusivity_for_speed(1.0, 0.5, SOLVER)
+
+
+@pytest.mark.parametrize(("a", "apd_scale"), [(0.12, 0.75), (0.15, None), (0.2, 1.3), (0.25, 0.75)])
+def test_the_learners_closed_form_speed_is_within_3_percent_of_the_strip(a: float, apd_scale: float | None) -> None:
+    """shared.tissue.healthy_speed, the CV a tissue head is trained to, against the strip measurement."""
+    from shared.tissue import healthy_speed
+
+    tissue = TissueSpec(healthy=Material(a=a, D=0.7), apd_scale=apd_scale)
+    solver = SolverConfig()
+    assert healthy_speed(tissue, solver.diffusivity) == pytest.approx(physical(tissue, solver).cv, rel=0.03)
