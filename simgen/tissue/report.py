@@ -28,6 +28,7 @@ __all__ = [
     "fibrosis_summary",
     "tissue_rows",
     "plot_tissue_draws",
+    "scar_location",
 ]
 
 #: The columns of :func:`tissue_rows`, in order.
@@ -61,6 +62,20 @@ def scar_summary(scar: ScarSpec) -> str:
     shape = f"r {scar.radius:.0f} mm x{scar.elongation or 1:.1f}"
     depth = f", {100 * (scar.transmural or 1):.0f}% deep"
     return f"{(scar.ventricle or 'lv').upper()} h {scar.height:.2f} {scar.angle:+.0f}deg {shape}{depth}"
+
+
+def scar_location(scar: ScarSpec) -> str:
+    """Where a scar lies, in a clinician's words: ``"LV anterior mid"``, ``"RV free wall basal"``, or its AHA
+    segments. Heights split apical / mid / basal at thirds; angles name the sector around the LV (AHA: 0
+    septum, +90 anterior, -90 inferior, 180 lateral)."""
+    if scar.region != "wall":
+        return scar_summary(scar)
+    level = "apical" if scar.height < 1 / 3 else "mid" if scar.height < 2 / 3 else "basal"
+    if (scar.ventricle or "lv") == "rv":
+        return f"RV free wall {level}"
+    turn = (scar.angle + 180.0) % 360.0 - 180.0
+    sector = "septal" if abs(turn) <= 45 else "lateral" if abs(turn) >= 135 else "anterior" if turn > 0 else "inferior"
+    return f"LV {sector} {level}"
 
 
 def fibrosis_summary(fibrosis: FibrosisSpec) -> str:
