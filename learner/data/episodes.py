@@ -347,19 +347,19 @@ def _build_episode(
     rng: np.random.Generator | None,
     as_map: tuple[ApTemplate, float] | None = None,
     as_ecg: tuple[LeadField, LeadField, float] | None = None,
-    truth: tuple[NDArray[np.bool_], float] | None = None,
+    tissue: tuple[NDArray[np.bool_], float] | None = None,
 ) -> Episode:
     """An episode of the given rows; ``as_map`` = (template, noise in ms) records its context as activation maps,
-    ``as_ecg`` = (the subject's lead field, the mesh's healthy one, noise share) as 12-lead ECGs; ``truth`` is
+    ``as_ecg`` = (the subject's lead field, the mesh's healthy one, noise share) as 12-lead ECGs; ``tissue`` is
     the subject's :func:`tissue_truth`."""
     k = context_rows.size
     data = u.rows("u", np.concatenate([context_rows, target_rows]))  # checked: done, checksums, fingerprint, finite
     context_u, target_u = data[:k], data[k:]
     ecg = {}
     if as_ecg is not None:
-        truth, healthy, noise = as_ecg
+        subject_leads, healthy, noise = as_ecg
         ecg = {
-            "context_ecg": recorded_ecg(torch.from_numpy(context_u), truth, noise, rng),
+            "context_ecg": recorded_ecg(torch.from_numpy(context_u), subject_leads, noise, rng),
             "lead_matrix": healthy.matrix,
             "lead_density": healthy.density,
         }
@@ -382,8 +382,8 @@ def _build_episode(
         context_rows=torch.from_numpy(context_rows),
         target_rows=torch.from_numpy(target_rows),
         context_recorded=recorded,
-        abnormal=None if truth is None else torch.from_numpy(truth[0]),
-        cv=None if truth is None else torch.tensor(truth[1], dtype=torch.float32),
+        abnormal=None if tissue is None else torch.from_numpy(tissue[0]),
+        cv=None if tissue is None else torch.tensor(tissue[1], dtype=torch.float32),
         **ecg,
     )
 
