@@ -118,7 +118,8 @@ def markdown(result: dict) -> str:
     lines = [
         "| test set | target MSE | target CC spatial | target CC temporal | target DC |",
         "|---|---|---|---|---|",
-        f"| unseen sampled hearts ({result['unseen_meshes']} hearts, {len(result['test'])} subjects), surface "
+        f"| unseen sampled hearts ({result['unseen_meshes']} hearts x {len(result['tissues'])} tissue settings, "
+        f"{len(result['test'])} subjects), surface "
         f"| {_cell(a['mse'])} | {_cell(a['cc_spatial'])} | {_cell(a['cc_temporal'])} | {_cell(a['dc'])} |",
         f"| mean predictor on the same subjects | {result['mean_predictor_mse']:.4f} | - | - | - |",
         f"| real heart ({', '.join(result['real']['subjects'])}), {result['real']['electrodes']} electrodes, "
@@ -138,6 +139,10 @@ def main() -> None:
     parser.add_argument("--targets", type=int, default=10, help="targets per context set on the unseen hearts")
     parser.add_argument("--sites", type=int, default=8, help="pacing sites of the real heart (leave one out)")
     parser.add_argument(
+        "--tissues",
+        help="comma-separated tissue settings: only the test subjects of these (e.g. the four a model was trained on)",
+    )
+    parser.add_argument(
         "--record-card",
         action="store_true",
         help="also record the metrics, version and date in the shipped model's config.json ('card')",
@@ -146,14 +151,17 @@ def main() -> None:
     args = parser.parse_args()
 
     splits = load_checkpoint(args.model, kind="model")["splits"]
-    test = list(splits["test"])
+    view = StoreView(args.store)
+    test = [s for s in splits["test"] if not args.tissues or view.tissue_of[s] in args.tissues.split(",")]
+    if not test:
+        parser.error(f"no test subject of {args.model} in {args.store} has a tissue of {args.tissues}")
     unseen, real, name, (unseen_s, real_s) = unseen_and_real(
         args.model, args.store, args.real, test, args.targets, args.sites
     )
-    view = StoreView(args.store)
     result = {
         "model": args.model,
         "test": test,
+        "tissues": sorted({view.tissue_of[s] for s in test}),
         "unseen_meshes": len({view.mesh_of[s] for s in test}),
         "unseen": unseen.overall,
         "mean_predictor_mse": mean_predictor(args.store, list(splits["train"]), test),
