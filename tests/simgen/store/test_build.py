@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import warnings
 
@@ -126,7 +128,9 @@ def test_lock_of_a_killed_build_is_taken_over(tmp_path):
 
     (store / ".lock").write_text(f'{{"host": "{socket.gethostname()}", "pid": 999999999}}')
     with StoreLock(store):
-        pass
+        owner = json.loads((store / ".lock").read_text())
+        assert (owner["host"], owner["pid"]) == (socket.gethostname(), os.getpid())
+    assert not (store / ".lock").exists()
 
 
 def test_failing_task_is_named_and_finished_chunks_kept(tmp_path, tiny_spec):
