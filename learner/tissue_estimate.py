@@ -102,8 +102,8 @@ def estimate_tissue(
     """The tissue ``samples`` draws of ``c`` from ``posterior`` say (module docstring)."""
     if model.tissue_head is None:
         raise InputError(
-            "this model infers no tissue: it was trained without a tissue head (model.tissue_head); "
-            "the shipped model `anatomies` has one"
+            "this model infers no tissue: it was trained without a tissue head (model.tissue_head; "
+            "specs/train-prior.toml trains one)"
         )
     if not 2 <= samples <= 10_000:
         raise InputError(f"tissue samples must be between 2 and 10000 draws of c, got {samples}")
