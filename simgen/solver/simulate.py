@@ -59,9 +59,8 @@ __all__ = [
     "healthy_fields",
 ]
 
-#: Sites integrated together per block (see bench/solver.py --block-size). 200 sites on 2 threads at
-#: 10k nodes, alternated in one session (AMD VM, 8 lanes): 2 blocks of 104 ran 0.91 ns per node-step and
-#: site, 4 of 56 0.84-0.95, 7 of 32 0.85-0.98. With 16 lanes (AVX-512) the 2 blocks are 112 columns wide.
+#: Sites integrated together per block: a whole number of SIMD vectors wide, few blocks per thread
+#: (`bench/solver.py --block-size` measures other choices on a machine).
 BLOCK_SIZE = 128
 
 #: Sites the IMEX kernels integrate together per block: their state (7-11 N x B float32 arrays) stays small.

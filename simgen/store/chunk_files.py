@@ -2,12 +2,9 @@
 
 Zarr's :class:`~zarr.storage.LocalStore` hands a whole encoded chunk to one
 buffered ``write()``. A dataset build writes gigabytes that nothing reads
-back soon, so the page cache only costs: on the Linux VMs this project is
-measured on (kernel 6.18, ext4, virtio disk, memory handed back to the host
-when freed), every new page-cache page is first-touch memory at ~2.6 ms/MB,
-and a 64-site chunk of the default 2,000-node LV (29 MB) took 75-80 ms to
-write buffered (spikes to 0.5 s under writeback), against 17-22 ms with
-``O_DIRECT`` (the disk's ~1.5 GB/s, the CPU mostly idle). So each file is
+back soon, so the page cache only costs: on a VM that hands freed memory back
+to its host every new page-cache page is first-touch memory, and writeback
+stalls the writer (docs/performance.md, "Direct I/O"). So each file is
 written with ``O_DIRECT`` from a page-aligned staging buffer, 4 MiB per
 ``write()``, the last piece padded to the block size and the file truncated
 to its length; where direct I/O is refused (tmpfs, some network file
