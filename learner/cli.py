@@ -368,7 +368,10 @@ def predict(
         Path | None, typer.Option(help="PNG of the predicted activation maps (and their spread), one row per site.")
     ] = None,
     samples: Annotated[
-        int, typer.Option(min=0, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or >= 2.")
+        int,
+        typer.Option(
+            min=0, max=10_000, callback=_draws, help="Draws of c for a predictive spread: 0 (mean only) or 2-10000."
+        ),
     ] = 0,
     tissue: Annotated[
         Path | None,

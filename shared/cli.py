@@ -96,6 +96,12 @@ def finite(value: float | None) -> float | None:
     return value
 
 
+def needs(option: str, given: bool, other: str, present: bool) -> None:
+    """Refuse ``option`` when it is ``given`` without ``other``, without which it would have no effect."""
+    if given and not present:
+        raise InputError(f"{option} has no effect without {other}: add {other} or leave {option} out")
+
+
 def parse_ids(text: str, option: str) -> list[int]:
     """The comma-separated integers >= 0 of ``text``, each given once (errors name ``option``)."""
     try:

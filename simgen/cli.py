@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, parse_ids, print_markdown
+from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, needs, parse_ids, print_markdown
 from shared.config import load_toml
 from shared.ecg import LEADS
 from shared.errors import InputError
@@ -89,12 +89,16 @@ FibresOpt = Annotated[
     ),
 ]
 HelixEndoOpt = Annotated[
-    float,
-    typer.Option(min=-90, max=90, callback=finite, help="Rule-based fibres: helix angle at the endocardium (deg)."),
+    float | None,
+    typer.Option(
+        min=-90, max=90, callback=finite, help=f"With --fibres: helix angle at the endocardium (deg; {HELIX_ENDO:g})."
+    ),
 ]
 HelixEpiOpt = Annotated[
-    float,
-    typer.Option(min=-90, max=90, callback=finite, help="Rule-based fibres: helix angle at the epicardium (deg)."),
+    float | None,
+    typer.Option(
+        min=-90, max=90, callback=finite, help=f"With --fibres: helix angle at the epicardium (deg; {HELIX_EPI:g})."
+    ),
 ]
 TISSUE_HELP = (
     "A setting name (`simgen tissues`) or a TOML file: name; healthy = {a, D}; apd_scale; fibrosis; scars, each "
@@ -130,8 +134,8 @@ def mesh(
     heart: HeartOpt = True,
     units: UnitsOpt = None,
     fibres: FibresOpt = False,
-    helix_endo: HelixEndoOpt = HELIX_ENDO,
-    helix_epi: HelixEpiOpt = HELIX_EPI,
+    helix_endo: HelixEndoOpt = None,
+    helix_epi: HelixEpiOpt = None,
     filler: FillerOpt = None,
 ) -> None:
     """Generate (or load and validate) a mesh and write it to OUT, with its node sets and, for a heart, its
@@ -139,8 +143,9 @@ def mesh(
     its fibres (point data fibre), the ventricular coordinates they come from (transmural, apicobasal,
     rv_share) and a picture of them (OUT with suffix .fibres.png)."""
     try:
+        helix = _mesh_options(fibres, helix_endo, helix_epi, filler, nodes)
         m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
-        m, coordinates = _rule_fibres(m, (helix_endo, helix_epi)) if fibres else (m, {})
+        m, coordinates = _rule_fibres(m, helix) if fibres else (m, {})
         out.parent.mkdir(parents=True, exist_ok=True)
         save_mesh(m, out, {**(_labels(m).arrays() if heart else {}), **coordinates})
         if fibres:
@@ -213,8 +218,8 @@ def simulate(
     heart: HeartOpt = True,
     units: UnitsOpt = None,
     fibres: FibresOpt = False,
-    helix_endo: HelixEndoOpt = HELIX_ENDO,
-    helix_epi: HelixEpiOpt = HELIX_EPI,
+    helix_endo: HelixEndoOpt = None,
+    helix_epi: HelixEpiOpt = None,
     filler: FillerOpt = None,
     anisotropy: Annotated[
         float | None,
@@ -303,8 +308,9 @@ def simulate(
     try:
         if record not in RECORDINGS:
             raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
+        helix = _mesh_options(fibres, helix_endo, helix_epi, filler, nodes)
         m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
-        m = _with_fibres(m, fibres, (helix_endo, helix_epi))
+        m = _with_fibres(m, fibres, helix)
         site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
         observed = None if observe in (None, "ecg") else _observed_nodes(m, observe)
         spec = _tissue_spec(tissue)
@@ -393,6 +399,16 @@ def _ecg(m: Mesh, fields, config: SolverConfig, result, seconds: float, file: Pa
         "electrodes": np.array(electrodes.names),
         "electrode_xyz_mm": electrodes.positions,
     }
+
+
+def _mesh_options(
+    fibres: bool, helix_endo: float | None, helix_epi: float | None, filler: str | None, nodes: int | None
+) -> tuple[float, float]:
+    """The helix angles of the rule-based fibres; options that would have no effect are refused by name."""
+    needs("--helix-endo", helix_endo is not None, "--fibres", fibres)
+    needs("--helix-epi", helix_epi is not None, "--fibres", fibres)
+    needs("--filler", filler is not None, "--nodes", nodes is not None)
+    return (HELIX_ENDO if helix_endo is None else helix_endo, HELIX_EPI if helix_epi is None else helix_epi)
 
 
 def _rule_fibres(
@@ -775,6 +791,10 @@ def repair(
     """
     from simgen.store.repair import plan_repair, repair_store
 
+    try:
+        needs("--rescope", rescope, "--spec", spec is not None)
+    except InputError as exc:
+        _fail(exc)
     if dry_run:
         try:
             lines = plan_repair(store, spec, rescope, remove_extra).lines()

@@ -451,6 +451,17 @@ CASES: dict[str, dict[str, Case]] = {
             ("--record: 'lat' is not one of potential, activation",),
         ),
         "nodes 0": Case(("simgen", "mesh", "{d}/m.vtu", "--nodes", "0"), usage("--nodes")),
+        "a billion prediction draws": Case((*PREDICT, "--samples", "1000000000"), usage("--samples")),
+        "helix angle without fibres": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--helix-endo", "50"), ("--helix-endo has no effect without --fibres",)
+        ),
+        "filler without nodes": Case(
+            ("simgen", "simulate", "{d}/o", "--mesh", "{d}/tiny-heart.ply", "--filler", "ftetwild"),
+            ("--filler has no effect without --nodes",),
+        ),
+        "rescope without a spec": Case(
+            ("simgen", "repair", "{s}", "--rescope", "--dry-run"), ("--rescope has no effect without --spec",)
+        ),
         "demo sites 0": Case(
             ("simgen", "demo", "--out", "{d}/demo", "--sites-per-setting", "0"), usage("--sites-per-setting")
         ),
