@@ -6,7 +6,10 @@ Reads a prediction file (``learner predict --out``) and a simulation file
 the prediction's frames where they differ, and scores each pair with
 :func:`learner.metrics.sequence_metrics`: MSE (on ``u``), spatial and temporal
 correlation, Dice coefficient of the activated region and the activation-time
-error in ms. :func:`plot_comparison` draws truth, prediction and their
+error in ms. Refused first: a file compared with itself (the same ``v_mv``),
+sequences that are not in mV, and sites whose positions (``site_xyz``) differ
+by more than the site tolerance (the files number different meshes).
+:func:`plot_comparison` draws truth, prediction and their
 activation-time difference side by side on one colour scale.
 """
 
@@ -21,14 +24,18 @@ import numpy as np
 from learner.evaluate import default_dc_frame
 from learner.metrics import sequence_metrics, summarize
 from learner.observations import read_npz, resample_frames
+from learner.plausibility import check_millivolts
 from shared.errors import InputError
+from shared.sites import SITE_TOLERANCE
 from shared.units import MS_PER_TIME_UNIT, from_millivolts
 
 __all__ = ["Comparison", "compare_files", "plot_comparison"]
 
 #: The arrays each file must hold.
-PREDICTION_ARRAYS = ("sites", "times_ms", "v_mv", "activation_ms", "points", "cells")
+PREDICTION_ARRAYS = ("sites", "site_xyz", "times_ms", "v_mv", "activation_ms", "points", "cells")
 SIMULATION_ARRAYS = ("sites", "times_ms", "v_mv", "activation_ms")
+#: Read where a simulation file has it (``simgen simulate`` writes it): each site's position in mm.
+OPTIONAL_ARRAYS = ("site_xyz",)
 
 
 @dataclass
@@ -66,11 +73,34 @@ def _load(path: str | Path, names: tuple[str, ...], what: str) -> dict[str, np.n
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} file not found: {path}")
-    arrays = read_npz(path, list(names), f"a {what}")
+    arrays = read_npz(path, [*names, *OPTIONAL_ARRAYS], f"a {what}")
     missing = [name for name in names if name not in arrays]
     if missing:
         raise InputError(f"{path} is not a {what} file: it lacks {missing} (docs/formats.md)")
     return arrays
+
+
+def _refuse_mismatch(prediction: Path, simulation: Path, pred: dict, true: dict, rows: dict[int, int]) -> None:
+    """Refuse two files that cannot be scored honestly: one file twice, sequences not in mV, or sites at other
+    positions (another numbering of the mesh)."""
+    if prediction.resolve() == simulation.resolve() or np.array_equal(pred["v_mv"], true["v_mv"]):
+        raise InputError(
+            f"{prediction} and {simulation} hold the same v_mv: a file compared with itself scores perfectly; "
+            "compare the prediction with a simulation of the same sites"
+        )
+    for path, arrays in ((prediction, pred), (simulation, true)):
+        check_millivolts(arrays["v_mv"].astype(np.float64), f"{path}: v_mv", "")
+    if "site_xyz" not in true:
+        return
+    for i, site in enumerate(pred["sites"]):
+        a, b = pred["site_xyz"][i], true["site_xyz"][rows[int(site)]]
+        if np.linalg.norm(a - b) > SITE_TOLERANCE:
+            raise InputError(
+                f"site {int(site)} is at {np.round(a, 1).tolist()} mm in {prediction} and at "
+                f"{np.round(b, 1).tolist()} mm in {simulation}, {np.linalg.norm(a - b):.1f} mm apart: the files "
+                "number the nodes of different meshes (renumbered or resampled); simulate the mesh file the heart "
+                "was personalised on, as it is"
+            )
 
 
 def compare_files(prediction: str | Path, simulation: str | Path) -> Comparison:
@@ -87,6 +117,7 @@ def compare_files(prediction: str | Path, simulation: str | Path) -> Comparison:
     missing = [int(s) for s in pred["sites"] if int(s) not in rows]
     if missing:
         raise InputError(f"the simulation has no sequence paced at node(s) {missing}; it has {sorted(rows)}")
+    _refuse_mismatch(Path(prediction), Path(simulation), pred, true, rows)
     times = pred["times_ms"].astype(np.float64) / MS_PER_TIME_UNIT
     truth_u = from_millivolts(true["v_mv"][[rows[int(s)] for s in pred["sites"]]].astype(np.float64))
     true_times = true["times_ms"].astype(np.float64) / MS_PER_TIME_UNIT

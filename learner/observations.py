@@ -23,12 +23,22 @@ import numpy as np
 from learner.activation_maps import ApTemplate
 from learner.data.episodes import load_episode
 from learner.ecg import resample_ecg
+from learner.plausibility import (
+    check_ecg,
+    check_electrodes,
+    check_frame_span,
+    check_map_spread,
+    check_map_window,
+    check_millivolts,
+    check_points_scale,
+    unmapped_holes,
+)
 from learner.store_view import StoreView
 from shared.ecg import LEADS, Electrodes
 from shared.errors import InputError, StimulusError
-from shared.mesh import Mesh
+from shared.mesh import Mesh, axis_from_point_data
 from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes
-from shared.units import MS_PER_TIME_UNIT, MV_RANGE, U_RANGE, from_millivolts
+from shared.units import MS_PER_TIME_UNIT, U_RANGE, from_millivolts
 
 __all__ = [
     "OBSERVATION_ARRAYS",
@@ -98,11 +108,16 @@ class Observations:
         if self.ecg is not None:
             if not np.isfinite(self.ecg).all():
                 raise InputError("the ECGs contain NaN or inf")
+            check_ecg(self.ecg)
+            if self.electrodes is not None:
+                check_electrodes(self.electrodes.positions, self.electrodes.names, self.mesh)
         elif self.obs is not None:
             self._check_potentials()
             self.obs = np.where(self.observed, self.obs, 0.0).astype(np.float32)  # unobserved: NaN or anything
         elif np.isnan(self.activation[:, self.observed]).any() or (self.activation[:, self.observed] < 0).any():
             raise InputError("activation times must be >= 0 (or +inf: never activated) at every observed node")
+        else:
+            check_map_spread(self.activation * MS_PER_TIME_UNIT, self.observed)
         if self.recorded is not None and (self.obs is None or self.recorded.shape != self.obs.shape):
             raise InputError("recorded marks the values of potentials obs and must have their shape (K, T, N)")
         bad = [int(s) for s in self.sites if not 0 <= s < n]
@@ -138,6 +153,7 @@ class Observations:
             ecg = resample_ecg(self.ecg, self.times * MS_PER_TIME_UNIT, times * MS_PER_TIME_UNIT)
             return replace(self, ecg=ecg, times=times)
         if self.activation is not None:
+            check_map_window(self.activation, self.observed, times)
             waveform = template()
             recorded = waveform.fixed(self.activation, times) & self.observed
             return replace(
@@ -145,6 +161,7 @@ class Observations:
             )
         if len(self.times) == len(times) and np.allclose(self.times, times, rtol=1e-3, atol=1e-6):
             return self
+        check_frame_span(self.times, times)
         return replace(self, obs=resample_frames(self.obs, self.times, times), times=times)
 
 
@@ -224,9 +241,11 @@ OBSERVATION_ARRAYS = {
     "ecg_times_ms": (1, "fiu"),  # (T,) ms
     "electrodes": (1, "U"),  # (E,) electrode names
     "electrode_xyz_mm": (2, "fiu"),  # (E, 3) electrode positions in mm
+    "bipolar_mv": (1, "fiu"),  # (N,) bipolar voltage in mV with activation_ms: unmapped below SCAR_BIPOLAR_MV is scar
+    "no_capture": (1, "biu"),  # (N,) 0/1 with activation_ms: nodes that never activate (their times NaN or inf)
 }
-#: Recordings in mV whose lowest value is above this never come near rest (-80 mV): ``u`` given as ``obs_mv``.
-REST_ABOVE_MV = -50.0
+#: Bipolar voltage (mV) below which mapping systems call tissue dense scar (0.5-1.5 mV: border zone).
+SCAR_BIPOLAR_MV = 0.5
 #: Groups of arrays of which a file gives exactly one (``sites`` and ``site_xyz`` may both be given if they agree).
 ONE_OF = {
     "sites": ("sites", "site_xyz"),
@@ -297,7 +316,7 @@ def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     if "ecg_mv" in a or "ecg" in a:
         return _ecg_recordings(path, a)
     if "activation_ms" in a:
-        act = a["activation_ms"].astype(np.float64)
+        act = _never_activated(path, a, a["activation_ms"].astype(np.float64))
         if (act < 0).any():
             raise InputError(
                 f"{path}: activation_ms has {int((act < 0).sum())} negative time(s), down to {np.nanmin(act):.4g} ms: "
@@ -322,16 +341,42 @@ def _recordings(path: Path, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     observed = a["observed"].astype(bool)
     if "obs" in a:
         return {"obs": a["obs"].astype(np.float32), "observed": observed, "times": times}
-    mv = a["obs_mv"][:, :, observed].astype(np.float64)
-    if mv.size and (
-        not np.isfinite(mv).all() or mv.min() < MV_RANGE[0] or mv.max() > MV_RANGE[1] or mv.min() > REST_ABOVE_MV
-    ):
-        raise InputError(
-            f"{path}: obs_mv ranges from {np.min(mv):.4g} to {np.max(mv):.4g} at observed nodes (NaN or inf, or "
-            f"outside [{MV_RANGE[0]:g}, {MV_RANGE[1]:g}] mV, or never near rest): give the transmembrane potential in "
-            "mV (rest -80, peak about 20), or u as obs"
-        )
+    check_millivolts(a["obs_mv"][:, :, observed].astype(np.float64), f"{path}: obs_mv", ", or u as obs")
     return {"obs": from_millivolts(a["obs_mv"]).astype(np.float32), "observed": observed, "times": times}
+
+
+def _never_activated(path: Path, a: dict[str, np.ndarray], act: np.ndarray) -> np.ndarray:
+    """Activation maps (K, N) in ms with the nodes ``no_capture`` marks, and the unmapped (NaN) nodes whose
+    ``bipolar_mv`` is below :data:`SCAR_BIPOLAR_MV`, made never activated (+inf)."""
+    n = act.shape[1]
+    for name in ("no_capture", "bipolar_mv"):
+        if name in a and a[name].shape != (n,):
+            raise InputError(f"{path}: {name} must hold one value per node ({n}), got shape {a[name].shape}")
+    if "no_capture" in a:
+        mask = a["no_capture"].astype(bool)
+        timed = int(np.isfinite(act[:, mask]).any(axis=0).sum())
+        if timed:
+            raise InputError(f"{path}: no_capture marks {timed} node(s) that have an activation time in activation_ms")
+        act = np.where(mask, np.inf, act)
+    if "bipolar_mv" in a:
+        volts = a["bipolar_mv"].astype(np.float64)
+        if not np.isfinite(volts).all() or (volts < 0).any():
+            raise InputError(f"{path}: bipolar_mv must be finite voltages >= 0 mV (peak-to-peak amplitude)")
+        act = np.where(np.isnan(act) & (volts < SCAR_BIPOLAR_MV), np.inf, act)
+    return act
+
+
+def _warn_holes(path: Path, mesh: Mesh, activation_ms: np.ndarray, observed: np.ndarray) -> None:
+    """Warn when the map leaves out (NaN) surface patches that mapped nodes enclose: a scar read as unmapped."""
+    nodes, regions = unmapped_holes(mesh, np.isnan(activation_ms).all(axis=0), observed)
+    if nodes:
+        warnings.warn(
+            f"{path}: {nodes} node(s) in {regions} region(s) enclosed by mapped nodes have no activation time (NaN: "
+            "not mapped), so the model does not read them; if they never activate (scar), mark them +inf in "
+            f"activation_ms, or give bipolar_mv (below {SCAR_BIPOLAR_MV:g} mV: scar) or no_capture",
+            UnmappedWarning,
+            stacklevel=3,
+        )
 
 
 def _ecg_recordings(path: Path, a: dict[str, np.ndarray]) -> dict:
@@ -359,7 +404,8 @@ def _ecg_recordings(path: Path, a: dict[str, np.ndarray]) -> dict:
 
 def read_mesh_file(path: str | Path) -> tuple[Mesh, SiteLabels | None]:
     """A mesh file (any meshio format) as it is: its points and its tetrahedra (or, without any, its
-    triangles), and its region labels when its point data carry them (``simgen mesh`` writes them).
+    triangles), with its long axis and region labels when its point data carry them (``simgen mesh`` writes
+    both; the axis places the standard ECG electrodes).
 
     Nothing is resampled or renumbered, so node ids are those of the file.
     """
@@ -377,8 +423,13 @@ def read_mesh_file(path: str | Path) -> tuple[Mesh, SiteLabels | None]:
         blocks = [block.data for block in data.cells if block.type == cell_type]
         if blocks:
             points = np.asarray(data.points, np.float64)[:, :3]
-            mesh = Mesh(points=points, cells=np.concatenate(blocks), name=path.stem)
-            return mesh, SiteLabels.from_arrays(data.point_data)
+            try:
+                axis = axis_from_point_data(data.point_data, len(points), str(path))
+                labels = SiteLabels.from_arrays(data.point_data)
+            except StimulusError as exc:
+                raise InputError(f"{path}: {exc}") from None
+            mesh = Mesh(points=points, cells=np.concatenate(blocks), name=path.stem, axis=axis)
+            return mesh, labels
     raise InputError(f"{path} has no tetrahedra and no triangles (cell types: {[b.type for b in data.cells]})")
 
 
@@ -406,6 +457,7 @@ def observations_from_file(
     if "observed" in a and not np.isin(a["observed"], (0, 1)).all():
         raise InputError(f"{path}: observed must hold 0/1 (or false/true) per node")
     if mesh is None:
+        check_points_scale(a["points"], f"{path}: points")
         mesh = Mesh(points=a["points"], cells=a["cells"], name=path.stem)
     elif "points" in a and (a["points"].shape != mesh.points.shape or not np.allclose(a["points"], mesh.points)):
         raise InputError(
@@ -423,4 +475,6 @@ def observations_from_file(
     recordings = _recordings(path, a)
     if recordings["observed"] is None:  # an ECG marks no node
         recordings["observed"] = np.zeros(mesh.n_nodes, bool)
+    if recordings.get("activation") is not None:
+        _warn_holes(path, mesh, recordings["activation"], recordings["observed"])
     return Observations(mesh, sites, subject=path.stem, labels=labels, **recordings)

@@ -10,7 +10,16 @@ from numpy.typing import NDArray
 
 from shared.errors import MeshError
 
-__all__ = ["Mesh", "LongAxis", "CellType", "NODE_SETS", "OPTIONAL_NODE_SETS"]
+__all__ = [
+    "Mesh",
+    "LongAxis",
+    "CellType",
+    "NODE_SETS",
+    "OPTIONAL_NODE_SETS",
+    "AXIS_ARRAYS",
+    "PLAUSIBLE_HEART_MM",
+    "axis_from_point_data",
+]
 
 CellType = Literal["triangle", "tetra"]
 
@@ -44,6 +53,25 @@ class LongAxis:
     @property
     def length(self) -> float:
         return float(np.linalg.norm(np.asarray(self.base) - np.asarray(self.apex)))
+
+
+#: Largest bounding-box side of a heart in mm that a mesh may have, whatever unit it was read in.
+PLAUSIBLE_HEART_MM = (20.0, 400.0)
+
+#: Point-data vectors (the same at every node) that carry a mesh's long axis in its file.
+AXIS_ARRAYS = ("axis_apex", "axis_base", "axis_reference")
+
+
+def axis_from_point_data(point_data, n_points: int, where: str, scale: float = 1.0) -> LongAxis | None:
+    """The long axis a mesh file's point data carry in :data:`AXIS_ARRAYS` (coordinates times ``scale`` mm), else
+    ``None``; :class:`MeshError` naming ``where`` when they are not one finite 3-vector at every node."""
+    if not all(name in point_data for name in AXIS_ARRAYS):
+        return None
+    rows = [np.asarray(point_data[name], np.float64).reshape(n_points, -1) for name in AXIS_ARRAYS]
+    if any(r.shape[1] != 3 or not np.isfinite(r).all() or np.ptp(r, axis=0).max() > 1e-6 for r in rows):
+        raise MeshError(f"{where}: point data {list(AXIS_ARRAYS)} must each be one finite 3-vector at every node")
+    apex, base, reference = (r[0] for r in rows)
+    return LongAxis(apex * scale, base * scale, reference)
 
 
 def _unit_fibres(fibres: NDArray, n_nodes: int, name: str) -> NDArray[np.float64]:

@@ -92,6 +92,13 @@ class SiteLabels:
         segment, *masks = (np.asarray(arrays[name]).reshape(-1) for name in cls.NAMES)
         if not (np.isin(segment, np.arange(18)).all() and all(np.isin(m, (0, 1)).all() for m in masks)):
             raise StimulusError(f"site labels: {cls.NAMES[0]} must hold 0-17 and the masks 0/1")
+        for name, mask in zip(cls.NAMES[1:], masks):
+            share = "every" if mask.all() else "no" if not mask.any() and name != "rv_free_wall" else None
+            if share:
+                raise StimulusError(
+                    f"site labels: {name} marks {share} node of the {len(mask)}: a surface of the heart holds some "
+                    "nodes and not all (a mask of another mesh, or inverted?); write the labels with `simgen mesh`"
+                )
         return cls(segment.astype(np.int8), *(m.astype(bool) for m in masks))
 
 

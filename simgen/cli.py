@@ -773,7 +773,11 @@ def repair(
         ),
     ] = False,
     remove_extra: Annotated[
-        bool, typer.Option(help="Delete groups and arrays the recorded spec does not imply (else refused).")
+        bool,
+        typer.Option(
+            help="Delete Zarr groups and arrays the recorded spec does not imply (else refused); files without "
+            "Zarr metadata are a user's and never deleted."
+        ),
     ] = False,
     dry_run: Annotated[bool, typer.Option(help="Print what the repair would change first; write nothing.")] = False,
     scheduler: SchedulerOpt = None,

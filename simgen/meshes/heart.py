@@ -37,7 +37,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
-from shared.mesh import CellType, LongAxis, Mesh
+from shared.mesh import PLAUSIBLE_HEART_MM, CellType, LongAxis, Mesh
 from simgen.meshes.ellipsoid import check_mesh_request
 from simgen.meshes.folds import refuse_folds
 from simgen.meshes.io import load_mesh
@@ -53,10 +53,6 @@ log = logging.getLogger("simgen.meshes")
 
 #: Landmark points a spec may give (mm); ``apex`` and ``base`` (base centre) are required together.
 LANDMARKS = ("apex", "base", "septum")
-
-
-#: Largest bounding-box side of a heart in mm that a mesh may have, whatever unit it was read in.
-PLAUSIBLE_HEART_MM = (20.0, 400.0)
 
 
 def check_heart_size(mesh: Mesh, source: str) -> None:

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.errors import MeshError
-from shared.mesh import NODE_SETS, LongAxis, Mesh
+from shared.mesh import AXIS_ARRAYS, NODE_SETS, LongAxis, Mesh, axis_from_point_data
 from simgen.meshes.labels import file_labels
 from simgen.meshes.repair import drop_unused_nodes, orient_triangles, remove_degenerate_cells, split_hexahedra
 from simgen.meshes.topology import boundary_faces
@@ -39,8 +39,6 @@ from simgen.meshes.validate import validate_mesh
 
 __all__ = ["AXIS_ARRAYS", "FIBRE_KEYS", "SHEET_KEYS", "load_mesh", "save_mesh"]
 
-#: Point-data vectors (the same at every node) that carry a mesh's long axis in its file.
-AXIS_ARRAYS = ("axis_apex", "axis_base", "axis_reference")
 #: Point data holding a fibre direction per node, read in this order; :func:`save_mesh` writes the first.
 FIBRE_KEYS = ("fibre", "fibres", "fiber", "fibers")
 #: Point data holding a sheet direction per node (with fibres only), read in this order.
@@ -117,7 +115,7 @@ def load_mesh(
     node_sets = {key: np.flatnonzero(mask[kept]) for key, mask in masks.items()}
     node_sets["surface"] = np.arange(len(points)) if cells.shape[1] == 3 else np.unique(boundary_faces(cells))
     if axis is None:
-        axis = _file_axis(raw, scale, path)
+        axis = axis_from_point_data(raw.point_data, len(raw.points), str(path), scale)
     fibres, sheets = _file_vectors(raw, path, FIBRE_KEYS), _file_vectors(raw, path, SHEET_KEYS)
     file_index = None
     if len(kept) < len(raw.points):  # nodes in no cell were dropped: keep the way back to the file's ids
@@ -253,14 +251,3 @@ def _file_vectors(raw: meshio.Mesh, path: Path, keys: tuple[str, ...]) -> NDArra
     if vectors.shape != (len(raw.points), 3):
         raise MeshError(f"{path}: point data {key!r} must be one 3-vector per node, got shape {vectors.shape}")
     return vectors
-
-
-def _file_axis(raw: meshio.Mesh, scale: float, path: Path) -> LongAxis | None:
-    """The long axis a file carries in its :data:`AXIS_ARRAYS` (coordinates in the file's units), else ``None``."""
-    if not all(name in raw.point_data for name in AXIS_ARRAYS):
-        return None
-    rows = [np.asarray(raw.point_data[name], np.float64).reshape(len(raw.points), -1) for name in AXIS_ARRAYS]
-    if any(r.shape[1] != 3 or not np.isfinite(r).all() or np.ptp(r, axis=0).max() > 1e-6 for r in rows):
-        raise MeshError(f"{path}: point data {list(AXIS_ARRAYS)} must each be one finite 3-vector at every node")
-    apex, base, reference = (r[0] for r in rows)
-    return LongAxis(apex * scale, base * scale, reference)

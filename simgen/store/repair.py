@@ -92,6 +92,7 @@ from simgen.store.structure import (
     Damage,
     Recorded,
     StoreDamaged,
+    foreign_files,
     read_done,
     recorded_structure,
     structure_damage,
@@ -331,6 +332,7 @@ class _Round:
                 "move them out of the store, or give --remove-extra to delete them (nothing was changed)"
             )
         self.plan.removed = extras
+        self._refuse_foreign(extras)
         by_group: dict[str, list[Damage]] = {}
         for d in self.damage:
             if d.kind != EXTRA:
@@ -346,6 +348,17 @@ class _Round:
             self._plan_group(mesh_path(mesh_id), self._mesh_values(mesh_id), self.plan.meshes)
         for s in sorted(self.made.subjects, key=lambda s: s.id):
             self._plan_group(subject_path(s.id), self._subject_values(s), self.plan.subjects)
+
+    def _refuse_foreign(self, paths: list[str]) -> None:
+        """Refuse removing ``paths`` when a file under them is no Zarr member's (nothing was changed)."""
+        for path in paths:
+            foreign = foreign_files(self.store, path)
+            if foreign:
+                shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+                raise RepairRefused(
+                    f"store {self.store}: removing {path} would delete {len(foreign)} file(s) no Zarr metadata "
+                    f"declare: {shown}; move them out of the store (nothing was changed)"
+                )
 
     def _mesh_values(self, mesh_id: str) -> dict[str, np.ndarray]:
         made = self.made

@@ -14,11 +14,13 @@ those of the stored mesh arrays, whose contents are checksummed.
 copy) with that and reads the small arrays whole (mesh, tissue fields,
 coordinates, done flags), so a checksum failure is named as what it is; it
 reads no result chunk. Groups and arrays the recorded spec does not imply are
-named as extra; attributes are checked for presence (and ``mesh_id``,
-``tissue`` and ``chunk_sites`` for their value), never refused for being
-extra. A build resuming a store, ``add-subject`` and ``regenerate`` run it
-before they write (:func:`refuse_damaged`); ``simgen repair`` mends what it
-finds (:mod:`simgen.store.repair`).
+named as extra; files and folders without Zarr metadata (a user's notes) are
+no members: neither damage nor ever removed (:func:`foreign_files`).
+Attributes are checked for presence (and ``mesh_id``, ``tissue`` and
+``chunk_sites`` for their value), never refused for being extra. A build
+resuming a store, ``add-subject`` and ``regenerate`` run it before they
+write (:func:`refuse_damaged`); ``simgen repair`` mends what it finds
+(:mod:`simgen.store.repair`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from typing import Any
 import numpy as np
 import zarr
 from numpy.typing import NDArray
+from zarr.abc.store import Store
 from zarr.core.buffer import default_buffer_prototype
 from zarr.core.group import AsyncGroup, GroupMetadata
 from zarr.core.metadata import ArrayV3Metadata
@@ -67,6 +70,7 @@ __all__ = [
     "structure_damage",
     "read_done",
     "stored_names",
+    "foreign_files",
     "refuse_damaged",
     "GROUP",
     "GROUP_METADATA",
@@ -121,11 +125,6 @@ class Damage:
     array: str | None = None
     chunk: int | None = None
     kind: str = CONTENT
-
-    @property
-    def extra(self) -> bool:
-        """The member is not implied by the recorded spec."""
-        return self.kind == EXTRA
 
     @property
     def path(self) -> str:
@@ -274,9 +273,13 @@ class _Checker:
         return found, attrs
 
     def extras(self, path: str, members: dict, expected: set[str]) -> None:
+        """Name the members under ``path`` that are not ``expected``; a file or folder with no ``zarr.json``
+        of its own is no member (a user's notes or figures: never damage, never removed)."""
         for name in sorted(set(members) - expected):
             kind = "group" if isinstance(members[name], zarr.Group) else "array"
             where = f"{path}/{name}".strip("/")
+            if members[name] is None and not sync(self.root.store.exists(f"{where}/zarr.json")):
+                continue
             self.add(path, f"extra {kind} {where} (not implied by the recorded spec)", name, kind=EXTRA)
 
     def attributes(self, path: str, attrs: dict | None, required: list[str]) -> None:
@@ -459,6 +462,38 @@ def read_done(done: zarr.Array) -> tuple[NDArray[np.bool_], dict[int, str]]:
     flags = flags == 1
     flags[list(problems)] = False
     return flags, problems
+
+
+async def _keys(store: Store, prefix: str) -> list[str]:
+    return [key async for key in store.list_prefix(prefix)]
+
+
+def foreign_files(location: str, path: str) -> list[str]:
+    """The files at or under ``path`` of store ``location`` that no Zarr metadata there declare (a user's notes,
+    figures).
+
+    A ``zarr.json`` is the store's, and so is every file under the chunk folder
+    (``c/``, the default chunk key encoding every simgen array has) of an array
+    it declares; anything else is foreign, and a removal that would touch it is
+    refused (:mod:`simgen.store.repair`).
+    """
+    store = sync(make_store_path(location, mode="r")).store
+    keys = sync(_keys(store, f"{path}/"))
+    if not keys:
+        return [path] if sync(store.exists(path)) else []  # a plain file
+    arrays = [key.removesuffix("zarr.json") for key in keys if key.endswith("/zarr.json") and _is_array(store, key)]
+    return sorted(
+        key for key in keys if not key.endswith("/zarr.json") and not any(key.startswith(f"{a}c/") for a in arrays)
+    )
+
+
+def _is_array(store: Store, key: str) -> bool:
+    """Whether metadata file ``key`` declares an array (an unreadable one is taken for one: its chunks stay owned)."""
+    buffer = sync(store.get(key, prototype=default_buffer_prototype()))
+    try:
+        return json.loads(buffer.to_bytes()).get("node_type") != "group"
+    except (AttributeError, ValueError):
+        return True
 
 
 def structure_damage(store: str, attrs: dict | None = None) -> list[Damage]:

@@ -34,6 +34,7 @@ def files(tmp_path):
     np.savez(
         tmp_path / "sim.npz",
         sites=np.array([4, 9, 20]),
+        site_xyz=mesh.points[[4, 9, 20]],
         times_ms=TIMES_MS,
         v_mv=np.concatenate([true_mv, true_mv[:1]]),
         activation_ms=np.concatenate([true_act, true_act[:1]]),
@@ -41,6 +42,7 @@ def files(tmp_path):
     np.savez(
         tmp_path / "pred.npz",
         sites=np.array([9, 4]),
+        site_xyz=mesh.points[[9, 4]],
         times_ms=TIMES_MS,
         v_mv=pred_mv[::-1],
         activation_ms=pred_act[::-1],
@@ -109,6 +111,22 @@ def test_files_that_do_not_match_are_refused(files, tmp_path):
         compare_files(folder / "pred.npz", _without(folder, arrays, "activation_ms"))
     with pytest.raises(InputError, match="not found"):
         compare_files(folder / "none.npz", folder / "sim.npz")
+
+
+def test_scores_that_would_lie_are_refused(files):
+    folder, _, _ = files
+    with pytest.raises(InputError, match="hold the same v_mv: a file compared with itself"):
+        compare_files(folder / "pred.npz", folder / "pred.npz")
+    with np.load(folder / "sim.npz") as sim:
+        arrays = dict(sim)
+    moved = arrays["site_xyz"].copy()
+    moved[1] += [0.0, 12.0, 0.0]  # site 9 elsewhere: a renumbered copy of the mesh
+    np.savez(folder / "renumbered.npz", **{**arrays, "site_xyz": moved})
+    with pytest.raises(InputError, match=r"site 9 is at .* 12.0 mm apart: the files number the nodes of different"):
+        compare_files(folder / "pred.npz", folder / "renumbered.npz")
+    np.savez(folder / "u.npz", **{**arrays, "v_mv": (arrays["v_mv"] + 80.0) / 100.0})
+    with pytest.raises(InputError, match=r"u.npz: v_mv ranges from .* never near rest\): give the transmembrane"):
+        compare_files(folder / "pred.npz", folder / "u.npz")
 
 
 def _without(folder, arrays, name):

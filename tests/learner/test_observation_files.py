@@ -69,7 +69,7 @@ def test_other_frame_times_are_resampled_to_the_models(tmp_path, lv, recording):
 
 
 def test_activation_maps_read_the_nodes_every_recording_maps(tmp_path, lv):
-    act = np.full((2, lv.n_nodes), 50.0)
+    act = np.tile(40.0 + 0.1 * np.arange(lv.n_nodes), (2, 1))
     act[0, :10] = np.nan  # mapped in one recording only
     act[:, 10:20] = np.nan  # mapped in neither
     act[1, 30] = np.inf  # mapped, never activated
@@ -81,7 +81,7 @@ def test_activation_maps_read_the_nodes_every_recording_maps(tmp_path, lv):
     template = ApTemplate(np.array([-1.0, 0.0, 1.0]), np.array([0.0, 0.5, 1.0]))
     rendered = obs.at_frames(MODEL_TIMES, lambda: template)
     assert rendered.obs.shape == (2, 55, lv.n_nodes) and rendered.activation is None
-    a = 50.0 / MS
+    a = act[0, 25] / MS
     np.testing.assert_allclose(rendered.obs[0, :, 25], np.interp(MODEL_TIMES - a, [-1, 0, 1], [0, 0.5, 1]), atol=1e-6)
     assert not rendered.obs[1, :, 30].any() and not rendered.obs[:, :, 15].any()
     # the model reads each node up to the end of its upstroke (offset 1.0 here), never-activated nodes throughout

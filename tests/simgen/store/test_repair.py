@@ -144,6 +144,71 @@ def test_a_rescope_that_would_keep_other_results_is_refused(store, store_bytes, 
     assert store_bytes(store) == before
 
 
+#: A user's files in a store: a folder of notes, a figure beside the groups, a file in a mesh and a subject group.
+USER_FILES = {
+    "notes/todo.txt": b"rerun the apex pacing",
+    "figure.png": b"\x89PNG\r\n\x1a\n not really",
+    "meshes/lv/source.txt": b"from the CT of 2024-03",
+    f"{H}/README": b"paced by the lab",
+}
+
+
+def _user_files(store: Path) -> dict[str, bytes]:
+    for name, data in USER_FILES.items():
+        (store / name).parent.mkdir(parents=True, exist_ok=True)
+        (store / name).write_bytes(data)
+    return USER_FILES
+
+
+def _without_user_files(files: dict[str, bytes]) -> dict[str, bytes]:
+    return {name: data for name, data in files.items() if name not in USER_FILES}
+
+
+@pytest.mark.usefixtures("reference_commit")
+def test_a_users_files_survive_every_repair_mode_byte_for_byte(
+    store, reference_store, store_bytes, tiny_spec, tmp_path
+):
+    _user_files(store)
+    assert verify_store(store, sample=0).ok  # files without Zarr metadata are no damage
+    _flip(f"{H}/x/c/0", at=10)(store)
+    shutil.copytree(store / f"{H}/x", store / f"{H}/w")  # an extra Zarr array, removed by --remove-extra
+    before = store_bytes(store)
+    plan_repair(store, remove_extra=True)  # --dry-run
+    assert store_bytes(store) == before
+    report = repair_store(store, workers=1, remove_extra=True)
+    assert report.removed == [f"{H}/w"] and report.arrays == [f"{H}/x"]
+    after = store_bytes(store)
+    assert {name: after[name] for name in USER_FILES} == USER_FILES
+    assert _without_user_files(after) == store_bytes(reference_store)
+    spec_file = tmp_path / "rescoped.toml"  # --rescope drops subject lv-scar-apex
+    spec_file.write_text(
+        'tissue = ["healthy"]\n[[meshes]]\nid = "lv"\nsource = "lv"\nnodes = 500\n[sites]\n'
+        "count = 6\n[solver]\nframes = 8\n[output]\nchunk_sites = 3\nsock_electrodes = 40\n"
+    )
+    assert repair_store(store, spec_file, workers=1, rescope=True).removed == [S]
+    clean = tmp_path / "clean.zarr"
+    build(tiny_spec(tissue=["healthy"]), clean, workers=1)
+    after = store_bytes(store)
+    assert {name: after[name] for name in USER_FILES} == USER_FILES
+    assert _without_user_files(after) == store_bytes(clean)
+
+
+def test_a_removal_that_would_touch_a_users_file_is_refused_naming_it(store, store_bytes, tiny_spec_toml, tmp_path):
+    shutil.copytree(store / f"{H}/x", store / f"{H}/w")
+    (store / f"{H}/w/plot.png").write_bytes(b"a user's figure")
+    (store / f"{S}/notes.txt").write_text("scar drawn by hand")
+    before = store_bytes(store)
+    with pytest.raises(RepairRefused, match=rf"removing {H}/w would delete 1 file\(s\) .*: {H}/w/plot.png"):
+        repair_store(store, workers=1, remove_extra=True)
+    assert store_bytes(store) == before
+    (store / f"{H}/w/plot.png").unlink()
+    spec_file = tmp_path / "healthy.toml"
+    spec_file.write_text(tiny_spec_toml.replace('"healthy", "scar-apex"', '"healthy"'))
+    with pytest.raises(RepairRefused, match=rf"removing {S} would delete 1 file\(s\) .*: {S}/notes.txt"):
+        repair_store(store, spec_file, workers=1, rescope=True, remove_extra=True)
+    assert store_bytes(store) == {k: v for k, v in before.items() if k != f"{H}/w/plot.png"}
+
+
 def test_readers_refuse_a_missing_chunk_instead_of_reading_zeros(store):
     _delete("meshes/lv/points/c/0/0")(store)
     _delete(f"{S}/label/c/0")(store)
