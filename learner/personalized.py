@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -38,7 +39,7 @@ from learner.refine import Refinement, ecg_leads, observed_nodes, recorded_value
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
 from learner.tissue_estimate import TISSUE_SAMPLES, TissueEstimate, estimate_tissue
-from learner.train.checkpoint import load_checkpoint, save_checkpoint
+from learner.train.checkpoint import DIGESTS, load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
 from shared.capture import recorded_fraction, started_wave
 from shared.ecg import LEADS
@@ -174,8 +175,12 @@ class PersonalizedHeart:
             parts.append(region_nodes(self.labels, self.mesh.points, regions))
         return np.concatenate(parts)
 
-    def predict(self, sites, samples: int = 0, seed: int = 0) -> Prediction:
-        """Full-mesh sequences for stimulation nodes ``sites``; ``samples > 1`` also draws ``c`` for a spread."""
+    def predict(
+        self, sites, samples: int = 0, seed: int = 0, on_estimate: Callable[[float, float], None] | None = None
+    ) -> Prediction:
+        """Full-mesh sequences for stimulation nodes ``sites``; ``samples > 1`` also draws ``c`` for a spread,
+        accumulated draw by draw (memory of three predictions, whatever ``samples``). ``on_estimate(seconds,
+        megabytes)`` hears what the draws will cost, timed on the mean prediction, before they start."""
         n = self.mesh.n_nodes
         sites = np.asarray(sites).reshape(-1)
         bad = [int(s) for s in sites if not 0 <= int(s) < n]
@@ -188,14 +193,16 @@ class PersonalizedHeart:
             seconds = time.perf_counter() - t0
             spread = act_spread = None
             if samples > 1:
+                if on_estimate is not None:
+                    on_estimate(samples * seconds, 3 * u.numel() * 8 / 2**20)
                 g = torch.Generator().manual_seed(seed)
-                draws = [
+                draws = (
                     self.model.generate(s, self.hierarchy, self.posterior.sample(g), evidence=self.evidence)
+                    .cpu()
+                    .numpy()
                     for _ in range(samples)
-                ]
-                draws = torch.stack(draws).cpu().numpy()
-                spread = draws.std(axis=0)
-                act_spread = _activation_spread(draws, self.times)
+                )
+                spread, act_spread = _spreads(draws, self.times)
         ecg = None
         if self.lead_field is not None:
             ecg = self.lead_field.ecg(u.cpu()).numpy()
@@ -233,6 +240,15 @@ class PersonalizedHeart:
         """The heart saved in ``path`` (on ``device``), its graph hierarchy as saved (rebuilt for files without)."""
         placed = resolve_device(device)
         p = load_checkpoint(path, kind="personalized")
+        try:
+            return cls._from_payload(p, path, placed)
+        except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(f"{path} is not a personalised heart this learner reads: {first}") from None
+
+    @classmethod
+    def _from_payload(cls, p: dict, path: str | Path, placed: torch.device) -> PersonalizedHeart:
+        """The heart of a checked personalised file's entries ``p``, placed on device ``placed``."""
         config = config_from_mapping(p["config"])
         model = build_model(config.model, p["frames"])
         model.load_state_dict(p["model"])
@@ -247,7 +263,19 @@ class PersonalizedHeart:
         if "context_peaks" in p:  # missing from files that predate it; only capture_evidence models need it
             evidence = SiteEvidence(p["context_peaks"], p["context_sites"], p["observed"]).to(placed)
         posterior = Posterior(p["c_mu"].to(placed), p["c_logvar"].to(placed))
-        arrays = ("model", "c_mu", "c_logvar", "points", "cells", "times", "hierarchy", "labels", "kind", "format")
+        arrays = (
+            "model",
+            "c_mu",
+            "c_logvar",
+            "points",
+            "cells",
+            "times",
+            "hierarchy",
+            "labels",
+            "kind",
+            "format",
+            DIGESTS,
+        )
         payload = {key: value for key, value in p.items() if key not in arrays}
         return cls(model, posterior, hierarchy.to(placed), mesh, p["times"].numpy(), payload, labels, evidence)
 
@@ -431,12 +459,27 @@ def predict(
     return heart.predict(sites, samples, seed)
 
 
-def _activation_spread(draws: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """(S, N) standard deviation of the activation time over draws (D, S, T, N), over the draws that activate."""
-    act = np.stack([[activation_times(u, times) for u in draw] for draw in draws])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a node no draw activates: NaN
-        return np.nanstd(act, axis=0)
+def _spreads(draws: Iterable[np.ndarray], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviations over ``draws`` (each (S, T, N)), accumulated one draw at a time (Welford): of the
+    potential (S, T, N), and of the activation time (S, N) over the draws that activate (NaN where none does)."""
+    count = 0
+    for draw in draws:
+        act = np.stack([activation_times(u, times) for u in draw])
+        if count == 0:
+            mean, m2 = np.zeros_like(draw, np.float64), np.zeros_like(draw, np.float64)
+            n_act, mean_act, m2_act = (np.zeros(act.shape) for _ in range(3))
+        count += 1
+        delta = draw - mean
+        mean += delta / count
+        m2 += delta * (draw - mean)
+        hit = np.isfinite(act)
+        n_act += hit
+        delta_act = np.where(hit, act - mean_act, 0.0)
+        mean_act += np.where(hit, delta_act / np.maximum(n_act, 1), 0.0)
+        m2_act += np.where(hit, delta_act * (act - mean_act), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        act_spread = np.where(n_act > 0, np.sqrt(m2_act / n_act), np.nan)
+    return np.sqrt(m2 / count).astype(np.float32), act_spread
 
 
 def write_vtk(prediction: Prediction, folder: str | Path) -> list[Path]:

@@ -147,8 +147,10 @@ def subject_attrs(path: str | Path, subject_id: str) -> dict:
 
 
 def done_flags(path: str | Path, subject_id: str) -> NDArray[np.bool_]:
-    """Completion flag of every chunk of a subject."""
-    return _subject_group(path, subject_id)["done"][...].astype(bool)
+    """Completion flag of every chunk of a subject; a damaged flag is :class:`~shared.errors.DamagedData`
+    naming its chunk, its file and the repair (:class:`~shared.integrity.SubjectReader`)."""
+    _subject_group(path, subject_id)  # an unknown subject named as such
+    return SubjectReader(path, subject_id).done == 1
 
 
 def _mesh_group(path: str | Path, mesh_id: str) -> zarr.Group:

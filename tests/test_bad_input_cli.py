@@ -176,6 +176,23 @@ def truncate(relative: str) -> Callable[[Path], None]:
     return damage
 
 
+def flip_last(relative: str) -> Callable[[Path], None]:
+    """Damage: flip the last byte of the store file ``relative`` (a small array's checksum)."""
+
+    def damage(store: Path) -> None:
+        data = bytearray((store / relative).read_bytes())
+        data[-1] ^= 0xFF
+        (store / relative).write_bytes(bytes(data))
+
+    return damage
+
+
+def users_file_in_an_extra_array(store: Path) -> None:
+    """Damage: an extra Zarr array holding a user's figure."""
+    shutil.copytree(store / "subjects/lv-healthy/x", store / "subjects/lv-healthy/w")
+    (store / "subjects/lv-healthy/w/figure.png").write_bytes(b"a user's figure")
+
+
 def lock_folder(store: Path) -> None:
     """Damage: a folder where the store's lock file goes."""
     (store / ".lock").mkdir()
@@ -254,6 +271,10 @@ CASES: dict[str, dict[str, Case]] = {
         "anisotropy on a mesh without fibres": Case(
             ("simgen", "simulate", "{d}/o", "--nodes", "300", "--anisotropy", "4"), ("has no fibres", "--fibres")
         ),
+        "two disconnected copies of a heart": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/two-hearts.vtu"),
+            ("two-hearts.vtu: the mesh is 2 disconnected pieces of [416, 416] nodes", "a heart is one"),
+        ),
         "a folded LV surface": Case(
             ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/folded.vtu"),
             ("folded.vtu: its surface passes through itself",),
@@ -314,6 +335,16 @@ CASES: dict[str, dict[str, Case]] = {
             ("simgen", "repair", "{s}", "--workers", "1"),
             ("subjects/lv-healthy/w", "--remove-extra", "nothing was changed"),
             duplicate("subjects/lv-healthy/x", "subjects/lv-healthy/w"),
+        ),
+        "repair removing an extra array that holds a user's file": Case(
+            ("simgen", "repair", "{s}", "--remove-extra", "--workers", "1"),
+            ("removing subjects/lv-healthy/w would delete 1 file(s)", "subjects/lv-healthy/w/figure.png"),
+            users_file_in_an_extra_array,
+        ),
+        "train on a store whose done flag is corrupted": Case(
+            (*TRAIN, "{d}/run-flag"),
+            ("subject lv-healthy, array done, site of chunk 1 (file subjects/lv-healthy/done/c/1)", "checksum", REPAIR),
+            flip_last("subjects/lv-healthy/done/c/1"),
         ),
         "sites of a store whose mesh chunk is gone": Case(
             ("simgen", "sites", "{s}", "lv-healthy"),
@@ -519,6 +550,16 @@ CASES: dict[str, dict[str, Case]] = {
         "compare what is not a prediction": Case(
             ("learner", "compare", "{d}/obs.npz", "{d}/obs.npz"), ("obs.npz is not a prediction file: it lacks",)
         ),
+        "compare a prediction with itself": Case(
+            ("learner", "compare", "{d}/pred.npz", "{d}/pred.npz"), ("hold the same v_mv: a file compared with itself",)
+        ),
+        "compare on a renumbered mesh": Case(
+            ("learner", "compare", "{d}/pred.npz", "{d}/sim-renumbered.npz"),
+            ("site 1 is at", "the files number the nodes of different meshes"),
+        ),
+        "compare a simulation whose v_mv holds u": Case(
+            ("learner", "compare", "{d}/pred.npz", "{d}/sim-u.npz"), ("sim-u.npz: v_mv ranges from", "never near rest")
+        ),
         "predict site out of range": Case(
             ("learner", "predict", "{d}/personalized.pt", "--sites", "999"), ("stimulation nodes [999]",)
         ),
@@ -540,6 +581,10 @@ CASES: dict[str, dict[str, Case]] = {
         "incomplete model": Case(
             ("learner", "personalize", "{d}/incomplete.pt", "--out", "{d}/p.pt", "--observations", "{d}/obs.npz"),
             ("incomplete.pt", "config"),
+        ),
+        "an edited personalised heart": Case(
+            ("learner", "predict", "{d}/edited.pt", "--sites", "1"),
+            ("edited.pt: 1 array(s) differ from the digests the file was written with (points)",),
         ),
         "empty file": Case(
             ("learner", "predict", "{d}/empty.pt", "--sites", "1"),
@@ -581,6 +626,20 @@ CASES: dict[str, dict[str, Case]] = {
             (*PERSONALIZE, "{d}/obs-negative-lat.npz"), ("activation_ms has 1 negative time(s), down to -4",)
         ),
         "duplicate site": Case((*PERSONALIZE, "{d}/obs-duplicate-site.npz"), ("recorded more than once",)),
+        "activation maps in seconds": Case((*PERSONALIZE, "{d}/obs-seconds.npz"), ("all zero, or seconds?",)),
+        "activation maps all zero": Case((*PERSONALIZE, "{d}/obs-zero-lat.npz"), ("spread over 0 ms",)),
+        "points scaled x1000": Case((*PERSONALIZE, "{d}/obs-points-x1000.npz"), ("points span", "in another unit")),
+        "an epicardium of every node": Case(
+            (*PERSONALIZE, "{d}/obs-all-epicardium.npz"), ("epicardium marks every node of the 316",)
+        ),
+        "an all-zero ECG": Case((*PERSONALIZE, "{d}/ecg-zero.npz"), ("ecg: recording 1 is zero in every lead",)),
+        "ECG lead names shuffled": Case(
+            (*PERSONALIZE, "{d}/ecg-shuffled.npz"), ("breaks I + III = II (Einthoven)", "mislabelled or out of order")
+        ),
+        "ECG electrodes 1000x outside the heart": Case(
+            (*PERSONALIZE, "{d}/ecg-far.npz"), ("electrode_xyz_mm: electrode", "positions in another unit")
+        ),
+        "ECG electrodes all at one point": Case((*PERSONALIZE, "{d}/ecg-one-point.npz"), ("all at one point?",)),
         "neither file nor store": Case(PERSONALIZE[:-1], ("give either --observations FILE or --store",)),
         "unknown subject in a store": Case(
             (
@@ -654,6 +713,8 @@ class Evil:
 
 def write_observations(d: Path, mesh) -> None:
     """A valid observation file ``obs.npz`` on ``mesh`` and one broken variant per observation case."""
+    from simgen.meshes.regions import site_labels
+
     n = mesh.n_nodes
     rng = np.random.default_rng(0)
     good = {
@@ -670,6 +731,9 @@ def write_observations(d: Path, mesh) -> None:
     nan_points[3, 1] = np.nan
     lat = np.full((2, n), 30.0)
     lat[1, 4] = -4.0
+    x = mesh.points[:, 0]
+    front = np.tile(10.0 + 80.0 * (x - x.min()) / np.ptp(x), (2, 1))
+    labels = site_labels(mesh).arrays()
     variants = {
         "obs": {},
         "obs-no-times": {"times": None},
@@ -691,6 +755,11 @@ def write_observations(d: Path, mesh) -> None:
         "obs-backwards": {"times": 0.6 * np.array([1, 2, 4, 3, 5, 6])},
         "obs-negative-lat": {"obs": None, "times": None, "observed": None, "activation_ms": lat},
         "obs-duplicate-site": {"sites": np.array([5, 5])},
+        "obs-seconds": {"obs": None, "times": None, "observed": None, "activation_ms": 1e-3 * front},
+        "obs-zero-lat": {"obs": None, "times": None, "observed": None, "activation_ms": 0 * front},
+        "obs-points-x1000": {"points": 1000 * mesh.points},
+        "obs-all-epicardium": {**labels, "epicardium": np.ones(n, np.uint8)},
+        **ecg_variants(mesh, rng),
     }
     for name, patch in variants.items():
         arrays = {k: v for k, v in {**good, **patch}.items() if v is not None}
@@ -698,6 +767,32 @@ def write_observations(d: Path, mesh) -> None:
     data = (d / "obs.npz").read_bytes()
     (d / "obs-truncated.npz").write_bytes(data[: len(data) // 2])
     np.save(d / "single.npy", good["obs"])
+
+
+def ecg_variants(mesh, rng: np.random.Generator) -> dict[str, dict]:
+    """Observation-file patches of 12-lead ECGs: all zero in one recording, leads shuffled, electrodes 1000x out
+    or all at one point."""
+    from shared.ecg import ELECTRODES, LEADS, Electrodes, leads
+
+    s = np.linspace(0.0, 1.0, 60)
+    potentials = rng.normal(0.0, 1.0, (2, len(ELECTRODES), 1)) * np.exp(
+        -(((s - rng.uniform(0.2, 0.8, (2, len(ELECTRODES), 1))) / 0.1) ** 2)
+    )
+    ecg = leads(potentials, Electrodes(tuple(ELECTRODES), np.zeros((len(ELECTRODES), 3))))
+    base = {"obs": None, "times": None, "observed": None, "ecg_mv": ecg, "ecg_times_ms": np.linspace(0, 450, 60)}
+    zero = ecg.copy()
+    zero[1] = 0.0
+    centre = mesh.points.mean(axis=0)
+    at = centre + rng.normal(0.0, 150.0, (len(ELECTRODES), 3))
+    placed = {"electrodes": np.array(ELECTRODES)}
+    swapped = list(LEADS)
+    swapped[0], swapped[8] = swapped[8], swapped[0]  # I and V3 named each other
+    return {
+        "ecg-zero": {**base, "ecg_mv": zero},
+        "ecg-shuffled": {**base, "leads": np.array(swapped)},
+        "ecg-far": {**base, **placed, "electrode_xyz_mm": 1000.0 * at},
+        "ecg-one-point": {**base, **placed, "electrode_xyz_mm": np.tile(centre + 200.0, (len(ELECTRODES), 1))},
+    }
 
 
 def write_checkpoints(d: Path, mesh) -> None:
@@ -722,7 +817,15 @@ def write_checkpoints(d: Path, mesh) -> None:
         d / "model.pt", {"kind": "model", "config": config.to_dict(), "frames": 6, "model": model.state_dict()}
     )
     save_checkpoint(d / "incomplete.pt", {"kind": "model"})
-    personalize(d / "model.pt", observations_from_file(d / "obs.npz"), d / "personalized.pt")
+    heart = personalize(d / "model.pt", observations_from_file(d / "obs.npz"), d / "personalized.pt")
+    edited = torch.load(d / "personalized.pt", weights_only=True)
+    edited["points"] = edited["points"] + 1000.0
+    torch.save(edited, d / "edited.pt")
+    prediction = heart.predict([1, 2]).arrays()
+    np.savez(d / "pred.npz", **prediction)
+    renumbered = {**prediction, "v_mv": prediction["v_mv"] + 1.0, "site_xyz": prediction["site_xyz"] + 20.0}
+    np.savez(d / "sim-renumbered.npz", **renumbered)
+    np.savez(d / "sim-u.npz", **{**prediction, "v_mv": (prediction["v_mv"] + 80.0) / 100.0})
     (d / "garbage.pt").write_bytes(b"not a checkpoint at all\n" * 10)
     (d / "empty.pt").write_bytes(b"")
     torch.save({"format": CHECKPOINT_FORMAT, "kind": "model", "config": Evil(d / "pwned")}, d / "evil.pt")
@@ -759,6 +862,9 @@ def write_meshes(d: Path, mesh) -> None:
     folded = lv.points.copy()
     folded[folded[:, 0] > 0.5 * folded[:, 0].max(), 0] *= -0.9
     meshio.write(d / "folded.vtu", meshio.Mesh(folded, [("triangle", lv.cells)]))
+    tet = get_mesh("lv", 400)
+    two = np.vstack([tet.points, tet.points + [5000.0, 0.0, 0.0]])
+    meshio.write(d / "two-hearts.vtu", meshio.Mesh(two, [("tetra", np.vstack([tet.cells, tet.cells + tet.n_nodes]))]))
 
 
 @pytest.fixture(scope="module")
@@ -1025,7 +1131,8 @@ def test_repair_restores_every_damage_of_the_suite_or_refuses_it_unchanged(d, st
             assert digest(copy) == before[key], key
         else:
             assert digest(copy) == digest(store), key
-    assert len(refused) <= 4, refused  # the root metadata gone (no --spec), an extra array, the lock a folder
+    # the root metadata gone (no --spec), an extra array (one of them holding a user's file), the lock a folder
+    assert len(refused) <= 5, refused
 
 
 def test_unlock_force_removes_another_hosts_lock(d):

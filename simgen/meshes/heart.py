@@ -45,7 +45,7 @@ from simgen.meshes.nodesets import detect_heart, labelled_axis
 from simgen.meshes.resample import resample
 from simgen.meshes.shipped import REAL_LANDMARKS, REAL_PREFIX, is_real, unpacked
 from simgen.meshes.units import HEART_EXTENT_MM, UNITS_HINT
-from simgen.meshes.validate import validate_mesh
+from simgen.meshes.validate import refuse_parts, validate_mesh
 
 __all__ = ["LANDMARKS", "load_heart", "axis_from_landmarks"]
 
@@ -60,6 +60,7 @@ def check_heart_size(mesh: Mesh, source: str) -> None:
     extent = float(np.ptp(mesh.points, axis=0).max())
     lo, hi = PLAUSIBLE_HEART_MM
     if not lo <= extent <= hi:
+        refuse_parts(mesh.cells, mesh.n_nodes, source)  # pieces far apart are no unit's mistake
         raise MeshError(
             f"{source}: read as a heart {extent:.4g} mm across, and hearts span about {HEART_EXTENT_MM[0]:g}-"
             f"{HEART_EXTENT_MM[1]:g} mm: its length unit is wrong (the file's own, or the one given); "

@@ -35,7 +35,7 @@ from simgen.meshes.labels import file_labels
 from simgen.meshes.repair import drop_unused_nodes, orient_triangles, remove_degenerate_cells, split_hexahedra
 from simgen.meshes.topology import boundary_faces
 from simgen.meshes.units import UNIT_KEY, file_units, mm_per_unit
-from simgen.meshes.validate import validate_mesh
+from simgen.meshes.validate import refuse_parts, validate_mesh
 
 __all__ = ["AXIS_ARRAYS", "FIBRE_KEYS", "SHEET_KEYS", "load_mesh", "save_mesh"]
 
@@ -94,7 +94,11 @@ def load_mesh(
     kind, cells = _select_cells(raw, path)
     _check_indices(cells, len(points), path)
     declared = file_units(raw.field_data, raw.point_data, where)
-    scale, origin = mm_per_unit(points[np.unique(cells)], declared, units, where, infer=heart)
+    try:
+        scale, origin = mm_per_unit(points[np.unique(cells)], declared, units, where, infer=heart)
+    except MeshError:
+        refuse_parts(cells, len(points), where)  # pieces far apart fit no unit: name the pieces instead
+        raise
     if scale != 1.0:
         points = points * scale
         (log.warning if origin == "inferred" else log.info)(

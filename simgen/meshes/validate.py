@@ -33,7 +33,7 @@ from shared.errors import MeshError
 from shared.mesh import Mesh
 from simgen.meshes.topology import group_rows, signed_volumes, tet_faces
 
-__all__ = ["validate_mesh", "mesh_problems", "non_manifold_nodes", "degenerate_cells"]
+__all__ = ["validate_mesh", "mesh_problems", "non_manifold_nodes", "degenerate_cells", "refuse_parts"]
 
 #: Coincident-node tolerance, relative to the bounding-box diagonal.
 DUPLICATE_NODE_RTOL = 1e-9
@@ -123,6 +123,19 @@ def _cell_sizes(points: NDArray[np.float64], cells: NDArray[np.int64]) -> NDArra
         return signed_volumes(points, cells)
     a, b, c = (points[cells[:, i]] for i in range(3))
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def refuse_parts(cells: NDArray[np.integer], n: int, where: str) -> None:
+    """Refuse cells (over ``n`` nodes) that form more than one connected piece, counting them: a heart is one
+    (a size or unit that fits no heart is then the pieces' spread, not the unit)."""
+    used = np.unique(cells)
+    _, label = connected_components(_adjacency(np.asarray(cells, np.int64), n), directed=False)
+    parts, sizes = np.unique(label[used], return_counts=True)
+    if len(parts) > 1:
+        raise MeshError(
+            f"{where}: the mesh is {len(parts)} disconnected pieces of {sorted(sizes.tolist(), reverse=True)[:5]} "
+            "nodes, and a heart is one (two copies of a heart, or parts left apart?); give one connected heart"
+        )
 
 
 def _adjacency(cells: NDArray[np.int64], n: int) -> coo_matrix:

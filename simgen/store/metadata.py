@@ -88,7 +88,7 @@ def simulation_attrs(solver: SolverConfig) -> dict:
         "model": f"{solver.model.title}, monodomain, P1 finite elements, "
         + INTEGRATORS[solver.integrator or AUTO].title,
         "equations": list(solver.model.equations),
-        "constants": dataclasses.asdict(solver.model),
+        "constants": {k: v for k, v in dataclasses.asdict(solver.model).items() if v is not None},
         "diffusivity": solver.diffusivity,
         **anisotropy,
         "stimulus_radius": solver.stimulus_radius,

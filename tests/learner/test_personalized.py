@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -62,6 +64,31 @@ def test_a_heart_in_memory_and_its_file_predict_the_same(checkpoint, recordings,
     np.testing.assert_allclose(loaded.predict(sites).u, first.u, atol=1e-6)
     np.testing.assert_allclose(predict(tmp_path / "heart.pt", sites).u, first.u, atol=1e-6)
     np.testing.assert_array_equal(first.started_wave, first.activated > 0.2)
+    _edited_copies_are_refused_in_one_line(tmp_path / "heart.pt", tmp_path)
+
+
+def _edited_copies_are_refused_in_one_line(path, folder):
+    """Each edit of a personalised file (points moved, times stretched, NaN, a reshaped tensor, labels cut, the
+    digests dropped) is refused on load naming it."""
+    saved = torch.load(path, weights_only=True)
+    edits = {
+        "points": lambda p: p["points"].add_(1000.0),
+        "times": lambda p: p["times"].mul_(12.9),
+        "c_mu": lambda p: p["c_mu"].fill_(float("nan")),
+        "model/": lambda p: p["model"].update({k: v.reshape(-1) for k, v in list(p["model"].items())[:1]}),
+        "no digests": lambda p: p.pop("digests"),
+    }
+    for name, edit in edits.items():
+        copy = {
+            k: (dict(v) if isinstance(v, dict) else v.clone() if torch.is_tensor(v) else v) for k, v in saved.items()
+        }
+        edit(copy)
+        torch.save(copy, folder / "edited.pt")
+        with pytest.raises(InputError) as err:
+            PersonalizedHeart.load(folder / "edited.pt")
+        message = str(err.value)
+        assert "\n" not in message and (name in message if name != "no digests" else "no digests" in message), message
+        assert name == "no digests" or "differ from the digests the file was written with" in message
 
 
 def test_sites_by_position_resolve_on_the_hearts_mesh_and_regions_need_labels(checkpoint, recordings):
@@ -120,3 +147,23 @@ def test_a_triangle_surface_of_any_size_is_personalised_and_predicted_on_its_nod
     heart = personalize(checkpoint, context)
     assert heart.hierarchy.working is not None and heart.hierarchy.mesh_nodes == surface.n_nodes
     assert heart.predict([900]).u.shape == (1, 12, surface.n_nodes)
+
+
+def test_spreads_accumulated_draw_by_draw_equal_the_stacked_std():
+    from learner.metrics import activation_times
+    from learner.personalized import _spreads
+
+    rng = np.random.default_rng(0)
+    times = 0.6 * np.arange(1, 21)
+    onset = rng.uniform(1.0, 14.0, (7, 2, 1, 30))
+    onset[:3, 0, 0, :5] = 99.0  # some draws never activate some nodes
+    onset[:, 1, 0, 0] = 99.0  # a node no draw activates
+    draws = (1.0 / (1.0 + np.exp(-3.0 * (times[None, None, :, None] - onset)))).astype(np.float32)
+    spread, act_spread = _spreads(iter(draws), times)
+    np.testing.assert_allclose(spread, draws.std(axis=0), atol=1e-6)
+    act = np.stack([[activation_times(u, times) for u in draw] for draw in draws])
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nanstd(act, axis=0)
+    np.testing.assert_allclose(act_spread, expected, atol=1e-9)
+    assert np.isnan(act_spread[1, 0])

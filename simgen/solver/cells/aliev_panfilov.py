@@ -77,8 +77,12 @@ class APParams:
     mu1: float = 0.2
     mu2: float = 0.3
     eps_simple: float = 0.01
+    #: The model's name where a spec writes the default out (``cell = "aliev-panfilov"``); read as unset, so
+    #: the spec keeps its meaning and hash.
+    cell: Literal["aliev-panfilov"] | None = None
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "cell", None)
         if self.variant not in ("standard", "simple"):
             raise InputError(f"unknown Aliev-Panfilov variant {self.variant!r} (use 'standard' or 'simple')")
         for name in ("k", "eps0", "mu2", "eps_simple"):

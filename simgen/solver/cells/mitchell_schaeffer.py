@@ -57,7 +57,7 @@ register_rates(MSConstants, rates)
 class MSParams:
     """Mitchell-Schaeffer time constants in ms (the published defaults) and the gate threshold.
 
-    ``cell`` names the model in a spec's ``[solver.model]`` table (an Aliev-Panfilov table has no such key).
+    ``cell`` names the model in a spec's ``[solver.model]`` table (an Aliev-Panfilov table may leave it out).
     """
 
     name: ClassVar[str] = "mitchell-schaeffer"

@@ -117,6 +117,12 @@ def test_cell_models_from_specs_keep_aliev_panfilov_hashes():
     ap = spec_from_mapping(base)
     explicit = spec_from_mapping({**base, "solver": {"model": {"k": 8.0}}})
     assert isinstance(ap.solver.model, APParams) and spec_hash(ap) == spec_hash(explicit)
+    named = spec_from_mapping({**base, "solver": {"model": {"cell": "aliev-panfilov", "k": 8.0}}})
+    assert named == ap and spec_hash(named) == spec_hash(ap)  # the default written out is the same spec
+    assert (
+        simulation_attrs(named.solver) == simulation_attrs(ap.solver)
+        and "cell" not in simulation_attrs(ap.solver)["constants"]
+    )
     ms = spec_from_mapping({**base, "solver": {"model": {"cell": "mitchell-schaeffer", "tau_close": 100.0}}})
     assert ms.solver.model == MSParams(tau_close=100.0) and spec_hash(ms) != spec_hash(ap)
     with pytest.raises(ConfigError, match="'fitzhugh' is not one of"):
