@@ -45,7 +45,7 @@ from shared.capture import recorded_fraction, started_wave
 from shared.ecg import LEADS
 from shared.errors import InputError
 from shared.mesh import Mesh
-from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes, region_nodes
+from shared.sites import SITE_TOLERANCE, SiteLabels, nearest_nodes, refuse_repeated, region_nodes, site_names
 from shared.units import MS_PER_TIME_UNIT, to_millivolts
 from shared.vtk import write_time_series
 
@@ -173,7 +173,9 @@ class PersonalizedHeart:
             parts.append(nearest_nodes(self.mesh.points, xyz, tolerance))
         if len(regions):
             parts.append(region_nodes(self.labels, self.mesh.points, regions))
-        return np.concatenate(parts)
+        nodes = np.concatenate(parts)
+        refuse_repeated(nodes, site_names(parts[0], xyz, regions))
+        return nodes
 
     def predict(
         self, sites, samples: int = 0, seed: int = 0, on_estimate: Callable[[float, float], None] | None = None

@@ -35,6 +35,8 @@ __all__ = [
     "SURFACES",
     "SiteLabels",
     "parse_points",
+    "refuse_repeated",
+    "site_names",
     "parse_regions",
     "nearest_nodes",
     "region_nodes",
@@ -100,6 +102,28 @@ class SiteLabels:
                     "nodes and not all (a mask of another mesh, or inverted?); write the labels with `simgen mesh`"
                 )
         return cls(segment.astype(np.int8), *(m.astype(bool) for m in masks))
+
+
+def refuse_repeated(nodes: ArrayLike, given: Sequence[str]) -> None:
+    """Refuse sites that name one node twice, by id, point or region alike; ``given[i]`` says how site ``i``
+    was named (``"node 3"``, ``"point (1, 2, 3)"``, ``"region aha-1"``)."""
+    by_node: dict[int, list[str]] = {}
+    for node, name in zip(np.asarray(nodes).reshape(-1).tolist(), given):
+        by_node.setdefault(int(node), []).append(name)
+    for node, names in by_node.items():
+        if len(names) > 1:
+            raise StimulusError(
+                f"sites {' and '.join(names)} are one stimulation node ({node}): it would be paced twice; "
+                "give each site once"
+            )
+
+
+def site_names(ids: ArrayLike, points: ArrayLike | None, regions: Sequence[str]) -> list[str]:
+    """How each site of ``ids``, then ``points`` (K, 3) mm, then ``regions`` was named, for :func:`refuse_repeated`."""
+    named = [f"node {int(i)}" for i in np.asarray(ids).reshape(-1)]
+    if points is not None:
+        named += ["point (" + ", ".join(f"{v:g}" for v in p) + ")" for p in np.asarray(points, float).reshape(-1, 3)]
+    return named + [f"region {r}" for r in regions]
 
 
 def parse_points(text: str, option: str = "--site-xyz") -> NDArray[np.float64]:

@@ -515,12 +515,14 @@ def _sites(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The stimulation nodes of ``m`` and the points their stimuli are centred on, from ``--sites`` (the
     file's node ids), ``--site-xyz`` (each point itself) and ``--site-region`` (:mod:`shared.sites`)."""
-    from shared.sites import nearest_nodes, parse_points, parse_regions, region_nodes
+    from shared.sites import nearest_nodes, parse_points, parse_regions, refuse_repeated, region_nodes, site_names
     from simgen.solver.stimulus import check_sites
 
     nodes, centres = [], []
+    file_ids, points, names = np.zeros(0, np.int64), None, []
     if ids is not None or (xyz is None and regions is None):
-        given = check_sites(m, m.from_file(parse_ids(ids or "0", "--sites")))
+        file_ids = parse_ids(ids or "0", "--sites")
+        given = check_sites(m, m.from_file(file_ids))
         nodes.append(given)
         centres.append(m.points[given])
     if xyz is not None:
@@ -529,9 +531,11 @@ def _sites(
         centres.append(points)
     if regions is not None:
         labels = _labels(m) if heart else None
-        named = region_nodes(labels, m.points, parse_regions(regions))
+        names = parse_regions(regions)
+        named = region_nodes(labels, m.points, names)
         nodes.append(named)
         centres.append(m.points[named])
+    refuse_repeated(np.concatenate(nodes), site_names(file_ids, points, names))
     return np.concatenate(nodes), np.concatenate(centres)
 
 

@@ -499,6 +499,14 @@ CASES: dict[str, dict[str, Case]] = {
         "duplicate sites": Case(
             ("simgen", "simulate", "{d}/o", "--sites", "3,0,3"), ("--sites: [3] given more than once",)
         ),
+        "two regions naming one site": Case(
+            ("simgen", "simulate", "{d}/o", "--nodes", "300", "--site-region", "apex,aha-17"),
+            ("sites region apex and region aha-17 are one stimulation node", "give each site once"),
+        ),
+        "a site by id and by point alike": Case(
+            ("simgen", "simulate", "{d}/o", "--nodes", "300", "--sites", "0", "--site-xyz", "3.058,0,-56.572"),
+            ("sites node 0 and point (3.058, 0, -56.572) are one stimulation node",),
+        ),
         "negative site": Case(("simgen", "simulate", "{d}/o", "--sites", "2,-1"), ("--sites: [-1] must be >= 0",)),
         "site not a number": Case(
             ("simgen", "simulate", "{d}/o", "--sites", "1,x"), ("--sites: expected comma-separated",)

@@ -247,11 +247,20 @@ def _mask(values: NDArray, n: int, key: str, path: Path) -> NDArray[np.bool_]:
 
 
 def _file_vectors(raw: meshio.Mesh, path: Path, keys: tuple[str, ...]) -> NDArray[np.float64] | None:
-    """A direction at each node of the file (the first point data of ``keys``: fibres, sheets), else ``None``."""
-    key = next((k for k in keys if k in raw.point_data), None)
-    if key is None:
+    """A direction at each node of the file (the point data of ``keys``: fibres, sheets), else ``None``; two
+    arrays of ``keys`` that differ (beyond a direction's sign) are refused, naming both."""
+    found = [k for k in keys if k in raw.point_data]
+    if not found:
         return None
+    key = found[0]
     vectors = np.asarray(raw.point_data[key], np.float64)
     if vectors.shape != (len(raw.points), 3):
         raise MeshError(f"{path}: point data {key!r} must be one 3-vector per node, got shape {vectors.shape}")
+    for other in found[1:]:
+        b = np.asarray(raw.point_data[other], np.float64)
+        if b.shape != vectors.shape or not (np.isclose(b, vectors).all(1) | np.isclose(b, -vectors).all(1)).all():
+            raise MeshError(
+                f"{path}: point data {key!r} and {other!r} both give a direction per node and differ: which one is "
+                "meant cannot be told; keep one of them in the file"
+            )
     return vectors

@@ -68,7 +68,7 @@ def test_a_heart_in_memory_and_its_file_predict_the_same(checkpoint, recordings,
 
 
 def _edited_copies_are_refused_in_one_line(path, folder):
-    """Each edit of a personalised file (points moved, times stretched, NaN, a reshaped tensor, labels cut, the
+    """Each edit of a personalised file (points moved, times stretched, NaN, a reshaped tensor, the
     digests dropped) is refused on load naming it."""
     saved = torch.load(path, weights_only=True)
     edits = {
@@ -98,6 +98,8 @@ def test_sites_by_position_resolve_on_the_hearts_mesh_and_regions_need_labels(ch
     assert heart.sites([4], xyz=recordings.mesh.points[[node]] + 0.5).tolist() == [4, node]
     with pytest.raises(InputError, match="region labels"):
         heart.sites(regions=["aha-1"])
+    with pytest.raises(InputError, match=rf"sites node {node} and point \(.*\) are one stimulation node \({node}\)"):
+        heart.sites([node], xyz=recordings.mesh.points[[node]] + 0.5)
 
 
 def test_observation_files_take_points_for_sites_and_carry_region_labels(tmp_path, recordings):

@@ -70,6 +70,12 @@ def test_mesh_files_carry_fibres_as_they_are(lv, tmp_path):
     path = save_mesh(dataclasses.replace(mesh, fibres=fibres), tmp_path / "lv.vtu")
     np.testing.assert_allclose(load_mesh(path).fibres, fibres, atol=1e-12)
     assert get_mesh(str(path)).fibres is not None  # used as it is: kept
+    same = save_mesh(dataclasses.replace(mesh, fibres=fibres), tmp_path / "same.vtu", point_data={"fiber": -fibres})
+    np.testing.assert_allclose(load_mesh(same).fibres, fibres, atol=1e-12)  # two names, one axial field: read
+    turned = np.roll(fibres, 1, axis=1)
+    other = save_mesh(dataclasses.replace(mesh, fibres=fibres), tmp_path / "two.vtu", point_data={"fiber": turned})
+    with pytest.raises(MeshError, match="point data 'fibre' and 'fiber' both give a direction per node and differ"):
+        load_mesh(other)
 
 
 def test_biventricular_fibres_follow_the_rule_on_both_walls_and_the_septum():
