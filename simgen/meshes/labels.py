@@ -15,9 +15,14 @@ forms are read (:func:`file_labels`), each into the node sets ``base``,
   the numbers the FEniCS meshes of ldrb and cardiac-geometries use
   (:data:`FENICS_MARKERS`: ``BASE=10``, ``ENDO_RV=20``, ``ENDO_LV=30``,
   ``EPI=40``).
-- **Class arrays**: a point-data array holding one class per node
-  (:data:`CLASS_ARRAYS`, e.g. Cobiveco's ``class``: 1 base, 2 epicardium,
-  3 LV, 4 RV endocardium).
+- **Class arrays**: an array of one class per surface triangle (cell data)
+  or per node (point data) (:data:`CLASS_ARRAYS`, e.g. Cobiveco's ``class``:
+  1 base, 2 epicardium, 3 LV, 4 RV endocardium). Where a file has both, the
+  triangles' are read (a node on the line between two classes belongs to
+  both, as with markers). Values that are no class (a stray value on a few
+  nodes or triangles) are named with their count in a warning and read as
+  unlabelled; more than :data:`MAX_STRAY` of them make the array no class
+  array, which is refused.
 - 0/1 point-data masks under the node sets' own names are read by
   :func:`simgen.meshes.io.load_mesh` itself.
 
@@ -80,6 +85,8 @@ MARKER_KEYS = ("gmsh:physical", "medit:ref", "markers", "facet_markers", "bounda
 CLASS_ARRAYS: dict[str, dict[int, str]] = {
     "class": {1: "base", 2: "epicardium", 3: "lv_endocardium", 4: "rv_endocardium"},
 }
+#: Largest share of a class array's values that may be no class (read as unlabelled, with a warning).
+MAX_STRAY = 0.01
 #: Labels :func:`label_agreement` compares, in table order.
 SURFACE_LABELS = ("base", "epicardium", "endocardium", "lv_endocardium", "rv_endocardium")
 
@@ -91,11 +98,16 @@ def file_labels(raw: meshio.Mesh, path: Path) -> dict[str, NDArray[np.bool_]]:
     markers when they cannot be mapped.
     """
     n = len(raw.points)
-    for key, classes in CLASS_ARRAYS.items():
-        if key in raw.point_data:
-            return _complete(_class_masks(np.asarray(raw.point_data[key]), classes, key, n, path))
-    key = next((k for k in MARKER_KEYS if k in raw.cell_data), None)
     blocks = [i for i, block in enumerate(raw.cells) if block.type == "triangle"]
+    for key, classes in CLASS_ARRAYS.items():
+        if key in raw.cell_data and blocks:
+            triangles = np.concatenate([raw.cells[i].data for i in blocks]).astype(np.int64)
+            values = np.concatenate([np.asarray(raw.cell_data[key][i]).reshape(-1) for i in blocks])
+            per_triangle = _class_masks(values, classes, f"cell data {key!r}", len(triangles), path, "triangles")
+            return _complete({name: _nodes_of(triangles[mask], n) for name, mask in per_triangle.items()})
+        if key in raw.point_data:
+            return _complete(_class_masks(np.asarray(raw.point_data[key]), classes, f"point data {key!r}", n, path))
+    key = next((k for k in MARKER_KEYS if k in raw.cell_data), None)
     if key is None or not blocks:
         return {}
     triangles = np.concatenate([raw.cells[i].data for i in blocks]).astype(np.int64)
@@ -110,16 +122,34 @@ def file_labels(raw: meshio.Mesh, path: Path) -> dict[str, NDArray[np.bool_]]:
     return _complete(masks)
 
 
+def _nodes_of(triangles: NDArray[np.int64], n: int) -> NDArray[np.bool_]:
+    mask = np.zeros(n, dtype=bool)
+    mask[triangles.ravel()] = True
+    return mask
+
+
 def _class_masks(
-    values: NDArray, classes: Mapping[int, str], key: str, n: int, path: Path
+    values: NDArray, classes: Mapping[int, str], what: str, n: int, path: Path, items: str = "nodes"
 ) -> dict[str, NDArray[np.bool_]]:
-    """Masks of a one-class-per-node array; :class:`MeshError` for a class outside ``classes``."""
+    """Masks of an array of one class per node (or triangle: ``items``); values outside ``classes`` are
+    unlabelled (named in a warning), and :class:`MeshError` when more than :data:`MAX_STRAY` of them are."""
     values = values.reshape(n, -1)[:, 0] if values.size == n else values
-    found = set(np.unique(values).tolist())
-    if values.shape != (n,) or not found <= set(classes):
+    stray = ~np.isin(values, list(classes)) if values.shape == (n,) else np.ones(1, bool)
+    if values.shape != (n,) or stray.mean() > MAX_STRAY:
         raise MeshError(
-            f"{path}: point data {key!r} holds classes {sorted(found)}; it is read as one class per node of "
-            f"{ {k: v for k, v in classes.items()} } (rename the array, or give the sets as 0/1 masks)"
+            f"{path}: {what} holds classes {sorted(set(np.unique(values).tolist()))}; it is read as one class per "
+            f"{items[:-1]} of { {k: v for k, v in classes.items()} } (rename the array, or give the sets as 0/1 masks)"
+        )
+    if stray.any():
+        log.warning(
+            "%s: %s: %d of %d %s hold no class of %s (values %s): read as unlabelled",
+            path,
+            what,
+            int(stray.sum()),
+            n,
+            items,
+            sorted(classes),
+            sorted(set(np.unique(values[stray]).tolist()))[:5],
         )
     return {name: values == value for value, name in classes.items() if (values == value).any()}
 

@@ -179,3 +179,36 @@ def _any_hit(o: np.ndarray, d: np.ndarray, tris: np.ndarray) -> bool:
     v = q @ d / det
     t = np.einsum("ij,ij->i", e2, q) / det
     return bool((ok & (u >= 0) & (u <= 1) & (v >= 0) & (u + v <= 1) & (t > 0)).any())
+
+
+def test_a_stray_class_value_is_unlabelled_and_cell_classes_come_first(tmp_path, caplog):
+    from simgen.meshes.shipped import unpacked
+
+    with unpacked("cobiveco-mean-biv") as path:
+        raw = meshio.read(path)
+    classes = np.asarray(raw.point_data["class"]).reshape(-1).astype(np.int64)
+    triangles = raw.cells[0].data
+    stray = classes.copy()
+    stray[17] = 7  # one node of 24,991 holds no class
+    meshio.write(
+        tmp_path / "stray.vtu", meshio.Mesh(raw.points, [("triangle", triangles)], point_data={"class": stray})
+    )
+    with caplog.at_level("WARNING", logger="simgen.meshes"):
+        mesh = load_mesh(tmp_path / "stray.vtu")
+    assert "point data 'class': 1 of 24991 nodes hold no class of [1, 2, 3, 4] (values [7])" in caplog.text
+    assert not any(17 in mesh.nodes(k) for k in ("base", "epicardium", "endocardium"))
+    per_triangle = classes[triangles].min(axis=1)  # a clean cell array beside the stray point array
+    both = meshio.Mesh(
+        raw.points, [("triangle", triangles)], point_data={"class": stray}, cell_data={"class": [per_triangle]}
+    )
+    meshio.write(tmp_path / "both.vtu", both)
+    from_cells = load_mesh(tmp_path / "both.vtu")
+    base = np.unique(triangles[per_triangle == 1])
+    np.testing.assert_array_equal(from_cells.nodes("base"), base)
+    noisy = classes.copy()
+    noisy[: len(noisy) // 10] = 9  # a tenth of the nodes: no class array
+    meshio.write(
+        tmp_path / "noisy.vtu", meshio.Mesh(raw.points, [("triangle", triangles)], point_data={"class": noisy})
+    )
+    with pytest.raises(MeshError, match="point data 'class' holds classes \\[1, 2, 3, 4, 9\\]"):
+        load_mesh(tmp_path / "noisy.vtu")
