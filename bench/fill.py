@@ -5,6 +5,9 @@ Rows:
 * ``merged``: the boundaries of two procedural LVs (3,000 nodes each), one moved 25 mm sideways,
   concatenated into one triangle soup whose walls cross, as a surface merged from parts does;
   TetGen refuses it, fTetWild (the ``auto`` choice) fills it at each of ``--nodes``;
+* ``merged BiV``: a biventricle merged from three closed parts that overlap at the septum and the
+  valves (:func:`merged_biv`: an LV, an RV made from a narrower LV moved onto its septum, and a
+  valve-plane ball across both bases), filled at each of ``--nodes`` the same way;
 * every shipped real heart and the procedural LV and BiV surfaces at 2,000 nodes, with both fillers.
 
 Per row: the nodes reached against the target, the wall time of :func:`simgen.meshes.resample.resample`
@@ -37,10 +40,14 @@ from simgen.meshes.resample import resample
 from simgen.meshes.shipped import REAL_MESHES, REAL_PREFIX
 from simgen.meshes.topology import extract_surface, signed_volumes
 
-__all__ = ["merged_surface", "union_volume", "main"]
+__all__ = ["merged_surface", "union_volume", "merged_biv", "biv_union_volume", "main"]
 
 #: How far the second LV of the merged surface is moved (mm): its walls cross the first's.
 SHIFT = 25.0
+#: The parts of :func:`merged_biv` besides the LV: the RV as the LV scaled per axis and moved (mm), and the
+#: valve-plane ball (centre and radius, mm) across both bases.
+RV_SCALE, RV_SHIFT = np.array([0.8, 1.1, 0.8]), np.array([35.0, 0.0, 3.0])
+VALVES, VALVE_RADIUS = np.array([17.0, 0.0, 14.0]), 16.0
 
 
 def merged_surface(nodes: int = 3000, shift: float = SHIFT) -> Mesh:
@@ -50,6 +57,37 @@ def merged_surface(nodes: int = 3000, shift: float = SHIFT) -> Mesh:
     moved = surface.points + np.array([shift, 0.0, 0.0])
     points = np.vstack([surface.points, moved])
     return Mesh(points, np.vstack([surface.cells, surface.cells + len(surface.points)]), name="merged")
+
+
+def merged_biv(nodes: int = 3000) -> Mesh:
+    """A biventricle merged from three closed parts whose walls cross (module docstring), one triangle soup."""
+    lv = extract_surface(get_mesh("lv", nodes, kind="tetra"))
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=VALVE_RADIUS)
+    parts = [(lv.points, lv.cells), (lv.points * RV_SCALE + RV_SHIFT, lv.cells), (ball.vertices + VALVES, ball.faces)]
+    offsets = np.cumsum([0] + [len(p) for p, _ in parts[:-1]])
+    points = np.vstack([p for p, _ in parts])
+    return Mesh(points, np.vstack([t + o for (_, t), o in zip(parts, offsets)]), name="merged-biv")
+
+
+def biv_union_volume(nodes: int = 3000, samples: int = 40_000, seed: int = 0) -> float:
+    """Volume (mm^3) inside any part of :func:`merged_biv`, the share of points drawn uniformly in the parts'
+    bounding box inside one of them (Monte Carlo, about 1% at 40,000 points)."""
+    lv = get_mesh("lv", nodes, kind="tetra")
+    surface = merged_biv(nodes).points
+    lo, hi = surface.min(axis=0), surface.max(axis=0)
+    points = np.random.default_rng(seed).uniform(lo, hi, (samples, 3))
+    inside = _in_lv(lv, points) | _in_lv(lv, (points - RV_SHIFT) / RV_SCALE)
+    inside |= np.linalg.norm(points - VALVES, axis=1) <= VALVE_RADIUS
+    return float(np.prod(hi - lo) * inside.mean())
+
+
+def _in_lv(lv: Mesh, points: np.ndarray) -> np.ndarray:
+    """Whether each point lies inside the procedural LV ``lv`` (in one of its tetrahedra)."""
+    corners = lv.points[lv.cells]
+    inside = np.zeros(len(points), bool)
+    for candidates in cKDTree(corners.mean(axis=1)).query(points, k=24)[1].T:
+        inside |= _in_tets(points, corners[candidates])
+    return inside
 
 
 def union_volume(nodes: int = 3000, shift: float = SHIFT, samples: int = 20_000, seed: int = 0) -> float:
@@ -62,10 +100,7 @@ def union_volume(nodes: int = 3000, shift: float = SHIFT, samples: int = 20_000,
     tets = rng.choice(len(volumes), samples, p=volumes / volumes.sum())
     weights = rng.dirichlet(np.ones(4), samples)
     points = np.einsum("sk,skd->sd", weights, corners[tets]) - np.array([shift, 0.0, 0.0])
-    inside = np.zeros(samples, bool)
-    for candidates in cKDTree(corners.mean(axis=1)).query(points, k=24)[1].T:
-        inside |= _in_tets(points, corners[candidates])
-    return float(volumes.sum() * (2.0 - inside.mean()))
+    return float(volumes.sum() * (2.0 - _in_lv(lv, points).mean()))
 
 
 def _in_tets(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
@@ -97,6 +132,8 @@ def _row(name: str, surface: Mesh, reference_volume: float, nodes: int, filler: 
 def measure(merged_nodes: list[int], clean_nodes: int) -> list[dict]:
     merged = merged_surface()
     rows = [_row("merged (crossing)", merged, union_volume(), n, "auto") for n in merged_nodes]
+    biv, biv_volume = merged_biv(), biv_union_volume()
+    rows += [_row("merged BiV (three parts)", biv, biv_volume, n, "auto") for n in merged_nodes]
     sources = ["lv", "biv", *(REAL_PREFIX + name for name in REAL_MESHES)]
     fillers = ("tetgen", "ftetwild") if tetgen_available() else ("ftetwild",)
     for source in sources:

@@ -43,7 +43,9 @@ def _edges_cross(p0: NDArray, p1: NDArray, a: NDArray, b: NDArray, c: NDArray) -
 
 
 def crossing_triangles(points: NDArray[np.float64], tris: NDArray[np.integer]) -> NDArray[np.int64]:
-    """Pairs ``(i, j)``, ``i < j``, of triangles that share no node and cross each other."""
+    """Pairs ``(i, j)``, ``i < j``, of triangles that share no edge and cross each other: an edge of one passes
+    through the other's interior. Of a pair sharing one node (parts merged at a seam), only the edges opposite
+    that node can (the others meet the other triangle at the node alone)."""
     tris = np.asarray(tris, np.int64)
     corners = points[tris]  # (T, 3, 3)
     centroids = corners.mean(axis=1)
@@ -53,13 +55,15 @@ def crossing_triangles(points: NDArray[np.float64], tris: NDArray[np.integer]) -
         return np.zeros((0, 2), np.int64)
     i, j = pairs[:, 0], pairs[:, 1]
     near = np.linalg.norm(centroids[i] - centroids[j], axis=1) <= radius[i] + radius[j]
-    shared = (tris[i][:, :, None] == tris[j][:, None, :]).any(axis=(1, 2))
-    i, j = i[near & ~shared], j[near & ~shared]
+    shared = (tris[i][:, :, None] == tris[j][:, None, :]).any(axis=2).sum(axis=1)  # nodes the pair shares
+    i, j = i[near & (shared < 2)], j[near & (shared < 2)]
     crossed = np.zeros(len(i), bool)
     for first, second in ((i, j), (j, i)):
         a, b, c = (corners[second][:, k] for k in range(3))
+        on_shared = (tris[first][:, :, None] == tris[second][:, None, :]).any(axis=2)  # (P, 3) per corner
         for k in range(3):
-            crossed |= _edges_cross(corners[first][:, k], corners[first][:, (k + 1) % 3], a, b, c)
+            free = ~(on_shared[:, k] | on_shared[:, (k + 1) % 3])  # the edge does not end at the shared node
+            crossed |= free & _edges_cross(corners[first][:, k], corners[first][:, (k + 1) % 3], a, b, c)
     found = np.stack([i[crossed], j[crossed]], axis=1)
     return np.sort(found, axis=1)[np.lexsort((found.max(axis=1), found.min(axis=1)))]
 

@@ -43,6 +43,8 @@ import fast_simplification
 import numpy as np
 import trimesh
 from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from shared.errors import MeshError
@@ -165,8 +167,11 @@ def tetrahedralise(
     tetrahedron is larger than a regular one of edge ``L`` and the quality
     bounds hold; fTetWild gets the decimated surface and ideal edge ``L``.
     ``L`` is corrected from the node count over up to :data:`_TRIES` fills.
+    With ``auto``, a surface TetGen refuses (a crossing the check missed) is
+    filled by fTetWild. fTetWild's volume keeps its largest piece (connected
+    through faces) and must be a valid closed volume (:func:`_closed_volume`).
     """
-    filler = resolve_filler(filler, points, tris, name)
+    requested, filler = filler or "auto", resolve_filler(filler, points, tris, name)
     solid = trimesh.Trimesh(points, tris, process=False)
     area, volume = float(solid.area), abs(float(solid.volume))
     # nodes ~ surface nodes 2 A / (sqrt(3) L^2) + interior nodes V / (c L^3): solve for L by bisection
@@ -176,8 +181,30 @@ def tetrahedralise(
         estimate = 2 * area / (np.sqrt(3) * length**2) + volume / (_VOLUME_PER_NODE * length**3)
         lo, hi = (length, hi) if estimate > nodes else (lo, length)
     start = decimate_surface(points, tris, 2 * nodes)
-    if filler == "ftetwild":
-        return _oriented(*_fit_length(length, nodes, lambda length: (length, fill(filler, *start, length, name))))
+    if filler == "tetgen":
+        try:
+            return _tetgen_fit(points, tris, start, length, nodes, name)
+        except MeshError as exc:
+            if requested != "auto":
+                raise
+            log.warning("mesh %r: %s; filling it with fTetWild instead", name, exc)
+
+    def fill_ftetwild(length: float) -> tuple:
+        return length, _largest_piece(*fill("ftetwild", *start, length, name))
+
+    return _closed_volume(*_oriented(*_fit_length(length, nodes, fill_ftetwild)), name)
+
+
+def _tetgen_fit(
+    points: NDArray[np.float64],
+    tris: NDArray[np.integer],
+    start: tuple[NDArray[np.float64], NDArray[np.int64]],
+    length: float,
+    nodes: int,
+    name: str,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """TetGen's fill of the surface ``(points, tris)`` remeshed from ``start`` at about ``nodes`` nodes
+    (:func:`tetrahedralise`), starting from edge ``length``."""
 
     def fill_tetgen(length: float, surface_only: bool = False) -> tuple:
         """Tetrahedra of edge ``length``; a remeshed surface that crosses itself (a thin wall at a coarse
@@ -191,7 +218,7 @@ def tetrahedralise(
             surface_length *= step
             sp, st = remesh(*start, surface_length, reference=(points, tris))
         interior = length if surface_only else surface_length
-        return interior, fill(filler, sp, st, interior, name)
+        return interior, fill("tetgen", sp, st, interior, name)
 
     tet_points, tets = _fit_length(length, nodes, fill_tetgen)
     if abs(len(tet_points) / nodes - 1) > NODE_TOLERANCE:  # thin walls refined everywhere: refine the surface alone
@@ -200,6 +227,38 @@ def tetrahedralise(
             key=lambda mesh: abs(len(mesh[0]) / nodes - 1),
         )
     return _oriented(tet_points, tets)
+
+
+def _largest_piece(points: NDArray[np.float64], tets: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray]:
+    """The tetrahedra of the largest piece connected through shared faces (fTetWild may leave specks, or
+    pieces that touch only at an edge or a node), and only the nodes they use."""
+    tets = np.asarray(tets, np.int64)
+    faces = np.sort(tet_faces(tets), axis=1)
+    inverse, counts = group_rows(faces)
+    owner = np.repeat(np.arange(len(tets)), 4)
+    order = np.argsort(inverse, kind="stable")
+    pairs = owner[order].reshape(-1)
+    inner = counts[inverse[order]] == 2
+    first, second = pairs[inner][0::2], pairs[inner][1::2]
+    graph = coo_matrix((np.ones(len(first)), (first, second)), shape=(len(tets),) * 2)
+    _, piece = connected_components(graph, directed=False)
+    kept = tets[piece == np.bincount(piece).argmax()]
+    used, renumbered = np.unique(kept, return_inverse=True)
+    if len(kept) < len(tets):
+        log.info("fTetWild: kept the largest of %d pieces (%d of %d tetrahedra)", piece.max() + 1, len(kept), len(tets))
+    return points[used], renumbered.reshape(-1, 4)
+
+
+def _closed_volume(points: NDArray[np.float64], tets: NDArray[np.int64], name: str) -> tuple[NDArray, NDArray]:
+    """``(points, tets)`` if they are a valid closed volume (:func:`~simgen.meshes.validate.mesh_problems`), else
+    :class:`MeshError` saying what is wrong."""
+    problems = mesh_problems(Mesh(points, tets))
+    if problems:
+        raise MeshError(
+            f"mesh {name!r}: fTetWild's volume is not a valid closed volume ({'; '.join(problems[:3])}); "
+            "fill at another --nodes, or repair the surface first"
+        )
+    return points, tets
 
 
 def _oriented(points: NDArray[np.float64], tets: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from bench.fill import merged_surface, union_volume
+from bench.fill import biv_union_volume, merged_biv, merged_surface, union_volume
 from shared.errors import ConfigError, MeshError
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.fillers import resolve_filler, tetgen_available
@@ -40,6 +41,24 @@ def test_a_surface_merged_from_crossing_parts_fills_with_ftetwild(merged):
 
 
 @needs_tetgen
+def test_auto_falls_back_to_ftetwild_when_tetgen_refuses_a_biv_merged_from_three_parts(monkeypatch, caplog):
+    """The three-part BiV of bench/fill.py, its crossings hidden from ``auto``'s check: TetGen refuses it and
+    fTetWild fills it, 700 nodes within 15%, a valid closed volume of the union of the parts within 5%."""
+    import simgen.meshes.fillers as fillers
+
+    biv = merged_biv(PARTS)
+    monkeypatch.setattr(fillers, "crossing_triangles", lambda points, tris: ())
+    assert resolve_filler("auto", biv.points, biv.cells, "biv") == "tetgen"
+    with caplog.at_level("WARNING", logger="simgen.meshes"):
+        mesh = validate_mesh(resample(biv, 700, "tetra"))
+    assert "TetGen could not fill the surface" in caplog.text and "filling it with fTetWild instead" in caplog.text
+    assert abs(mesh.n_nodes / 700 - 1) <= 0.15
+    assert signed_volumes(mesh.points, mesh.cells).sum() == pytest.approx(biv_union_volume(PARTS), rel=0.05)
+    with pytest.raises(MeshError, match="TetGen could not fill"):  # asked for by name: no fallback
+        resample(biv, 700, "tetra", "tetgen")
+
+
+@needs_tetgen
 def test_auto_keeps_tetgen_on_clean_surfaces_and_names_ftetwild_where_tetgen_cannot(merged):
     clean = extract_surface(get_mesh("lv", 2000, kind="triangle"))
     assert resolve_filler(None, clean.points, clean.cells, "lv") == "tetgen"
@@ -58,3 +77,15 @@ def test_filler_is_a_file_key_out_of_the_spec_hash():
         MeshEntry("m", "real:tof-biv", 1000, filler="gmsh")
     with pytest.raises(MeshError, match="takes no units, landmarks, node_set_arrays, filler"):
         get_mesh("lv", 1000, filler="ftetwild")
+
+
+def test_ftetwild_volumes_keep_their_largest_piece_and_must_be_closed():
+    from simgen.meshes.resample import _closed_volume, _largest_piece
+
+    lv = get_mesh("lv", 400, kind="tetra")
+    n = lv.n_nodes
+    speck = np.vstack([lv.points, lv.points[lv.cells[0]] + 500.0])  # a loose tetrahedron far away
+    points, tets = _largest_piece(speck, np.vstack([lv.cells, [[n, n + 1, n + 2, n + 3]]]))
+    assert len(points) == n and len(tets) == len(lv.cells)
+    with pytest.raises(MeshError, match="fTetWild's volume is not a valid closed volume .*duplicate cell"):
+        _closed_volume(lv.points, np.vstack([lv.cells, lv.cells[:1]]), "lv")

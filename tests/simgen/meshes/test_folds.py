@@ -24,6 +24,11 @@ def test_crossing_against_a_direct_construction():
     assert _two_triangles(np.array([[0.6, 0.2, 0.5], [0.6, 0.2, 1], [0.6, -2, 0.7]])) == 0  # above it
     assert _two_triangles(np.array([[0.5, 0.2, 0.0], [0.6, 0.2, 1], [0.6, -2, 1]])) == 0  # touches it
     assert _two_triangles(np.array([[3, 3, -1], [3, 3, 1], [3, 4, 0]])) == 0  # far away
+    # sharing a node, as parts welded at a seam do: crossing where the opposite edge pierces, not at the node
+    shared = np.vstack([SQUARE[:3], [[0.6, 0.2, -1], [0.6, 0.2, 1]]])
+    assert len(crossing_triangles(shared, np.array([[0, 1, 2], [1, 3, 4]]))) == 1
+    fan = np.vstack([SQUARE[:3], [[0.0, 1.0, 1.0], [1.0, 1.0, 1.0]]])  # a fold up from the shared node
+    assert len(crossing_triangles(fan, np.array([[0, 1, 2], [2, 3, 4]]))) == 0
 
 
 @pytest.mark.parametrize("source", ["lv", "biv"])
