@@ -11,7 +11,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, parse_ids, print_markdown
+from shared.cli import MAX_SEED, SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, parse_ids, print_markdown
 from shared.errors import InputError
 from shared.sites import SITE_TOLERANCE
 
@@ -25,12 +25,13 @@ app = typer.Typer(
 )
 console = Console()
 
-SeedOpt = Annotated[int, typer.Option(min=0, help="Random seed.")]
+SeedOpt = Annotated[int, typer.Option(min=0, max=MAX_SEED, help="Random seed.")]
 DeviceOpt = Annotated[str, typer.Option(help="auto (CUDA where available), cpu, cuda or cuda:N.")]
 RefineOpt = Annotated[
     int,
     typer.Option(
         min=0,
+        max=10_000,
         help="Most gradient steps refining c on each context set (0: the encoder's mean); the count is chosen by "
         "leaving up to 3 recordings out in turn.",
     ),
@@ -64,7 +65,7 @@ def _context_range(text: str) -> tuple[int, int]:
 def train(
     config: Annotated[Path, typer.Argument(help="Training config (TOML).")],
     fresh: Annotated[bool, typer.Option(help="Start over instead of resuming from <out>/last.pt.")] = False,
-    epochs: Annotated[int | None, typer.Option(min=1, help="Override train.epochs.")] = None,
+    epochs: Annotated[int | None, typer.Option(min=1, max=100_000, help="Override train.epochs.")] = None,
     max_minutes: Annotated[
         float | None,
         typer.Option(
@@ -74,13 +75,14 @@ def train(
             "would end past it (the longest epoch and validation so far are the estimate).",
         ),
     ] = None,
-    seed: Annotated[int | None, typer.Option(min=0, help="Override train.seed.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, max=MAX_SEED, help="Override train.seed.")] = None,
     store: Annotated[Path | None, typer.Option(help="Override data.store.")] = None,
     out: Annotated[Path | None, typer.Option(help="Override the run directory.")] = None,
     kind: Annotated[str | None, typer.Option(help="Override model.kind (metapns or pns).")] = None,
     device: Annotated[str | None, typer.Option(help="Override train.device: auto, cpu, cuda or cuda:N.")] = None,
     nproc: Annotated[
-        int, typer.Option(min=1, help="Training processes on this host (DistributedDataParallel, as torchrun).")
+        int,
+        typer.Option(min=1, max=1024, help="Training processes on this host (DistributedDataParallel, as torchrun)."),
     ] = 1,
 ) -> None:
     """Meta-train a metaPNS (or PNS) model; resumes an interrupted run exactly.
@@ -174,8 +176,8 @@ def evaluate(
         str, typer.Option(help="A split name (test, validation, train) or comma-separated ids.")
     ] = "test",
     context: Annotated[str, typer.Option(help="Context size range 'min,max' (or one size).")] = "1,5",
-    sets: Annotated[int, typer.Option(min=1, help="Context sets per subject.")] = 3,
-    max_targets: Annotated[int, typer.Option(min=0, help="Targets per context set (0 = all).")] = 40,
+    sets: Annotated[int, typer.Option(min=1, max=10_000, help="Context sets per subject.")] = 3,
+    max_targets: Annotated[int, typer.Option(min=0, max=1_000_000, help="Targets per context set (0 = all).")] = 40,
     observe: Annotated[
         str | None,
         typer.Option(
@@ -461,7 +463,7 @@ def tissue_command(
     ] = None,
     png: Annotated[Path | None, typer.Option(help="PNG of the abnormal-tissue probability and its spread.")] = None,
     samples: Annotated[int, typer.Option(min=2, max=10_000, help="Draws of c the estimate averages.")] = 32,
-    seed: Annotated[int, typer.Option(min=0, help="Seed of the draws.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, max=MAX_SEED, help="Seed of the draws.")] = 0,
     device: DeviceOpt = "auto",
 ) -> None:
     """What a personalised heart infers about its tissue: where it is scarred and how fast it conducts (m/s)."""

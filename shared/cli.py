@@ -23,6 +23,7 @@ from rich.markup import escape
 from shared.errors import InputError
 
 __all__ = [
+    "MAX_SEED",
     "PATH_ERRNOS",
     "SiteXyzOpt",
     "SiteRegionOpt",
@@ -34,6 +35,9 @@ __all__ = [
     "parse_ids",
     "print_markdown",
 ]
+
+#: Largest seed an option takes (NumPy's and torch's generators take 32 bits everywhere).
+MAX_SEED = 2**32 - 1
 
 #: errno values of a file system refusing a path: bad input, not a bug.
 PATH_ERRNOS = frozenset(

@@ -14,7 +14,17 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from shared.cli import SiteRegionOpt, SiteToleranceOpt, SiteXyzOpt, fail, finite, needs, parse_ids, print_markdown
+from shared.cli import (
+    MAX_SEED,
+    SiteRegionOpt,
+    SiteToleranceOpt,
+    SiteXyzOpt,
+    fail,
+    finite,
+    needs,
+    parse_ids,
+    print_markdown,
+)
 from shared.config import load_toml
 from shared.ecg import LEADS
 from shared.errors import InputError
@@ -106,12 +116,13 @@ TISSUE_HELP = (
     "angle, radius), border_width in mm, core and border {a, D} (docs/formats.md, examples/scar.toml)."
 )
 SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler.")]
-WorkersOpt = Annotated[int, typer.Option(min=1, help="Local worker processes when no --scheduler is given.")]
-ThreadsOpt = Annotated[int, typer.Option(min=1, help="Solver threads.")]
+WorkersOpt = Annotated[int, typer.Option(min=1, max=1024, help="Local worker processes when no --scheduler is given.")]
+ThreadsOpt = Annotated[int, typer.Option(min=1, max=1024, help="Solver threads.")]
 GpusOpt = Annotated[
     int,
     typer.Option(
         min=0,
+        max=1024,
         help="Run tasks on GPU workers with the spec's torch backend: locally one worker per GPU (replaces "
         "--workers); with --scheduler on its workers started with --resources GPU=1.",
     ),
@@ -295,7 +306,7 @@ def simulate(
             help="Gaussian noise std added to the recordings: mV (potential, ECG) or ms (activation).",
         ),
     ] = 0.0,
-    seed: Annotated[int, typer.Option(min=0, help="Seed of the observation noise.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, max=MAX_SEED, help="Seed of the observation noise.")] = 0,
     vtk: Annotated[
         Path | None,
         typer.Option(help="Folder for a ParaView time series per site (site-<node>.pvd: V_mV, u, activation_ms)."),
@@ -559,7 +570,9 @@ def _tissue_spec(tissue: str):
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("report/demo"),
     nodes: NodesOpt = 2000,
-    sites_per_setting: Annotated[int, typer.Option(min=1, help="Stimulation sites per tissue setting.")] = 4,
+    sites_per_setting: Annotated[
+        int, typer.Option(min=1, max=10_000, help="Stimulation sites per tissue setting.")
+    ] = 4,
     threads: ThreadsOpt = 2,
 ) -> None:
     """Run the demo sweep (LV + BiV, four tissue settings) and write figures and a summary."""
@@ -586,7 +599,7 @@ def build(
             "or damaged (`simgen repair` keeps its finished chunks)."
         ),
     ] = False,
-    retries: Annotated[int, typer.Option(min=0, help="Retries per failing task.")] = 2,
+    retries: Annotated[int, typer.Option(min=0, max=100, help="Retries per failing task.")] = 2,
     dry_run: Annotated[
         bool,
         typer.Option(
@@ -937,11 +950,12 @@ def verify(
         int,
         typer.Option(
             min=0,
+            max=1_000_000,
             help="Chunks of every subject recomputed with numba and compared bit for bit (a store of the "
             "torch or auto backend: within the tolerance of docs/solver-backends.md).",
         ),
     ] = 1,
-    seed: Annotated[int, typer.Option(min=0, help="Seed of the chunk sample.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, max=MAX_SEED, help="Seed of the chunk sample.")] = 0,
 ) -> None:
     """Check the structure against the recorded spec, every checksum and chunk, and recompute a sample."""
     from simgen.store.verify import verify_store

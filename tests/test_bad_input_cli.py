@@ -271,6 +271,10 @@ CASES: dict[str, dict[str, Case]] = {
         "anisotropy on a mesh without fibres": Case(
             ("simgen", "simulate", "{d}/o", "--nodes", "300", "--anisotropy", "4"), ("has no fibres", "--fibres")
         ),
+        "two fibre arrays that differ": Case(
+            ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/two-fibres.vtu"),
+            ("point data 'fibre' and 'fiber' both give a direction per node and differ",),
+        ),
         "two disconnected copies of a heart": Case(
             ("simgen", "mesh", "{d}/m.vtu", "--mesh", "{d}/two-hearts.vtu"),
             ("two-hearts.vtu: the mesh is 2 disconnected pieces of [416, 416] nodes", "a heart is one"),
@@ -634,6 +638,16 @@ CASES: dict[str, dict[str, Case]] = {
             (*PERSONALIZE, "{d}/obs-negative-lat.npz"), ("activation_ms has 1 negative time(s), down to -4",)
         ),
         "duplicate site": Case((*PERSONALIZE, "{d}/obs-duplicate-site.npz"), ("recorded more than once",)),
+        "frame times in ms given as model time units": Case(
+            (*PERSONALIZE, "{d}/obs-ms-as-times.npz"), ("times in ms given as model time units", "times_ms")
+        ),
+        "activation maps 1000 ms late": Case(
+            (*PERSONALIZE, "{d}/obs-late-lat.npz"),
+            ("ms (median), after the model's window of 8-46 ms",),
+        ),
+        "a no-capture node with a time": Case(
+            (*PERSONALIZE, "{d}/obs-no-capture.npz"), ("no_capture marks 316 node(s) that have an activation time",)
+        ),
         "activation maps in seconds": Case((*PERSONALIZE, "{d}/obs-seconds.npz"), ("all zero, or seconds?",)),
         "activation maps all zero": Case((*PERSONALIZE, "{d}/obs-zero-lat.npz"), ("spread over 0 ms",)),
         "points scaled x1000": Case((*PERSONALIZE, "{d}/obs-points-x1000.npz"), ("points span", "in another unit")),
@@ -766,6 +780,15 @@ def write_observations(d: Path, mesh) -> None:
         "obs-seconds": {"obs": None, "times": None, "observed": None, "activation_ms": 1e-3 * front},
         "obs-zero-lat": {"obs": None, "times": None, "observed": None, "activation_ms": 0 * front},
         "obs-points-x1000": {"points": 1000 * mesh.points},
+        "obs-ms-as-times": {"times": 7.74 * np.arange(1, 7)},
+        "obs-late-lat": {"obs": None, "times": None, "observed": None, "activation_ms": front + 1000.0},
+        "obs-no-capture": {
+            "obs": None,
+            "times": None,
+            "observed": None,
+            "activation_ms": front,
+            "no_capture": np.ones(n, bool),
+        },
         "obs-all-epicardium": {**labels, "epicardium": np.ones(n, np.uint8)},
         **ecg_variants(mesh, rng),
     }
@@ -821,9 +844,9 @@ def write_checkpoints(d: Path, mesh) -> None:
         }
     )
     model = build_model(config.model, 6)
-    save_checkpoint(
-        d / "model.pt", {"kind": "model", "config": config.to_dict(), "frames": 6, "model": model.state_dict()}
-    )
+    times = torch.as_tensor(0.6 * np.arange(1, 7))  # the model's frame times (time units), as shipped models record
+    model_payload = {"kind": "model", "config": config.to_dict(), "frames": 6, "model": model.state_dict()}
+    save_checkpoint(d / "model.pt", {**model_payload, "times": times})
     save_checkpoint(d / "incomplete.pt", {"kind": "model"})
     heart = personalize(d / "model.pt", observations_from_file(d / "obs.npz"), d / "personalized.pt")
     edited = torch.load(d / "personalized.pt", weights_only=True)
@@ -871,6 +894,9 @@ def write_meshes(d: Path, mesh) -> None:
     folded[folded[:, 0] > 0.5 * folded[:, 0].max(), 0] *= -0.9
     meshio.write(d / "folded.vtu", meshio.Mesh(folded, [("triangle", lv.cells)]))
     tet = get_mesh("lv", 400)
+    along, across = np.tile([1.0, 0.0, 0.0], (tet.n_nodes, 1)), np.tile([0.0, 1.0, 0.0], (tet.n_nodes, 1))
+    fibres = meshio.Mesh(tet.points, [("tetra", tet.cells)], point_data={"fibre": along, "fiber": across})
+    meshio.write(d / "two-fibres.vtu", fibres)
     two = np.vstack([tet.points, tet.points + [5000.0, 0.0, 0.0]])
     meshio.write(d / "two-hearts.vtu", meshio.Mesh(two, [("tetra", np.vstack([tet.cells, tet.cells + tet.n_nodes]))]))
 
@@ -1179,6 +1205,11 @@ def test_dry_run_prints_the_plan_and_writes_nothing(d, tmp_path):
 
 # (package, command function, parameter) of numbers whose range typer cannot state
 UNRANGED = {("simgen", "simulate", "dt")}  # > 0, an open bound: SolverConfig refuses it with a message
+#: Counts bounded where they are used, with a message naming the bound: a site of the store, a mesh's node count
+#: (200-200,000, the range of the procedural meshes and of resampling).
+UNBOUNDED = {("simgen", "export_vtk", "site_index")} | {
+    ("simgen", command, "nodes") for command in ("mesh", "simulate", "demo", "add_subject")
+}
 
 
 def numeric(hint: object) -> set[type]:
@@ -1200,6 +1231,8 @@ def test_every_number_option_has_a_range_and_floats_are_finite(package):
             where = f"{package} {command.callback.__name__} {name}"
             if numeric(base) and (package, command.callback.__name__, name) not in UNRANGED:
                 assert info and info[0].min is not None, f"{where}: no min="
+            if int in numeric(base) and (package, command.callback.__name__, name) not in UNBOUNDED:
+                assert info and info[0].max is not None, f"{where}: a count without max="
             if float in numeric(base):
                 assert info and info[0].callback is finite, f"{where}: NaN and inf not refused"
 
