@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test bench contracts clean
 
 install: $(STAMP)
 
@@ -67,5 +67,16 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.fill --out report/bench
 	$(BIN)/python -m bench.ecg --out report/bench
 
+# The private zarr and numba APIs (shared/zarr_format.py, simgen/solver/numba_internals.py) against the newest
+# releases on PyPI, in a venv of their own: each failing check names the API that changed.
+contracts:
+	$(PYTHON) -m venv .contracts
+	.contracts/bin/pip install --quiet --upgrade pip
+	.contracts/bin/pip install --quiet torch==2.13.0
+	.contracts/bin/pip install --quiet -e ".[dev]"
+	.contracts/bin/pip install --quiet --upgrade --no-deps zarr numba llvmlite
+	.contracts/bin/python -c "import zarr, numba; print('zarr', zarr.__version__, 'numba', numba.__version__)"
+	.contracts/bin/pytest -q tests/contracts
+
 clean:
-	rm -rf $(VENV) report .pytest_cache
+	rm -rf $(VENV) .contracts report .pytest_cache

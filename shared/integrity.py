@@ -40,12 +40,20 @@ import crc32c
 import numpy as np
 import zarr
 from numpy.typing import ArrayLike, NDArray
-from zarr.codecs import BytesCodec, Crc32cCodec, ShardingCodec
-from zarr.core.sync import sync
 from zarr.storage import LocalStore
 
 from shared.errors import DamagedData, InputError
 from shared.schema import SCHEMA_VERSION, subject_path
+from shared.zarr_format import (
+    ABSENT,
+    RangeByteRequest,
+    SuffixByteRequest,
+    default_buffer_prototype,
+    index_bytes,
+    read_shard_index,
+    row_shard,
+    sync,
+)
 
 __all__ = [
     "DIGESTS",
@@ -59,10 +67,6 @@ __all__ = [
     "repair_hint",
     "SubjectReader",
 ]
-
-#: Offset and length of an inner chunk a shard does not store.
-_ABSENT = 2**64 - 1
-
 
 #: Group attribute recording the SHA-256 of each small array's values (mesh arrays, tissue fields, coordinates).
 DIGESTS = "digests"
@@ -209,10 +213,6 @@ class _Bytes:
                 return [os.pread(fd, length, start) for start, length in ranges]
             finally:
                 os.close(fd)
-        from zarr.abc.store import RangeByteRequest, SuffixByteRequest
-        from zarr.core.buffer import default_buffer_prototype
-        from zarr.core.sync import sync
-
         proto = default_buffer_prototype()
         requests = (
             [SuffixByteRequest(suffix)]
@@ -226,21 +226,6 @@ class _Bytes:
                 return None
             out.append(buf.to_bytes())
         return out
-
-
-def _plain_shard(array: zarr.Array) -> bool:
-    """Whether ``array`` is sharded into one-row inner chunks of raw values + CRC32C (no compressor)."""
-    codecs = tuple(array.metadata.codecs)
-    if len(codecs) != 1 or not isinstance(codecs[0], ShardingCodec):
-        return False
-    inner = tuple(codecs[0].codecs)
-    return (
-        len(inner) == 2
-        and isinstance(inner[0], BytesCodec)
-        and isinstance(inner[1], Crc32cCodec)
-        and array.chunks[0] == 1
-        and tuple(array.chunks[1:]) == tuple(array.shape[1:])
-    )
 
 
 class SubjectReader:
@@ -325,16 +310,14 @@ class SubjectReader:
         source = _Bytes(arr)
         key = source.key((chunk,) + (0,) * (arr.ndim - 1))
         file = self._file(name, chunk)
-        index_bytes = per_shard * 16 + 4
-        found = source.read(key, None, suffix=index_bytes)
+        found = source.read(key, None, suffix=index_bytes(per_shard))
         if found is None:
             raise self._damaged(name, site, file, f"shard file missing (sites {start}..{stop - 1} are done)")
-        raw = found[0]
-        if len(raw) < index_bytes or crc32c.crc32c(raw[:-4]) != int.from_bytes(raw[-4:], "little"):
+        index = read_shard_index(found[0], per_shard)
+        if index is None:
             raise self._damaged(name, site, file, "shard index checksum mismatch (file truncated or corrupted)")
-        index = np.frombuffer(raw[:-4], "<u8").reshape(-1, 2)
         rows = index[: stop - start]
-        missing = np.flatnonzero(rows[:, 0] == _ABSENT)
+        missing = np.flatnonzero(rows[:, 0] == ABSENT)
         if missing.size:
             raise self._damaged(name, start + int(missing[0]), file, "site missing from its shard")
         row_bytes = int(np.prod(arr.shape[1:])) * arr.dtype.itemsize + 4
@@ -370,7 +353,7 @@ class SubjectReader:
     def _check_fingerprint(self, chunk: int, name: str, site: int) -> None:
         start, stop = self._range(chunk)
         u, activation = self.arrays["u"], self.arrays["activation"]
-        if _plain_shard(u) and _plain_shard(activation):
+        if row_shard(u) and row_shard(activation):
             crc_u = crc32c_combine(self._inner_crcs("u", chunk, site), u.dtype.itemsize * int(np.prod(u.shape[1:])))
             crc_a = crc32c_combine(
                 self._inner_crcs("activation", chunk, site),

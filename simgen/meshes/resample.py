@@ -53,7 +53,7 @@ from simgen.meshes.fillers import fill, resolve_filler
 from simgen.meshes.quality import cell_angles
 from simgen.meshes.remesh import closest_points, crossing_edges, edge_length_for, remesh
 from simgen.meshes.topology import boundary_faces, extract_surface, group_rows, signed_volumes, tet_faces
-from simgen.meshes.validate import mesh_problems, validate_mesh
+from simgen.meshes.validate import mesh_problems, non_manifold_nodes, validate_mesh
 
 __all__ = [
     "NODE_TOLERANCE",
@@ -190,7 +190,7 @@ def tetrahedralise(
             log.warning("mesh %r: %s; filling it with fTetWild instead", name, exc)
 
     def fill_ftetwild(length: float) -> tuple:
-        return length, _largest_piece(*fill("ftetwild", *start, length, name))
+        return length, _manifold(*_largest_piece(*fill("ftetwild", *start, length, name)))
 
     return _closed_volume(*_oriented(*_fit_length(length, nodes, fill_ftetwild)), name)
 
@@ -247,6 +247,34 @@ def _largest_piece(points: NDArray[np.float64], tets: NDArray[np.int64]) -> tupl
     if len(kept) < len(tets):
         log.info("fTetWild: kept the largest of %d pieces (%d of %d tetrahedra)", piece.max() + 1, len(kept), len(tets))
     return points[used], renumbered.reshape(-1, 4)
+
+
+def _manifold(points: NDArray[np.float64], tets: NDArray[np.int64], rounds: int = 5) -> tuple[NDArray, NDArray]:
+    """``(points, tets)`` without pinches: at each node where the boundary is not a manifold (two parts of the
+    volume meeting at a node or an edge), the tetrahedra around it that are not face-connected to its largest
+    fan are dropped, then specks and unused nodes (:func:`_largest_piece`); up to ``rounds`` times."""
+    for _ in range(rounds):
+        bad = non_manifold_nodes(tets)
+        if not len(bad):
+            break
+        drop = np.zeros(len(tets), bool)
+        for node in bad:
+            around = np.flatnonzero((tets == node).any(axis=1))
+            faces = np.sort(tet_faces(tets[around]), axis=1)
+            with_node = (faces == node).any(axis=1)  # the faces through the node link the fan
+            inverse, counts = group_rows(faces)
+            owner = np.repeat(np.arange(len(around)), 4)
+            shared = with_node & (counts[inverse] == 2)
+            order = np.argsort(inverse[shared], kind="stable")
+            pairs = owner[shared][order].reshape(-1, 2)
+            graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(around),) * 2)
+            _, fan = connected_components(graph, directed=False)
+            drop[around[fan != np.bincount(fan).argmax()]] = True
+        if not drop.any():
+            break
+        log.info("fTetWild: dropped %d tetrahedra pinching the boundary at %d node(s)", int(drop.sum()), len(bad))
+        points, tets = _largest_piece(points, tets[~drop])
+    return points, tets
 
 
 def _closed_volume(points: NDArray[np.float64], tets: NDArray[np.int64], name: str) -> tuple[NDArray, NDArray]:

@@ -32,8 +32,9 @@ import operator
 import llvmlite.binding as llvm
 from llvmlite import ir
 from numba import config, types
-from numba.core import cgutils
 from numba.extending import intrinsic, models, overload, register_model
+
+from simgen.solver.numba_internals import create_struct_proxy, get_or_insert_function
 
 __all__ = ["LANES", "float32_vector", "lane_mask", "vload", "vstore", "vsplat", "vfma", "vany"]
 
@@ -85,7 +86,7 @@ class _LaneMaskModel(models.PrimitiveModel):
 
 def _address(context, builder, array_type, array, offset):
     """Pointer to element ``offset`` of a C-contiguous array, as a vector pointer."""
-    data = cgutils.create_struct_proxy(array_type)(context, builder, value=array).data
+    data = create_struct_proxy(array_type)(context, builder, value=array).data
     return builder.bitcast(builder.gep(data, [offset]), _VECTOR.as_pointer())
 
 
@@ -135,7 +136,7 @@ def vfma(typingctx, a, b, c):
 
     def codegen(context, builder, sig, args):
         signature = ir.FunctionType(_VECTOR, [_VECTOR] * 3)
-        fma = cgutils.get_or_insert_function(builder.module, signature, f"llvm.fma.v{LANES}f32")
+        fma = get_or_insert_function(builder.module, signature, f"llvm.fma.v{LANES}f32")
         return builder.call(fma, args)
 
     return float32_vector(float32_vector, float32_vector, float32_vector), codegen
@@ -146,7 +147,7 @@ def vany(typingctx, mask):
     """True if any lane of ``mask`` is set."""
 
     def codegen(context, builder, sig, args):
-        reduce = cgutils.get_or_insert_function(
+        reduce = get_or_insert_function(
             builder.module, ir.FunctionType(ir.IntType(1), [_MASK]), f"llvm.vector.reduce.or.v{LANES}i1"
         )
         return builder.call(reduce, args)

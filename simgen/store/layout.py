@@ -23,10 +23,6 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
-from zarr.core.buffer import Buffer, default_buffer_prototype
-from zarr.core.group import GroupMetadata
-from zarr.core.metadata import ArrayV3Metadata
-from zarr.core.sync import sync
 from zarr.storage import MemoryStore
 
 from shared.capture import activated_fraction
@@ -55,6 +51,7 @@ from shared.schema import (
 )
 from shared.split import canonical_part, split_rule
 from shared.units import MS_PER_TIME_UNIT
+from shared.zarr_format import ArrayV3Metadata, GroupMetadata, metadata_file, sync
 from simgen.solver.simulate import SolverConfig
 from simgen.store import location
 from simgen.store.chunk_files import writable_store, write_rows
@@ -445,18 +442,14 @@ def mesh_attrs(mesh: Mesh, values: dict[str, NDArray]) -> dict[str, Any]:
 def write_array(group: zarr.Group, name: str, metadata: ArrayV3Metadata, value: NDArray | None) -> None:
     """Create array ``name`` of ``group`` from ``metadata`` (Zarr's ``zarr.json``, as a layout makes it) and,
     unless ``value`` is ``None``, write its values; chunk files already stored are kept (or overwritten)."""
-    sync(group.store.set(f"{group.path}/{name}/zarr.json".lstrip("/"), _metadata_file(metadata)))
+    sync(group.store.set(f"{group.path}/{name}/zarr.json".lstrip("/"), metadata_file(metadata)))
     if value is not None and value.size:
         zarr.open_array(group.store, path=f"{group.path}/{name}".lstrip("/"), mode="r+")[...] = value
 
 
-def _metadata_file(metadata: ArrayV3Metadata | GroupMetadata) -> Buffer:
-    return metadata.to_buffer_dict(default_buffer_prototype())["zarr.json"]
-
-
 def write_group_metadata(root: zarr.Group, path: str, attrs: dict[str, Any]) -> None:
     """Write the ``zarr.json`` of group ``path`` with ``attrs`` (its members are kept)."""
-    sync(root.store.set(f"{path}/zarr.json", _metadata_file(GroupMetadata(attributes=attrs))))
+    sync(root.store.set(f"{path}/zarr.json", metadata_file(GroupMetadata(attributes=attrs))))
 
 
 def _write_mesh(g: zarr.Group, mesh: Mesh, sites: NDArray, electrodes: NDArray, ecg: bool | None) -> None:

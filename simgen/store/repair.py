@@ -43,12 +43,12 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.core.sync import sync
 
 from shared.config import from_mapping
 from shared.errors import SchemaError
 from shared.integrity import array_digest
 from shared.schema import SCHEMA_VERSION, check_schema_version, mesh_path, subject_path
+from shared.zarr_format import sync
 from simgen.store.edit import addition_plan
 from simgen.store.layout import (
     check_store,

@@ -33,13 +33,7 @@ from typing import Any
 import numpy as np
 import zarr
 from numpy.typing import NDArray
-from zarr.abc.store import Store
-from zarr.core.buffer import default_buffer_prototype
-from zarr.core.group import AsyncGroup, GroupMetadata
-from zarr.core.metadata import ArrayV3Metadata
-from zarr.core.sync import sync
 from zarr.errors import ZarrUserWarning
-from zarr.storage._common import make_store_path
 
 from shared.config import from_mapping
 from shared.ecg import ECG_ATTRS
@@ -58,6 +52,15 @@ from shared.schema import (
 )
 from shared.split import canonical_part
 from shared.units import MS_PER_TIME_UNIT
+from shared.zarr_format import (
+    ArrayV3Metadata,
+    Store,
+    default_buffer_prototype,
+    group_with_attrs,
+    metadata_file,
+    store_of,
+    sync,
+)
 from simgen.store.layout import mesh_array_metadata, spec_dict_of, subject_array_metadata, subject_shapes
 from simgen.store.lock import LOCK_NAME
 from simgen.store.spec import BuildSpec, SiteSelection, spec_from_mapping
@@ -191,7 +194,7 @@ def _required(table: dict[int, tuple[str, ...]], version: int) -> list[str]:
 def _metadata_json(arr: zarr.Array | ArrayV3Metadata) -> dict[str, Any]:
     """An array's ``zarr.json`` as stored (NaN fill values as strings, so they compare equal)."""
     metadata = arr.metadata if isinstance(arr, zarr.Array) else arr
-    return json.loads(metadata.to_buffer_dict(default_buffer_prototype())["zarr.json"].to_bytes())
+    return json.loads(metadata_file(metadata).to_bytes())
 
 
 def _metadata_problems(arr: zarr.Array, expected: ArrayV3Metadata, version: int) -> list[str]:
@@ -229,7 +232,7 @@ class _Checker:
         if attrs is None:
             self.root = zarr.open_group(store, mode="r", use_consolidated=False)
         else:  # the root attributes a repair will write, whatever the root zarr.json holds now
-            self.root = zarr.Group(AsyncGroup(GroupMetadata(attributes=attrs), sync(make_store_path(store, mode="r"))))
+            self.root = group_with_attrs(store, attrs)
         self.attrs = dict(self.root.attrs)
         self.version = int(self.attrs["schema_version"])
         self.recorded = recorded_structure(self.attrs)
@@ -477,7 +480,7 @@ def foreign_files(location: str, path: str) -> list[str]:
     it declares; anything else is foreign, and a removal that would touch it is
     refused (:mod:`simgen.store.repair`).
     """
-    store = sync(make_store_path(location, mode="r")).store
+    store = store_of(location)
     keys = sync(_keys(store, f"{path}/"))
     if not keys:
         return [path] if sync(store.exists(path)) else []  # a plain file

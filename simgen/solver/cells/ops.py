@@ -24,9 +24,9 @@ from collections.abc import Callable
 import numpy as np
 from llvmlite import ir
 from numba import types
-from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
+from simgen.solver.numba_internals import get_or_insert_function
 from simgen.solver.simd import float32_vector, lane_mask, vfma, vsplat
 
 __all__ = ["fma", "select", "splat", "cell_rates", "register_rates"]
@@ -68,7 +68,7 @@ def _fma32(typingctx, a, b, c):
 
     def codegen(context, builder, sig, args):
         f32 = ir.FloatType()
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(f32, [f32] * 3), "llvm.fma.f32")
+        fn = get_or_insert_function(builder.module, ir.FunctionType(f32, [f32] * 3), "llvm.fma.f32")
         return builder.call(fn, args)
 
     return types.float32(types.float32, types.float32, types.float32), codegen

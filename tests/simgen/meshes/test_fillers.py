@@ -79,13 +79,22 @@ def test_filler_is_a_file_key_out_of_the_spec_hash():
         get_mesh("lv", 1000, filler="ftetwild")
 
 
-def test_ftetwild_volumes_keep_their_largest_piece_and_must_be_closed():
-    from simgen.meshes.resample import _closed_volume, _largest_piece
+def test_ftetwild_volumes_keep_their_largest_piece_lose_their_pinches_and_must_be_closed():
+    from simgen.meshes.resample import _closed_volume, _largest_piece, _manifold
+    from simgen.meshes.validate import non_manifold_nodes
 
     lv = get_mesh("lv", 400, kind="tetra")
     n = lv.n_nodes
     speck = np.vstack([lv.points, lv.points[lv.cells[0]] + 500.0])  # a loose tetrahedron far away
     points, tets = _largest_piece(speck, np.vstack([lv.cells, [[n, n + 1, n + 2, n + 3]]]))
     assert len(points) == n and len(tets) == len(lv.cells)
+    apex = int(lv.nodes("surface")[0])  # a tetrahedron touching the volume at one surface node: a pinch
+    outward = lv.points[apex] - lv.points.mean(axis=0)
+    tip = lv.points[apex] + 0.1 * outward + 3.0 * np.eye(3)  # three corners just outside, 3 mm apart
+    pinched = np.vstack([lv.points, tip])
+    cells = np.vstack([lv.cells, [[apex, n, n + 1, n + 2]]])
+    assert apex in non_manifold_nodes(cells)
+    points, tets = _manifold(pinched, cells)
+    assert len(points) == n and len(tets) == len(lv.cells) and not len(non_manifold_nodes(tets))
     with pytest.raises(MeshError, match="fTetWild's volume is not a valid closed volume .*duplicate cell"):
         _closed_volume(lv.points, np.vstack([lv.cells, lv.cells[:1]]), "lv")

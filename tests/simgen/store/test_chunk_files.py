@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec
-from zarr.core.buffer import default_buffer_prototype
-from zarr.core.sync import sync
 
 import simgen.store.chunk_files as chunk_files
+from shared.zarr_format import default_buffer_prototype, sync
 from simgen.solver.simulate import page_aligned_empty
 from simgen.store.chunk_files import (
     DirectLocalStore,
