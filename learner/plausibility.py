@@ -172,23 +172,24 @@ def check_points_scale(points: NDArray, name: str) -> None:
         )
 
 
-def _surface_nodes(mesh: Mesh) -> NDArray[np.int64]:
-    """The nodes on a tetrahedral mesh's boundary (every node of a triangle surface)."""
-    if mesh.cells.shape[1] == 3:
-        return np.arange(mesh.n_nodes)
-    faces = np.sort(mesh.cells[:, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]].reshape(-1, 3), axis=1)
-    unique, counts = np.unique(faces, axis=0, return_counts=True)
-    return np.unique(unique[counts == 1])
+def _surface_edges(mesh: Mesh) -> NDArray[np.int64]:
+    """The edges (E, 2) of the mesh's boundary triangles (of every triangle, for a surface mesh): neighbours along
+    the surface, never through the wall."""
+    triangles = mesh.cells
+    if mesh.cells.shape[1] == 4:
+        faces = np.sort(mesh.cells[:, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]].reshape(-1, 3), axis=1)
+        unique, counts = np.unique(faces, axis=0, return_counts=True)
+        triangles = unique[counts == 1]
+    return np.asarray(triangles, np.int64)[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
 
 
 def unmapped_holes(mesh: Mesh, unmapped: NDArray, mapped: NDArray) -> tuple[int, int]:
     """Nodes and regions of ``unmapped`` (N,) bool nodes on the mesh's surface that ``mapped`` nodes enclose: each
     region a connected patch of the surface whose every neighbour is mapped, smaller than a quarter of the map
     (a scar a mapping system exported without times)."""
+    pairs = _surface_edges(mesh)
     surface = np.zeros(mesh.n_nodes, bool)
-    surface[_surface_nodes(mesh)] = True
-    pairs = np.concatenate([mesh.cells[:, [i, j]] for i in range(mesh.cells.shape[1]) for j in range(i)])
-    pairs = pairs[surface[pairs].all(axis=1)]
+    surface[pairs.ravel()] = True
     inside = unmapped & surface
     both = pairs[inside[pairs].all(axis=1)]
     graph = coo_matrix((np.ones(len(both)), (both[:, 0], both[:, 1])), shape=(mesh.n_nodes,) * 2)

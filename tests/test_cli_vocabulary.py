@@ -75,7 +75,8 @@ def test_site_options_say_what_they_take():
 )
 def test_help_documents_the_file_formats(app: typer.Typer, command: str, words: tuple[str, ...]):
     """The tissue TOML and the observation file are described in ``--help``, with the page and example."""
-    text = " ".join(CliRunner().invoke(app, [command, "--help"], terminal_width=400).output.split())
+    wide = {"COLUMNS": "400"}  # rich sizes its help panels from COLUMNS, not from click's terminal width
+    text = " ".join(CliRunner().invoke(app, [command, "--help"], env=wide).output.split())
     assert all(word in text for word in words), [word for word in words if word not in text]
 
 

@@ -166,9 +166,11 @@ def test_a_self_intersecting_surface_is_refused_without_debris(tmp_path, monkeyp
     points, tris = np.vstack([a.vertices, b.vertices]), np.vstack([a.faces, b.faces + len(a.vertices)])
     monkeypatch.chdir(tmp_path)
     (tmp_path / "keep.txt").write_text("a user's file")
-    with pytest.raises(MeshError, match="TetGen could not fill the surface"):
-        tetrahedralise(points, tris, 40, "overlap")
+    with pytest.raises(MeshError, match="TetGen could not fill the surface"):  # asked for by name: no fallback
+        tetrahedralise(points, tris, 40, "overlap", filler="tetgen")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
+    filled, tets = tetrahedralise(points, tris, 40, "overlap")  # auto: fTetWild where TetGen refuses
+    assert len(tets) and sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
 
 
 # Unit cube corners in VTK hexahedron order (bottom 0-3, top 4-7).
