@@ -54,6 +54,10 @@ def test_a_heart_in_memory_and_its_file_predict_the_same(checkpoint, recordings,
     first = heart.predict(sites)
     assert first.u.shape == (3, recordings.obs.shape[1], recordings.mesh.n_nodes)
     torch.testing.assert_close(torch.as_tensor(heart.predict(sites).u), torch.as_tensor(first.u))
+    heard = []  # what drawing c will cost, said before the draws
+    drawn = heart.predict(sites, 3, on_estimate=lambda seconds, mb: heard.append((seconds, mb)))
+    assert len(heard) == 1 and heard[0][0] > 0 and heard[0][1] == pytest.approx(3 * first.u.size * 8 / 2**20)
+    assert drawn.spread.shape == first.u.shape and drawn.activation_spread.shape == first.u[:, 0].shape
 
     def no_rebuild(*args, **kwargs):
         raise AssertionError("the graph hierarchy was rebuilt: the file holds it")
