@@ -50,12 +50,12 @@ from bench.common import (
     write_out,
 )
 from learner.activation_maps import ApTemplate
+from learner.checkpoint import load_checkpoint
 from learner.data.episodes import load_episode
 from learner.metrics import activation_error_ms, spatial_cc
 from learner.observations import Observations
 from learner.personalized import NoWaveWarning, personalize
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 from shared.capture import mapped_activation, started_wave
 from shared.reader import read_activation
 from shared.units import MS_PER_TIME_UNIT

@@ -34,10 +34,10 @@ from pathlib import Path
 
 from bench.common import add_publish_argument, check_publish, publish_out, write_out
 from bench.unseen_anatomies import real_heart, unseen_procedural
+from learner.checkpoint import load_checkpoint
 from learner.config import LearnerConfig, load_config
 from learner.data.split import SplitSpec, split_subjects
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 from learner.train.trainer import train
 
 

@@ -34,11 +34,11 @@ import numpy as np
 from torch import Tensor
 
 from bench.common import add_out_argument, add_publish_argument, check_publish, publish_out, write_out
+from learner.checkpoint import load_checkpoint
 from learner.data.episodes import Episode
 from learner.evaluate import EvalSetting, EvalSpec, Method, NeuralMethod, evaluate_methods, load_model
 from learner.metrics import frame_cc
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 from shared.mesh import Mesh
 from shared.reader import subject_attrs
 

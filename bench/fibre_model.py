@@ -39,8 +39,8 @@ from bench.common import (
     write_out,
 )
 from bench.pretrained import unseen_and_real
+from learner.checkpoint import load_checkpoint
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 
 
 def by_heart(real: str, folds: list[dict]) -> dict[str, list[float]]:

@@ -35,10 +35,10 @@ import numpy as np
 
 from bench.common import add_out_argument, machine_line, write_out
 from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
+from learner.checkpoint import load_checkpoint
 from learner.evaluate import EvalReport, EvalSetting, EvalSpec, evaluate, load_method
 from learner.metrics import mse
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 from shared.reader import read_u
 
 

@@ -47,13 +47,13 @@ import torch
 from bench.common import add_out_argument, add_publish_argument, check_publish, publish_out, write_out
 from learner.baselines.base import diffusivity_from_excitability
 from learner.benchmark import observe_fold
+from learner.checkpoint import load_checkpoint
 from learner.evaluate import EvalSpec, Method, NeuralMethod, evaluate, load_method
 from learner.methods import MethodContext, build_methods
 from learner.metrics import activation_error_ms, activation_times, spatial_cc
 from learner.models.surrogate import MetaPNS
 from learner.store_view import StoreView
 from learner.tissue_estimate import TissueEstimate, estimate_tissue, tissue_scores
-from learner.train.checkpoint import load_checkpoint
 from shared.observation import Observation
 from shared.reader import read_solver_settings, read_tissue, subject_attrs
 from shared.tissue import ABNORMAL_LABELS, Material, TissueSpec, healthy_speed

@@ -37,10 +37,10 @@ from pathlib import Path
 
 from bench.common import add_out_argument, add_publish_argument, check_publish, publish_out, write_out
 from learner.benchmark import BenchmarkConfig, RealDataSpec, real_data, real_data_setting
+from learner.checkpoint import load_checkpoint
 from learner.evaluate import EvalSetting, EvalSpec, evaluate, load_method
 from learner.refine import Refinement
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 
 
 def unseen_procedural(

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from learner.activation_maps import ApTemplate, template_from_store
+from learner.checkpoint import DIGESTS, load_checkpoint, save_checkpoint
 from learner.config import LearnerConfig, config_from_mapping
 from learner.ecg import LeadField
 from learner.graph.hierarchy import MeshHierarchy, hierarchy_for_mesh
@@ -39,7 +40,6 @@ from learner.refine import Refinement, ecg_leads, observed_nodes, recorded_value
 from learner.runtime import resolve_device
 from learner.store_view import StoreView
 from learner.tissue_estimate import TISSUE_SAMPLES, TissueEstimate, estimate_tissue
-from learner.train.checkpoint import DIGESTS, load_checkpoint, save_checkpoint
 from learner.train.trainer import load_model
 from shared.capture import recorded_fraction, started_wave
 from shared.ecg import LEADS

@@ -830,11 +830,11 @@ def write_checkpoints(d: Path, mesh) -> None:
     """A model (random weights), a personalised surrogate from it and broken checkpoints."""
     import torch
 
+    from learner.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
     from learner.config import config_from_mapping
     from learner.models.surrogate import build_model
     from learner.observations import observations_from_file
     from learner.personalized import personalize
-    from learner.train.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
 
     config = config_from_mapping(
         {

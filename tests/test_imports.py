@@ -3,7 +3,8 @@
 Every ``import`` and ``from ... import`` of ``simgen``, ``learner``, ``shared`` and ``bench``, at module
 level, inside a function or under ``if TYPE_CHECKING``, is an edge of a module graph; ``from a import b``
 points at the module ``a.b`` when there is one, else at ``a``. A strongly connected component of more than
-one module (or a module importing itself) is a cycle, reported as a path.
+one module (or a module importing itself) is a cycle, reported as a path. The same holds between
+folders (:func:`folder_graph`): two sibling subpackages never import each other both ways.
 """
 
 from __future__ import annotations
@@ -134,6 +135,31 @@ def import_cycles(graph: Mapping[str, set[str]]) -> list[list[str]]:
 def test_no_import_cycle() -> None:
     cycles = import_cycles(import_graph(project_modules()))
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def folder_graph(modules: Mapping[str, Path], graph: Mapping[str, set[str]]) -> dict[str, set[str]]:
+    """Folder (subpackage) -> the folders its modules import, between folders of which neither holds the other
+    (a subpackage may use its parent's modules, and a package its subpackages) below the top-level packages."""
+
+    def folder(name: str) -> str:
+        return name if modules[name].name == "__init__.py" else name.rpartition(".")[0]
+
+    def nested(a: str, b: str) -> bool:
+        return a == b or a.startswith(b + ".") or b.startswith(a + ".")
+
+    folders: dict[str, set[str]] = {folder(name): set() for name in modules if "." in folder(name)}
+    for name, targets in graph.items():
+        for target in targets:
+            a, b = folder(name), folder(target)
+            if a in folders and b in folders and not nested(a, b):
+                folders[a].add(b)
+    return folders
+
+
+def test_no_import_cycle_between_folders() -> None:
+    modules = project_modules()
+    cycles = import_cycles(folder_graph(modules, import_graph(modules)))
+    assert not cycles, "folders importing each other:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
 #: Which top-level packages each may import: shared is the contract, simgen and learner never meet.

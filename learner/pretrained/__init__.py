@@ -88,8 +88,8 @@ def export(
     """
     from safetensors.torch import save_file
 
+    from learner.checkpoint import load_checkpoint
     from learner.store_view import StoreView
-    from learner.train.checkpoint import load_checkpoint
 
     folder = Path(folder)
     if not _NAME.match(folder.name):

@@ -1,7 +1,7 @@
 """The shipped models' folders: their names, config.json facts, weights as checkpoints, names in config files.
 
 The package :mod:`learner.pretrained` re-exports all of it; this module imports nothing else of
-the learner, so :mod:`learner.train.checkpoint` and :mod:`learner.config` resolve shipped names
+the learner, so :mod:`learner.checkpoint` and :mod:`learner.config` resolve shipped names
 through it without importing the training code that :func:`learner.pretrained.load` uses.
 """
 

@@ -6,7 +6,7 @@ model back; :func:`launch` starts ``--nproc`` processes (:mod:`learner.train.dis
 
 from __future__ import annotations
 
-from learner.train.checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
+from learner.checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
 from learner.train.distributed import World
 from learner.train.launcher import RankFailed, launch
 from learner.train.loss import EpisodeObjective, LossTerms, episode_loss

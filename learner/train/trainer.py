@@ -29,6 +29,7 @@ from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from learner.activation_maps import ApTemplate, template_from_store
+from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.config import LearnerConfig, config_from_mapping
 from learner.data.episodes import Episode, EpisodeDataset
 from learner.data.split import split_subjects
@@ -37,7 +38,6 @@ from learner.models.site_evidence import SiteEvidence
 from learner.models.surrogate import PNS, build_model
 from learner.runtime import autocast, on_device, resolve_device, set_threads, tune_allocator
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.distributed import SINGLE_PROCESS, World, kill_point, process_group
 from learner.train.loss import EpisodeObjective, LossTerms
 from shared.errors import InputError

@@ -234,7 +234,7 @@ def rotational_coordinate(mesh: Mesh) -> NDArray[np.float64]:
     towards the RV (the reference of a detected BiV axis points to the RV
     cavity's centre, the septum's landmark of a given one), growing
     counter-clockwise seen from the base, the sign of the AHA angle of
-    :func:`simgen.tissue.aha.longitudinal_angular`. Needs the long axis.
+    :func:`simgen.meshes.aha.longitudinal_angular`. Needs the long axis.
     """
     if mesh.axis is None:
         raise MeshError(f"mesh {mesh.name!r}: the rotational coordinate needs its long axis (apex and base)")

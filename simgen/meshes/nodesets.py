@@ -25,7 +25,7 @@ ventricles whose cavities open at the base:
    LV cavity ends on that line (98th percentile of its nodes' projections),
    the apex the lowest epicardial projection, and the reference direction (AHA angle 0) points from the
    axis to the RV cavity's centroid; an LV alone gets the x (or y) direction
-   made orthogonal to the axis, as :func:`simgen.tissue.aha.estimate_axis`.
+   made orthogonal to the axis, as :func:`simgen.meshes.aha.estimate_axis`.
 5. **Base.** Non-endocardial nodes in the basal half whose normal is within
    :data:`BASE_ANGLE` degrees of the axis direction (the flat or rounded cut
    and the valve rims), and those next to an endocardial node: on a closed

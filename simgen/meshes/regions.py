@@ -2,7 +2,7 @@
 
 From a heart's node sets and long axis:
 
-- the AHA segment of every left-ventricular node (:func:`simgen.tissue.aha.aha_segments`);
+- the AHA segment of every left-ventricular node (:func:`simgen.meshes.aha.aha_segments`);
 - the right ventricle's free wall: the nodes nearer the RV endocardium than
   the LV endocardium and nearer the epicardium than the LV endocardium (the
   septum, between the two cavities, fails the second test). Its nodes carry
@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from shared.errors import MeshError
 from shared.mesh import Mesh
 from shared.sites import SiteLabels
-from simgen.tissue.aha import aha_segments
+from simgen.meshes.aha import aha_segments
 
 __all__ = ["site_labels"]
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from simgen.tissue.aha import APEX_CAP, SEGMENT_NAMES, aha_segments, estimate_axis, longitudinal_angular
+from simgen.meshes.aha import APEX_CAP, SEGMENT_NAMES, aha_segments, estimate_axis, longitudinal_angular
 from simgen.tissue.defaults import (
     BORDER_WIDTH,
     BORDER_ZONE,

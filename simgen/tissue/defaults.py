@@ -2,7 +2,7 @@
 
 Like the paper's benchmark, each mesh is simulated under 16 settings: healthy
 tissue and 15 scars, each a set of contiguous AHA segments (see
-:mod:`simgen.tissue.aha`) at a different location: anterior, septal, inferior
+:mod:`simgen.meshes.aha`) at a different location: anterior, septal, inferior
 and lateral walls at basal, mid and apical level, two scars spanning two
 levels, and the apical cap. Every scar has a 5 mm border zone.
 """

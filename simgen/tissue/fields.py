@@ -44,9 +44,9 @@ from shared.tissue import (
     TissueFields,
     TissueSpec,
 )
+from simgen.meshes.aha import aha_segments, estimate_axis, longitudinal_angular
 from simgen.meshes.fibres import laplace
 from simgen.meshes.topology import edge_graph
-from simgen.tissue.aha import aha_segments, estimate_axis, longitudinal_angular
 
 __all__ = ["SCAR_BORDERS", "tissue_fields", "scar_regions", "fibrosis_mask", "wall_centre"]
 

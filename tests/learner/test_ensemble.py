@@ -9,6 +9,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.cli import app
 from learner.config import ModelConfig
 from learner.data.episodes import load_episode
@@ -16,7 +17,6 @@ from learner.evaluate import EnsembleMethod, NeuralMethod, evaluate, load_method
 from learner.models.surrogate import MetaPNS
 from learner.refine import Refinement
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from shared.errors import InputError
 
 CONFIG = ModelConfig(channels=(4, 8), hidden=16, latent=8, levels=3, coarsest=10, coarse_blocks=1)

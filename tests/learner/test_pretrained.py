@@ -14,13 +14,13 @@ from typer.testing import CliRunner
 
 from learner import pretrained
 from learner.activation_maps import ApTemplate
+from learner.checkpoint import load_checkpoint
 from learner.cli import app
 from learner.evaluate import EvalSpec, evaluate
 from learner.metrics import mse
 from learner.models.surrogate import MetaPNS
 from learner.pretrained import shipped as shipped_models
 from learner.store_view import StoreView
-from learner.train.checkpoint import load_checkpoint
 from learner.train.trainer import load_model
 from shared.errors import InputError
 from shared.reader import read_u

@@ -9,8 +9,8 @@ from shared.capture import CAPTURE_SHARE, activated_fraction, recorded_fraction,
 from shared.errors import StimulusError
 from shared.sites import SiteLabels, nearest_nodes, parse_points, parse_regions, region_nodes
 from simgen.meshes import get_mesh
+from simgen.meshes.aha import aha_segments
 from simgen.meshes.regions import site_labels
-from simgen.tissue.aha import aha_segments
 
 
 @pytest.fixture(scope="module")

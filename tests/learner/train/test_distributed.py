@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from learner.checkpoint import load_checkpoint
 from learner.config import config_from_mapping, load_config
 from learner.data.episodes import EpisodeDataset
-from learner.train.checkpoint import load_checkpoint
 from learner.train.distributed import KILL_AT_ENV, World
 from learner.train.trainer import Trainer
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
+from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.data.episodes import EpisodeDataset, load_episode
-from learner.train.checkpoint import load_checkpoint, save_checkpoint
 from learner.train.trainer import VALIDATION_EPOCH, StepCost, Trainer, TrainingDiverged, load_model, train
 from shared.errors import ConfigError, InputError
 

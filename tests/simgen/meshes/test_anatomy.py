@@ -9,12 +9,12 @@ import pytest
 
 from shared.errors import ConfigError, MeshError
 from shared.mesh import Mesh
+from simgen.meshes.aha import aha_segments
 from simgen.meshes.anatomy import Anatomy, sample_anatomies, sample_shapes, sampling_intervals
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.shapes import SHAPES, LVShape, parameter_ranges
 from simgen.meshes.topology import boundary_faces, signed_volumes
 from simgen.meshes.validate import validate_mesh
-from simgen.tissue.aha import aha_segments
 
 NODES = {"lv": 400, "biv": 500}
 COUNT = 8

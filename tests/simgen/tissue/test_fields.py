@@ -8,8 +8,8 @@ import pytest
 from shared.errors import TissueError
 from shared.mesh import LongAxis, Mesh
 from shared.tissue import LABEL_BORDER, LABEL_CORE, LABEL_HEALTHY, Material, ScarSpec, TissueSpec
+from simgen.meshes.aha import aha_segments
 from simgen.meshes.ellipsoid import lv_ellipsoid
-from simgen.tissue.aha import aha_segments
 from simgen.tissue.fields import tissue_fields
 
 

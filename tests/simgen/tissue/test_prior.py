@@ -9,9 +9,9 @@ import pytest
 
 from shared.errors import ConfigError
 from shared.tissue import APD_SCALE_RANGE, TissueSpec
+from simgen.meshes.aha import aha_segments
 from simgen.meshes.catalog import get_mesh
 from simgen.solver.simulate import SolverConfig
-from simgen.tissue.aha import aha_segments
 from simgen.tissue.prior import MAX_DRAWS, RV_ANGLE, SEGMENT_NEIGHBOURS, WALL_HEIGHTS, TissuePrior, draw_tissues
 from simgen.tissue.tune import physical
 

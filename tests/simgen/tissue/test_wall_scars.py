@@ -18,9 +18,9 @@ from shared.tissue import (
     ScarSpec,
     TissueSpec,
 )
+from simgen.meshes.aha import longitudinal_angular
 from simgen.meshes.biventricular import BiVGeometry
 from simgen.meshes.catalog import get_mesh
-from simgen.tissue.aha import longitudinal_angular
 from simgen.tissue.fields import fibrosis_mask, scar_regions, tissue_fields, wall_centre
 
 

@@ -7,8 +7,8 @@ import pytest
 
 from shared.errors import MeshError
 from shared.mesh import LongAxis, Mesh
+from simgen.meshes.aha import APEX_CAP, aha_segments, estimate_axis, longitudinal_angular
 from simgen.meshes.ellipsoid import lv_ellipsoid
-from simgen.tissue.aha import APEX_CAP, aha_segments, estimate_axis, longitudinal_angular
 
 # Default LV geometry: epicardial apex at z = -65, base plane at z = 15.
 APEX_Z, BASE_Z = -65.0, 15.0
