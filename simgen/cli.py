@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, NoReturn
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -25,25 +23,17 @@ from shared.cli import (
     parse_ids,
     print_markdown,
 )
-from shared.config import load_toml
-from shared.ecg import LEADS
 from shared.errors import InputError
-from shared.observation import node_mask
-from shared.observation import observe as observe_field
 from shared.sites import SITE_TOLERANCE
-from shared.vtk import write_time_series
 from simgen.meshes.catalog import get_mesh
 from simgen.meshes.fibres import HELIX_ENDO, HELIX_EPI
-from simgen.meshes.io import save_mesh
 from simgen.meshes.quality import mesh_quality
-from simgen.solver.cells import CELL_MODELS, APParams, cell_model
-from simgen.solver.cells.aliev_panfilov import MS_PER_TIME_UNIT, to_millivolts
+from simgen.solver.cells import CELL_MODELS, APParams
 from simgen.solver.integrators import AUTO, integrator_help
-from simgen.solver.simulate import Simulator, SolverConfig
-from simgen.tissue import default_settings, tissue_fields, tissue_spec_from_mapping
+from simgen.solver.simulate import SolverConfig
+from simgen.tissue import default_settings, named_setting
 
 if TYPE_CHECKING:
-    from shared.mesh import Mesh
     from simgen.store.estimate import BuildEstimate
 
 app = typer.Typer(
@@ -153,16 +143,11 @@ def mesh(
     region labels (AHA segments, RV free wall) as point data: what sites by region need. With --fibres also
     its fibres (point data fibre), the ventricular coordinates they come from (transmural, apicobasal,
     rv_share) and a picture of them (OUT with suffix .fibres.png)."""
+    from simgen.simulate_files import write_mesh
+
     try:
         helix = _mesh_options(fibres, helix_endo, helix_epi, filler, nodes)
-        m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
-        m, coordinates = _rule_fibres(m, helix) if fibres else (m, {})
-        out.parent.mkdir(parents=True, exist_ok=True)
-        save_mesh(m, out, {**(_labels(m).arrays() if heart else {}), **coordinates})
-        if fibres:
-            from simgen.plot import plot_fibres
-
-            plot_fibres(m, out.with_suffix(".fibres.png"), f"{m.name}: fibres on the epicardium")
+        m = write_mesh(out, source, nodes, kind, heart, units, fibres, helix, filler)
     except (InputError, OSError) as exc:
         _fail(exc, out)
     table = Table(title=f"{m.name} -> {out}")
@@ -313,103 +298,50 @@ def simulate(
     ] = None,
 ) -> None:
     """Simulate stimulation sites (node ids, points or regions) on one mesh + tissue and save the potential (mV),
-    activation times (ms) and a figure; a mesh file without --nodes is used as it is, results on its own node ids."""
-    from simgen.plot import plot_activation_maps, plot_ecg
+    activation times (ms) and a figure; a mesh file without --nodes is used as it is, results on its own node ids
+    (the Python function: :func:`simgen.simulate_files.simulate_files`)."""
+    from shared.sites import parse_points, parse_regions
+    from simgen.simulate_files import simulate_files
 
     try:
-        if record not in RECORDINGS:
-            raise InputError(f"--record: {record!r} is not one of {', '.join(RECORDINGS)}")
         helix = _mesh_options(fibres, helix_endo, helix_epi, filler, nodes)
-        m = get_mesh(source, nodes, kind, units=units, heart=heart, filler=filler)  # type: ignore[arg-type]
-        m = _with_fibres(m, fibres, helix)
-        site_ids, centres = _sites(m, sites, site_xyz, site_region, site_tolerance, heart)
-        observed = None if observe in (None, "ecg") else _observed_nodes(m, observe)
-        spec = _tissue_spec(tissue)
-        model = cell_model(cell)
-        config = SolverConfig(
-            dt=dt,
-            integrator=integrator,  # type: ignore[arg-type]
-            anisotropy=anisotropy,
-            sheet_anisotropy=sheet_anisotropy,
-            model=model,
+        run = simulate_files(
+            out,
+            source,
+            nodes,
+            kind,
+            heart,
+            units,
+            fibres,
+            helix,
+            filler,
+            anisotropy,
+            sheet_anisotropy,
+            tissue,
+            None if sites is None else parse_ids(sites, "--sites"),
+            None if site_xyz is None else parse_points(site_xyz),
+            None if site_region is None else parse_regions(site_region),
+            site_tolerance,
+            threads,
+            dt,
+            integrator,
+            cell,
+            backend,
+            device,
+            observe,
+            electrodes,
+            record,
+            noise,
+            seed,
+            vtk,
         )
-        fields = tissue_fields(m, spec)
-        started = time.perf_counter()
-        sim = Simulator(m, fields, config, backend=backend, device=device)
-        result = sim.run(site_ids, threads=threads, centres=centres)
-        seconds = time.perf_counter() - started
-        ecg = None if observe != "ecg" else _ecg(m, fields, config, result, seconds, electrodes)
     except (InputError, ValueError) as exc:
         _fail(exc)
-    act_ms = result.activation * MS_PER_TIME_UNIT
-    file_sites = m.file_ids(site_ids)
-    times_ms = result.times * MS_PER_TIME_UNIT
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(
-            out / "simulation.npz",
-            sites=file_sites,
-            site_xyz=centres,
-            times_ms=times_ms,
-            v_mv=to_millivolts(m.to_file(result.u)).astype(np.float32),
-            activation_ms=m.to_file(act_ms).astype(np.float32),
-            activated_fraction=result.activated_fraction,
-        )
-        plot_activation_maps(
-            m, act_ms, [f"{spec.name} site {s}" for s in file_sites], out / "activation.png", stim_nodes=site_ids
-        )
-        if observed is not None:
-            recording = _recording(result, observed, record, noise, np.random.default_rng(seed))
-            _write_observations(out, m, result.sites, centres, heart, observed=observed, **recording)
-        if ecg is not None:
-            np.savez_compressed(out / "ecg.npz", sites=file_sites, **ecg)
-            if "ecg_mv" in ecg:
-                recorded = ecg["ecg_mv"] + np.random.default_rng(seed).normal(0.0, noise, ecg["ecg_mv"].shape)
-                keep = ("leads", "ecg_times_ms", "electrodes", "electrode_xyz_mm")
-                recording = {"ecg_mv": recorded.astype(np.float32), **{name: ecg[name] for name in keep}}
-                _write_observations(out, m, result.sites, centres, heart, **recording)
-            if "ecg_mv" in ecg:
-                title = f"{m.name}: pseudo-ECG, site {file_sites[0]}"
-                plot_ecg(times_ms, ecg["ecg_mv"][0], LEADS, out / "ecg.png", title)
-        if vtk is not None:
-            for site, u, act in zip(file_sites, result.u, act_ms):
-                frames = {"V_mV": to_millivolts(u), "u": u}
-                write_time_series(vtk, f"site-{int(site)}", m.points, m.cells, times_ms, frames, {"activation_ms": act})
     except OSError as exc:
         _fail(exc, out)
-    where = sim.backend if sim.device is None else f"{sim.backend} on {sim.device}"
-    console.print(
-        f"{len(site_ids)} simulation(s) on {m.name} ({m.n_nodes} nodes), {sim.integrator} dt={sim.dt:.4g}, {where}, "
-        f"latest activation {np.nanmax(act_ms):.0f} ms -> {out}"
-    )
-    _report_no_wave(site_ids, result.activated_fraction)
-    _report_scar_pacing(m, fields.label, site_ids, centres, sim.stimulus_radius)
-
-
-def _ecg(m: Mesh, fields, config: SolverConfig, result, seconds: float, file: Path | None) -> dict[str, np.ndarray]:
-    """The arrays of ``ecg.npz`` (docs/formats.md): the electrodes' potentials and, where they make them, the
-    12 leads of every site's simulation, in mV against ms; prints the ECG's cost against the simulation's."""
-    from shared.ecg import ELECTRODES, PseudoECG, leads, read_electrodes, standard_electrodes
-
-    started = time.perf_counter()
-    electrodes = standard_electrodes(m) if file is None else read_electrodes(file)
-    operator = PseudoECG.assemble(m, electrodes, fields.D, config.anisotropy, config.sheet_anisotropy)
-    assembled = time.perf_counter()
-    potentials = operator.potentials(result.u)
-    twelve = set(ELECTRODES) <= set(electrodes.names)
-    ecg = {"ecg_mv": leads(potentials, electrodes).astype(np.float32), "leads": np.array(LEADS)} if twelve else {}
-    done = time.perf_counter()
-    console.print(
-        f"pseudo-ECG: operator {assembled - started:.2f} s, {len(result.u)} ECG(s) {1e3 * (done - assembled):.1f} ms "
-        f"(the simulation: {seconds:.2f} s)"
-    )
-    return {
-        **ecg,
-        "potentials_mv": potentials.astype(np.float32),
-        "ecg_times_ms": result.times * MS_PER_TIME_UNIT,
-        "electrodes": np.array(electrodes.names),
-        "electrode_xyz_mm": electrodes.positions,
-    }
+    console.print(run.summary())
+    for note in run.notes:
+        console.print(f"[yellow]{escape(note)}[/yellow]", soft_wrap=True)
 
 
 def _mesh_options(
@@ -420,150 +352,6 @@ def _mesh_options(
     needs("--helix-epi", helix_epi is not None, "--fibres", fibres)
     needs("--filler", filler is not None, "--nodes", nodes is not None)
     return (HELIX_ENDO if helix_endo is None else helix_endo, HELIX_EPI if helix_epi is None else helix_epi)
-
-
-def _rule_fibres(
-    mesh: Mesh, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)
-) -> tuple[Mesh, dict[str, np.ndarray]]:
-    """``mesh`` with rule-based fibres and sheets (:func:`~simgen.meshes.fibres.ldrb_frames`, helix angles
-    ``helix`` at the endocardium and epicardium) unless it has its own, and the ventricular coordinates of the
-    rule."""
-    from simgen.meshes.fibres import ldrb_frames
-
-    rule = ldrb_frames(mesh, *helix)
-    own = mesh.fibres is not None
-    return (mesh if own else dataclasses.replace(mesh, fibres=rule.fibres, sheets=rule.sheets)), rule.coordinates
-
-
-def _with_fibres(mesh: Mesh, fibres: bool, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)) -> Mesh:
-    """``mesh`` with rule-based fibres when ``fibres`` and it has none."""
-    return _rule_fibres(mesh, helix)[0] if fibres and mesh.fibres is None else mesh
-
-
-#: What ``simulate --observe`` records: potentials or activation-time maps.
-RECORDINGS = ("potential", "activation")
-
-
-def _recording(result, observed: np.ndarray, record: str, noise: float, rng: np.random.Generator) -> dict:
-    """The recording arrays of an observation file (docs/formats.md): ``obs_mv`` and ``times_ms``, or
-    ``activation_ms`` as a mapping system records it (:func:`shared.capture.mapped_activation`), NaN unobserved."""
-    from shared.capture import mapped_activation
-
-    if record == "potential":
-        mv = np.where(observed, to_millivolts(observe_field(result.u, observed, noise / 100.0, rng)), np.nan)
-        return {"obs_mv": mv.astype(np.float32), "times_ms": result.times * MS_PER_TIME_UNIT}
-    mapped = mapped_activation(result.activation * MS_PER_TIME_UNIT, result.u.max(axis=1), noise, rng)
-    return {"activation_ms": np.where(observed, mapped, np.nan).astype(np.float32)}
-
-
-def _write_observations(
-    out: Path, m: Mesh, sites: np.ndarray, centres: np.ndarray, heart: bool, **recording: np.ndarray
-) -> None:
-    """``observations.npz`` (docs/formats.md): the mesh, the sites, its region labels (of a heart) and the
-    recording arrays."""
-    labels = _labels(m).arrays() if heart else {}
-    np.savez_compressed(
-        out / "observations.npz", points=m.points, cells=m.cells, sites=sites, site_xyz=centres, **recording, **labels
-    )
-
-
-def _report_no_wave(sites: np.ndarray, fraction: np.ndarray) -> None:
-    """One line per site whose stimulus started no propagating wave (:mod:`shared.capture`)."""
-    from shared.capture import started_wave
-
-    for site, share in zip(sites, fraction):
-        if not started_wave(share):
-            console.print(
-                f"[yellow]site {int(site)} starts no propagating wave[/yellow]: {100 * share:.1f}% of the nodes "
-                "activate (its stimulus patch): the site lies in or against a scar core",
-                soft_wrap=True,
-            )
-
-
-def _report_scar_pacing(m: Mesh, label: np.ndarray, sites: np.ndarray, centres: np.ndarray, radius: float) -> None:
-    """One line per site paced in a scar (:data:`~simgen.solver.stimulus.IN_SCAR`) on a mesh too coarse for a wave
-    leaving a scar to converge (mean edge over :data:`~simgen.solver.stimulus.RESOLVED_SCAR_EDGE`)."""
-    from shared.tissue import LABEL_HEALTHY
-    from simgen.solver.stimulus import IN_SCAR, RESOLVED_SCAR_EDGE, patch_mask, scar_share
-
-    if not (label != LABEL_HEALTHY).any() or (edge := m.mean_edge_length()) <= RESOLVED_SCAR_EDGE:
-        return
-    shares = scar_share(m, label, patch_mask(m, sites, radius, centres=centres))
-    for site, share in zip(m.file_ids(sites), shares):
-        if share >= IN_SCAR:
-            console.print(
-                f"[yellow]site {int(site)} is paced in a scar[/yellow]: {100 * share:.0f}% of its stimulus patch lies "
-                f"in scar core or border zone; on this mesh's {edge:.1f} mm edges whether and when its wave leaves "
-                f"the scar depends on the resolution (it converges at mean edges of {RESOLVED_SCAR_EDGE:g} mm and "
-                "less: docs/method.md, 'Convergence under mesh refinement')",
-                soft_wrap=True,
-            )
-
-
-#: Node sets ``simulate --observe`` records on (besides ``all`` and the sock's ``electrodes``).
-OBSERVE_NODE_SETS = ("surface", "epicardium", "endocardium")
-
-
-def _observed_nodes(m, observe: str) -> np.ndarray:
-    """(N,) bool: the nodes of ``observe`` on mesh ``m``."""
-    from simgen.observe import Sock
-
-    if observe == "all":
-        return np.ones(m.n_nodes, dtype=bool)
-    if observe == "electrodes":
-        ids = Sock().indices(m)
-    elif observe in OBSERVE_NODE_SETS:
-        ids = m.nodes(observe)
-    else:
-        raise InputError(
-            f"--observe: unknown node set {observe!r}; use {', '.join(OBSERVE_NODE_SETS)}, electrodes or all"
-        )
-    return node_mask(m.n_nodes, ids, observe, m.name)
-
-
-def _sites(
-    m, ids: str | None, xyz: str | None, regions: str | None, tolerance: float, heart: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """The stimulation nodes of ``m`` and the points their stimuli are centred on, from ``--sites`` (the
-    file's node ids), ``--site-xyz`` (each point itself) and ``--site-region`` (:mod:`shared.sites`)."""
-    from shared.sites import nearest_nodes, parse_points, parse_regions, refuse_repeated, region_nodes, site_names
-    from simgen.solver.stimulus import check_sites
-
-    nodes, centres = [], []
-    file_ids, points, names = np.zeros(0, np.int64), None, []
-    if ids is not None or (xyz is None and regions is None):
-        file_ids = parse_ids(ids or "0", "--sites")
-        given = check_sites(m, m.from_file(file_ids))
-        nodes.append(given)
-        centres.append(m.points[given])
-    if xyz is not None:
-        points = parse_points(xyz)
-        nodes.append(nearest_nodes(m.points, points, tolerance))
-        centres.append(points)
-    if regions is not None:
-        labels = _labels(m) if heart else None
-        names = parse_regions(regions)
-        named = region_nodes(labels, m.points, names)
-        nodes.append(named)
-        centres.append(m.points[named])
-    refuse_repeated(np.concatenate(nodes), site_names(file_ids, points, names))
-    return np.concatenate(nodes), np.concatenate(centres)
-
-
-def _labels(m):
-    """The region labels of heart mesh ``m`` (:func:`simgen.meshes.regions.site_labels`)."""
-    from simgen.meshes.regions import site_labels
-
-    return site_labels(m)
-
-
-def _tissue_spec(tissue: str):
-    specs = {s.name: s for s in default_settings()}
-    if tissue in specs:
-        return specs[tissue]
-    if tissue.endswith(".toml"):
-        return tissue_spec_from_mapping(load_toml(tissue))
-    raise InputError(f"unknown tissue setting {tissue!r}: use one of {sorted(specs)} or a .toml file")
 
 
 @app.command()
@@ -729,7 +517,7 @@ def add_subject(
     from simgen.store.spec import MeshEntry
 
     def job(on_start, on_done):
-        specs = [_tissue_spec(t) for t in tissue]
+        specs = [named_setting(t) for t in tissue]
         return run_add(
             store,
             MeshEntry(mesh_id, mesh_file, nodes, kind, units=units, filler=filler),  # type: ignore[arg-type]

@@ -852,7 +852,10 @@ def write_checkpoints(d: Path, mesh) -> None:
     edited = torch.load(d / "personalized.pt", weights_only=True)
     edited["points"] = edited["points"] + 1000.0
     torch.save(edited, d / "edited.pt")
-    prediction = heart.predict([1, 2]).arrays()
+    prediction = heart.predict([1, 2]).arrays()  # its potentials a wave, not the random model's: compare reads them
+    t, x = prediction["times_ms"][None, :, None], mesh.points[None, None, :, 0] - mesh.points[:, 0].min()
+    wave = 1.0 / (1.0 + np.exp(-(t - 2.0 * x - np.array([0.0, 5.0])[:, None, None]) / 3.0))
+    prediction["v_mv"] = (100.0 * wave - 80.0).astype(np.float32)
     np.savez(d / "pred.npz", **prediction)
     renumbered = {**prediction, "v_mv": prediction["v_mv"] + 1.0, "site_xyz": prediction["site_xyz"] + 20.0}
     np.savez(d / "sim-renumbered.npz", **renumbered)

@@ -28,6 +28,7 @@ frames' quaternions (:func:`_bislerp`).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import numpy as np
@@ -51,6 +52,7 @@ __all__ = [
     "Frames",
     "ldrb_frames",
     "ldrb_fibres",
+    "with_rule_fibres",
 ]
 
 #: Default helix angles (degrees) at the endocardium and the epicardium.
@@ -290,3 +292,12 @@ def ldrb_fibres(
     """Fibres (N, 3) of a ventricular volume mesh (module docstring) and its :func:`ventricular_coordinates`."""
     frames = ldrb_frames(mesh, helix_endo, helix_epi)
     return frames.fibres, frames.coordinates
+
+
+def with_rule_fibres(mesh: Mesh, helix: tuple[float, float] = (HELIX_ENDO, HELIX_EPI)) -> tuple[Mesh, dict]:
+    """``mesh`` with rule-based fibres and sheets (:func:`ldrb_frames`, helix angles ``helix`` at the endocardium
+    and epicardium) unless it has its own, and the ventricular coordinates of the rule."""
+    rule = ldrb_frames(mesh, *helix)
+    if mesh.fibres is not None:
+        return mesh, rule.coordinates
+    return dataclasses.replace(mesh, fibres=rule.fibres, sheets=rule.sheets), rule.coordinates

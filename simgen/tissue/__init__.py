@@ -9,6 +9,7 @@ from simgen.tissue.defaults import (
     DEFAULT_SCARS,
     SCAR_CORE,
     default_settings,
+    named_setting,
     tissue_spec_from_mapping,
 )
 from simgen.tissue.fields import fibrosis_mask, scar_regions, tissue_fields, wall_centre
@@ -27,6 +28,7 @@ __all__ = [
     "SCAR_CORE",
     "default_settings",
     "tissue_spec_from_mapping",
+    "named_setting",
     "scar_regions",
     "tissue_fields",
     "fibrosis_mask",

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from shared.config import from_mapping
+from shared.config import from_mapping, load_toml
+from shared.errors import InputError
 from shared.tissue import DEFAULT_SCARS, Material, ScarSpec, TissueSpec
 
 __all__ = [
@@ -21,6 +22,7 @@ __all__ = [
     "DEFAULT_SCARS",
     "default_settings",
     "tissue_spec_from_mapping",
+    "named_setting",
 ]
 
 #: Scar core: does not propagate, strongly reduced coupling.
@@ -64,3 +66,13 @@ def tissue_spec_from_mapping(data: dict[str, Any]) -> TissueSpec:
     out-of-range values raise :class:`shared.errors.TissueError`.
     """
     return from_mapping(TissueSpec, data)
+
+
+def named_setting(tissue: str) -> TissueSpec:
+    """One of :func:`default_settings` by name, or the setting a ``.toml`` file holds."""
+    specs = {s.name: s for s in default_settings()}
+    if tissue in specs:
+        return specs[tissue]
+    if tissue.endswith(".toml"):
+        return tissue_spec_from_mapping(load_toml(tissue))
+    raise InputError(f"unknown tissue setting {tissue!r}: use one of {sorted(specs)} or a .toml file")
