@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from simgen.demo import run_demo
     from simgen.meshes import biv_ellipsoid, get_mesh, load_mesh, lv_ellipsoid, sample_anatomies, save_mesh
     from simgen.observe import AllSurface, Epicardial, Sock, make_observation
-    from simgen.simulate_files import simulate_files, write_mesh
+    from simgen.outputs import simulate_files, write_mesh
     from simgen.solver import APParams, SimulationResult, Simulator, SolverConfig, simulate
     from simgen.store import BuildSpec, load_spec, make_plan, spec_from_mapping, spec_hash
     from simgen.store.card import dataset_card
@@ -55,7 +55,7 @@ _EXPORTS = {
     "regenerate": "simgen.store.edit",
     "dataset_card": "simgen.store.card",
     "run_demo": "simgen.demo",
-    **dict.fromkeys(["simulate_files", "write_mesh"], "simgen.simulate_files"),
+    **dict.fromkeys(["simulate_files", "write_mesh"], "simgen.outputs"),
 }
 
 __all__ = [

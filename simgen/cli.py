@@ -143,7 +143,7 @@ def mesh(
     region labels (AHA segments, RV free wall) as point data: what sites by region need. With --fibres also
     its fibres (point data fibre), the ventricular coordinates they come from (transmural, apicobasal,
     rv_share) and a picture of them (OUT with suffix .fibres.png)."""
-    from simgen.simulate_files import write_mesh
+    from simgen.outputs import write_mesh
 
     try:
         helix = _mesh_options(fibres, helix_endo, helix_epi, filler, nodes)
@@ -299,9 +299,9 @@ def simulate(
 ) -> None:
     """Simulate stimulation sites (node ids, points or regions) on one mesh + tissue and save the potential (mV),
     activation times (ms) and a figure; a mesh file without --nodes is used as it is, results on its own node ids
-    (the Python function: :func:`simgen.simulate_files.simulate_files`)."""
+    (the Python function: :func:`simgen.outputs.simulate_files`)."""
     from shared.sites import parse_points, parse_regions
-    from simgen.simulate_files import simulate_files
+    from simgen.outputs import simulate_files
 
     try:
         helix = _mesh_options(fibres, helix_endo, helix_epi, filler, nodes)

@@ -280,3 +280,19 @@ def test_simulate_records_activation_maps_and_writes_a_time_series(tmp_path):
     assert pvd.count("<DataSet") == 55 and (tmp_path / "v" / "site-400_0054.vtu").is_file()
     bad = runner.invoke(app, [*args, "--observe", "surface", "--record", "lat"], terminal_width=200)
     assert bad.exit_code == 2 and "--record: 'lat' is not one of potential, activation" in text(bad)
+
+
+def test_simulate_writes_what_its_python_function_writes(tmp_path):
+    """``simgen simulate`` parses and prints; :func:`simgen.simulate_files` writes the same files."""
+    import simgen
+
+    options = ["--nodes", "300", "--tissue", "scar-apex", "--sites", "0,40", "--observe", "epicardium"]
+    result = runner.invoke(app, ["simulate", str(tmp_path / "cli"), *options])
+    assert result.exit_code == 0, result.output
+    run = simgen.simulate_files(tmp_path / "py", nodes=300, tissue="scar-apex", sites=[0, 40], observe="epicardium")
+    assert run.summary().split(" -> ")[0] in text(result)
+    for name in ("simulation.npz", "observations.npz"):
+        with np.load(tmp_path / "cli" / name) as a, np.load(tmp_path / "py" / name) as b:
+            assert sorted(a.files) == sorted(b.files)
+            for key in a.files:
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"{name} {key}")
