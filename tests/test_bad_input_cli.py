@@ -563,14 +563,16 @@ CASES: dict[str, dict[str, Case]] = {
             ("learner", "compare", "{d}/obs.npz", "{d}/obs.npz"), ("obs.npz is not a prediction file: it lacks",)
         ),
         "compare a prediction with itself": Case(
-            ("learner", "compare", "{d}/pred.npz", "{d}/pred.npz"), ("hold the same v_mv: a file compared with itself",)
+            ("learner", "compare", "{d}/predicted.npz", "{d}/predicted.npz"),
+            ("hold the same v_mv: a file compared with itself",),
         ),
         "compare on a renumbered mesh": Case(
-            ("learner", "compare", "{d}/pred.npz", "{d}/sim-renumbered.npz"),
+            ("learner", "compare", "{d}/predicted.npz", "{d}/sim-renumbered.npz"),
             ("site 1 is at", "the files number the nodes of different meshes"),
         ),
         "compare a simulation whose v_mv holds u": Case(
-            ("learner", "compare", "{d}/pred.npz", "{d}/sim-u.npz"), ("sim-u.npz: v_mv ranges from", "never near rest")
+            ("learner", "compare", "{d}/predicted.npz", "{d}/sim-u.npz"),
+            ("sim-u.npz: v_mv ranges from", "never near rest"),
         ),
         "predict site out of range": Case(
             ("learner", "predict", "{d}/personalized.pt", "--sites", "999"), ("stimulation nodes [999]",)
@@ -856,7 +858,7 @@ def write_checkpoints(d: Path, mesh) -> None:
     t, x = prediction["times_ms"][None, :, None], mesh.points[None, None, :, 0] - mesh.points[:, 0].min()
     wave = 1.0 / (1.0 + np.exp(-(t - 2.0 * x - np.array([0.0, 5.0])[:, None, None]) / 3.0))
     prediction["v_mv"] = (100.0 * wave - 80.0).astype(np.float32)
-    np.savez(d / "pred.npz", **prediction)
+    np.savez(d / "predicted.npz", **prediction)  # not pred.npz: the predict cases write that
     renumbered = {**prediction, "v_mv": prediction["v_mv"] + 1.0, "site_xyz": prediction["site_xyz"] + 20.0}
     np.savez(d / "sim-renumbered.npz", **renumbered)
     np.savez(d / "sim-u.npz", **{**prediction, "v_mv": (prediction["v_mv"] + 80.0) / 100.0})
