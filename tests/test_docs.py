@@ -85,3 +85,36 @@ def test_licence_and_citation_agree_with_pyproject():
     assert citation["license"] == licence == "MIT" and "MIT License" in (ROOT / "LICENSE").read_text()
     assert citation["version"] == project["version"] and citation["cff-version"] == "1.2.0"
     assert "Bayesian Meta-Learning" in citation["preferred-citation"]["title"]
+
+
+RESULTS = ROOT / "docs" / "results.md"
+#: A figure quoted elsewhere: a link whose text holds numbers, to a section of docs/results.md.
+QUOTE = re.compile(r"\[([^\]]*\d[^\]]*)\]\((?:[./]*(?:docs/)?)results\.md#([\w-]+)\)")
+NUMBER = re.compile(r"\d[\d,]*(?:\.\d+)?")
+
+
+def _section(anchor: str) -> str:
+    """The text of docs/results.md under the heading ``anchor`` (its subsections included)."""
+    lines, found, level = RESULTS.read_text().splitlines(), [], None
+    for line in lines:
+        depth = len(line) - len(line.lstrip("#")) if line.startswith("#") else 0
+        if depth and level is not None and depth <= level:
+            break
+        if depth and level is None and _slug(line.lstrip("#")) == anchor:
+            level = depth
+        if level is not None:
+            found.append(line)
+    return "\n".join(found)
+
+
+@pytest.mark.parametrize("page", [p for p in LINKED if p != RESULTS], ids=lambda p: str(p.relative_to(ROOT)))
+def test_quoted_figures_are_those_of_their_results_block(page: Path):
+    """A figure quoted outside docs/results.md links to its section there, which holds every number it quotes."""
+    wrong = []
+    for text, anchor in QUOTE.findall(page.read_text()):
+        section = _section(anchor).replace(",", "")
+        for number in NUMBER.findall(text):
+            plain = number.replace(",", "")
+            if not re.search(rf"(?<![\d.]){re.escape(plain)}(?![\d])", section):
+                wrong.append(f"{number} of [{text}] is not in results.md#{anchor}")
+    assert not wrong, "\n".join(wrong)
