@@ -8,15 +8,15 @@
   triangle soup, a surface that passes through itself or one merged from
   overlapping parts included (its inside is decided by winding number), and
   rebuilds the surface within an envelope of the input (:data:`ENVELOPE`
-  times ``length``), so surface nodes are new ones. 18-120 s for 2,000 nodes
-  on two cores, with smallest dihedral angles of 13-27 degrees (bench/fill.py).
+  times ``length``), so surface nodes are new ones; slower than TetGen, with
+  larger smallest dihedral angles (``bench.fill``, docs/results.md).
 - ``"tetgen"``: TetGen through the ``tetgen`` wheel, keeping the given
   surface as it is (no nodes inserted on it) with a radius-edge bound; it
-  refuses a surface that intersects itself. 3-16 s for 2,000 nodes, smallest
-  dihedral angles 4-5 degrees.
+  refuses a surface that intersects itself.
 - ``"auto"`` (the default, :func:`resolve_filler`): TetGen where it is
   installed and the surface does not cross itself, so that meshes it made
-  before stay the same; fTetWild otherwise.
+  before stay the same; fTetWild otherwise, and where TetGen refuses the
+  surface after all (:func:`simgen.meshes.resample.tetrahedralise`).
 
 ``pytetwild``'s package imports ``pyvista`` (for an accessor on its meshes),
 which this project does not need: :func:`_ftetwild` loads its compiled
