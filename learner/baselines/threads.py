@@ -2,11 +2,10 @@
 
 The GP of a BO step (a few hundred points at most) and the tissue VAE are far
 too small to gain from threads, and on a machine busy with other jobs torch's
-thread pool loses badly: one 7-parameter BO step took 12.6 s on two threads
-against 0.7 s on one (2-core machine running two training jobs), so the
-baselines pin themselves to one thread while they run. The pin is re-applied
-around each BO step rather than once: a call into the numba simulator resets
-the OpenMP thread count that torch reads (measured: 1 before, 2 after).
+thread pool loses badly (its threads wait on each other), so the baselines pin
+themselves to one thread while they run. The pin is re-applied around each BO
+step rather than once: a call into the numba simulator resets the OpenMP
+thread count that torch reads.
 """
 
 from __future__ import annotations
