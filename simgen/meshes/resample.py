@@ -252,7 +252,8 @@ def _largest_piece(points: NDArray[np.float64], tets: NDArray[np.int64]) -> tupl
 def _manifold(points: NDArray[np.float64], tets: NDArray[np.int64], rounds: int = 5) -> tuple[NDArray, NDArray]:
     """``(points, tets)`` without pinches: at each node where the boundary is not a manifold (two parts of the
     volume meeting at a node or an edge), the tetrahedra around it that are not face-connected to its largest
-    fan are dropped, then specks and unused nodes (:func:`_largest_piece`); up to ``rounds`` times."""
+    fan are dropped (all of them, a dent in the surface, when they are one fan and the boundary is pinched
+    there all the same), then specks and unused nodes (:func:`_largest_piece`); up to ``rounds`` times."""
     for _ in range(rounds):
         bad = non_manifold_nodes(tets)
         if not len(bad):
@@ -268,8 +269,9 @@ def _manifold(points: NDArray[np.float64], tets: NDArray[np.int64], rounds: int 
             order = np.argsort(inverse[shared], kind="stable")
             pairs = owner[shared][order].reshape(-1, 2)
             graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(around),) * 2)
-            _, fan = connected_components(graph, directed=False)
-            drop[around[fan != np.bincount(fan).argmax()]] = True
+            count, fan = connected_components(graph, directed=False)
+            # several fans: keep the largest; one fan whose boundary is pinched anyway: the node's star goes (a dent)
+            drop[around if count == 1 else around[fan != np.bincount(fan).argmax()]] = True
         if not drop.any():
             break
         log.info("fTetWild: dropped %d tetrahedra pinching the boundary at %d node(s)", int(drop.sum()), len(bad))
