@@ -85,6 +85,21 @@ def test_unfinished_chunks_are_left_out(tiny_store, tmp_path):
     assert [ds[i]["site_index"] for i in range(len(ds))] == [0, 1, 2, 3, 8, 9, 10, 11]
 
 
+def test_a_damaged_done_flag_is_named_with_its_chunk_and_the_repair(tiny_store, tmp_path):
+    from shared.errors import DamagedData
+
+    store = tmp_path / "copy.zarr"
+    shutil.copytree(tiny_store, store)
+    flag = store / "subjects/lv-healthy/done/c/1"
+    data = bytearray(flag.read_bytes())
+    data[-1] ^= 0xFF  # its CRC32C no longer matches
+    flag.write_bytes(bytes(data))
+    with pytest.raises(
+        DamagedData, match=r"array done, site of chunk 1 \(file subjects/lv-healthy/done/c/1\).*simgen repair"
+    ):
+        SimulationDataset(store, subjects=["lv-healthy"])
+
+
 def test_normalisation_with_store_or_subset_statistics(tiny_store):
     raw, scaled = SimulationDataset(tiny_store)[3], SimulationDataset(tiny_store, normalize=True)[3]
     stats = read_statistics(tiny_store)
