@@ -6,7 +6,8 @@ array and the likely mistake; :func:`unmapped_holes` finds what a warning names.
 - potentials in mV: finite, within :data:`~shared.units.MV_RANGE` and
   reaching below :data:`REST_ABOVE_MV` (``u`` given as millivolts never does);
 - frame times: a recording longer than :data:`SPAN_FACTOR` model windows has
-  its times in ms given as model time units;
+  its times in ms given as model time units (a recording in ms up to that
+  long is read, its frames past the window left out);
 - activation maps: times spread over at least :data:`MIN_MAP_SPREAD_MS` (all
   zero, or seconds, otherwise), and each map mostly within the model's window;
 - ECGs: no recording zero in every lead, and the limb leads keep Einthoven's
@@ -47,8 +48,9 @@ __all__ = [
 
 #: Recordings in mV whose lowest value is above this never come near rest (-80 mV): ``u`` given as mV.
 REST_ABOVE_MV = -50.0
-#: A recording spanning more than this many model windows: frame times in ms given as model time units.
-SPAN_FACTOR = 4.0
+#: A recording spanning more than this many model windows: frame times in ms given as model time units (which
+#: stretches a recording of the window about 12.9 times); a recording of one paced beat is far shorter.
+SPAN_FACTOR = 8.0
 #: Activation times spread over less than this (ms) across a map: all zero, or seconds.
 MIN_MAP_SPREAD_MS = 1.0
 #: Electrodes farther than this many heart sizes from the heart's centre: positions in another unit.
@@ -80,7 +82,7 @@ def check_frame_span(times: NDArray, window: NDArray) -> None:
         raise InputError(
             f"times: the recordings span {span:.4g} model time units, {span / model:.0f}x the model's window of "
             f"{model:.4g} ({model * MS_PER_TIME_UNIT:.0f} ms): times in ms given as model time units "
-            f"({MS_PER_TIME_UNIT:g} ms each)? give milliseconds as times_ms"
+            f"({MS_PER_TIME_UNIT:g} ms each)? give milliseconds as times_ms, and one paced beat from its stimulus"
         )
 
 
