@@ -28,6 +28,7 @@ from scipy.sparse.csgraph import connected_components
 from shared.ecg import LEADS
 from shared.errors import InputError
 from shared.mesh import PLAUSIBLE_HEART_MM, Mesh
+from shared.topology import boundary_faces
 from shared.units import MS_PER_TIME_UNIT, MV_RANGE
 
 __all__ = [
@@ -177,11 +178,7 @@ def check_points_scale(points: NDArray, name: str) -> None:
 def _surface_edges(mesh: Mesh) -> NDArray[np.int64]:
     """The edges (E, 2) of the mesh's boundary triangles (of every triangle, for a surface mesh): neighbours along
     the surface, never through the wall."""
-    triangles = mesh.cells
-    if mesh.cells.shape[1] == 4:
-        faces = np.sort(mesh.cells[:, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]].reshape(-1, 3), axis=1)
-        unique, counts = np.unique(faces, axis=0, return_counts=True)
-        triangles = unique[counts == 1]
+    triangles = boundary_faces(mesh.cells) if mesh.cells.shape[1] == 4 else mesh.cells
     return np.asarray(triangles, np.int64)[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
 
 
