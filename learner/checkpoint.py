@@ -56,8 +56,10 @@ def _digest(value: torch.Tensor | np.ndarray) -> str:
 
 
 def payload_digests(payload: dict[str, Any]) -> dict[str, str]:
-    """The SHA-256 (hex) of every tensor and array of ``payload`` (dtype, shape and bytes), by key path."""
-    return {path: _digest(value) for path, value in _arrays(payload, "") if not path.startswith(DIGESTS)}
+    """The SHA-256 (hex) of every tensor and array of ``payload`` (dtype, shape and bytes), by key path; the
+    entry :data:`DIGESTS` itself left out."""
+    entries = {key: value for key, value in payload.items() if key != DIGESTS}
+    return {path: _digest(value) for path, value in _arrays(entries, "")}
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
@@ -113,7 +115,7 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> dict[str, Any]
 
 def _check_digests(path: Path, data: dict[str, Any]) -> None:
     """Refuse a checkpoint whose tensors differ from the digests it was written with, naming them."""
-    recorded, found = data[DIGESTS], payload_digests({k: v for k, v in data.items() if k not in ("format", DIGESTS)})
+    recorded, found = data[DIGESTS], payload_digests({k: v for k, v in data.items() if k != "format"})
     if not isinstance(recorded, dict):
         raise InputError(f"{path}: its digests entry is not a mapping of array digests (the file was edited)")
     changed = sorted(k for k in set(recorded) | set(found) if recorded.get(k) != found.get(k))

@@ -398,9 +398,10 @@ def predict(
         ids = parse_ids(sites, "--sites") if sites is not None else []
         points = parse_points(site_xyz) if site_xyz is not None else None
         regions = parse_regions(site_region) if site_region is not None else []
-        on_estimate = lambda seconds, mb: console.print(  # noqa: E731 - one line of output
-            f"{samples} draws of c: about {seconds:.1f} s and {mb:.0f} MB", soft_wrap=True
-        )
+
+        def on_estimate(seconds: float, mb: float) -> None:
+            console.print(f"{samples} draws of c: about {seconds:.1f} s and {mb:.0f} MB", soft_wrap=True)
+
         pred = heart.predict(heart.sites(ids, points, regions, site_tolerance), samples, on_estimate=on_estimate)
         estimate = heart.tissue() if tissue is not None else None
     except InputError as exc:

@@ -224,10 +224,11 @@ def stimulation_sites(
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """The stimulation nodes of ``m`` and the points their stimuli are centred on, from node ids of the mesh's
     file, points (each itself) and region names (:mod:`shared.sites`); a node named twice is refused."""
+    if ids is None and xyz is None and regions is None:
+        ids = [0]  # no site named: node 0
     nodes, centres = [], []
     file_ids = np.asarray([] if ids is None else ids, np.int64)
-    if ids is not None or (xyz is None and regions is None):
-        file_ids = np.asarray([0] if ids is None else ids, np.int64)
+    if ids is not None:
         given = check_sites(m, m.from_file(file_ids))
         nodes.append(given)
         centres.append(m.points[given])
@@ -238,8 +239,9 @@ def stimulation_sites(
         named = region_nodes(site_labels(m) if heart else None, m.points, regions)
         nodes.append(named)
         centres.append(m.points[named])
-    refuse_repeated(np.concatenate(nodes), site_names(file_ids, xyz, regions or []))
-    return np.concatenate(nodes), np.concatenate(centres)
+    sites = np.concatenate(nodes)
+    refuse_repeated(sites, site_names(file_ids, xyz, regions or []))
+    return sites, np.concatenate(centres)
 
 
 def observed_nodes(m: Mesh, observe: str) -> NDArray[np.bool_]:
