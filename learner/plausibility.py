@@ -58,6 +58,9 @@ MIN_MAP_SPREAD_MS = 1.0
 ELECTRODES_FAR = 20.0
 #: Electrodes spread over less than this share of the heart's size: all at one point.
 ELECTRODES_SPREAD = 0.25
+#: Smallest unmapped patch :func:`unmapped_holes` names: this many nodes, and this share of the map (a few nodes
+#: left out of a node set are no scar).
+MIN_HOLE_NODES, MIN_HOLE_SHARE = 3, 0.01
 #: A lead relation's residual allowed beyond the noise: this share of the limb leads' RMS.
 LEAD_RESIDUAL = 0.1
 
@@ -184,8 +187,9 @@ def _surface_edges(mesh: Mesh) -> NDArray[np.int64]:
 
 def unmapped_holes(mesh: Mesh, unmapped: NDArray, mapped: NDArray) -> tuple[int, int]:
     """Nodes and regions of ``unmapped`` (N,) bool nodes on the mesh's surface that ``mapped`` nodes enclose: each
-    region a connected patch of the surface whose every neighbour is mapped, smaller than a quarter of the map
-    (a scar a mapping system exported without times)."""
+    region a connected patch of the surface whose every neighbour is mapped, of at least :data:`MIN_HOLE_NODES`
+    nodes and :data:`MIN_HOLE_SHARE` of the map, and smaller than a quarter of it (a scar a mapping system
+    exported without times)."""
     pairs = _surface_edges(mesh)
     surface = np.zeros(mesh.n_nodes, bool)
     surface[pairs.ravel()] = True
@@ -200,5 +204,6 @@ def unmapped_holes(mesh: Mesh, unmapped: NDArray, mapped: NDArray) -> tuple[int,
     edges = np.bincount(patch, minlength=count)
     to_mapped = np.bincount(patch, weights=mapped[neighbour], minlength=count)
     size = np.bincount(component[inside], minlength=count)
-    hole = (size > 0) & (edges > 0) & (to_mapped == edges) & (size < 0.25 * mapped.sum())
+    smallest = max(MIN_HOLE_NODES, MIN_HOLE_SHARE * mapped.sum())
+    hole = (size >= smallest) & (edges > 0) & (to_mapped == edges) & (size < 0.25 * mapped.sum())
     return int(size[hole].sum()), int(hole.sum())
